@@ -1,0 +1,1 @@
+"""Calibration procedures (camera, turntable axis, light position, radiometric) writing files the rig refers to."""

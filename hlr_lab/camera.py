@@ -1,0 +1,132 @@
+"""The camera model: OpenCV pinhole intrinsics + distortion, and a pose (world → camera).
+
+Camera frame as OpenCV: x right, y down, z forward. Pixel centres are at integer coordinates
+(OpenCV's convention), so pixel (0, 0) covers [-0.5, 0.5]².
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """matrix (3, 3) K; distortion (k,) OpenCV coefficients (k1, k2, p1, p2[, k3]);
+    rotation (3, 3) and translation (3,) map world points into the camera frame: x_c = R x_w + t."""
+
+    matrix: np.ndarray
+    distortion: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    width: int
+    height: int
+    _dist5: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        d = np.zeros(5)
+        coeffs = np.asarray(self.distortion, dtype=np.float64).ravel()
+        if len(coeffs) > 5:
+            raise ValueError("only the k1, k2, p1, p2, k3 distortion model is supported")
+        d[: len(coeffs)] = coeffs
+        object.__setattr__(self, "_dist5", d)
+
+    @classmethod
+    def look_at(cls, position, target, *, matrix, width: int, height: int, distortion=(), up=(0.0, 0.0, 1.0)):
+        """A camera at ``position`` looking at ``target`` with world ``up`` pointing up in the image."""
+        position, target, up = (np.asarray(a, dtype=np.float64) for a in (position, target, up))
+        z = target - position
+        z /= np.linalg.norm(z)
+        x = np.cross(z, up)
+        if np.linalg.norm(x) < 1e-9:
+            raise ValueError("the viewing direction is parallel to 'up'; choose another up vector")
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        rotation = np.stack([x, y, z])
+        return cls(np.asarray(matrix, float), np.asarray(distortion, float), rotation, -rotation @ position,
+                   int(width), int(height))
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) the optical centre in world coordinates."""
+        return -self.rotation.T @ self.translation
+
+    @property
+    def forward(self) -> np.ndarray:
+        """(3,) the optical axis in world coordinates."""
+        return self.rotation[2]
+
+    def in_frame(self, world_from_frame: np.ndarray) -> Camera:
+        """The same physical camera expressed in another frame; ``world_from_frame`` is 4×4 rigid."""
+        a, b = world_from_frame[:3, :3], world_from_frame[:3, 3]
+        return Camera(self.matrix, self.distortion, self.rotation @ a, self.rotation @ b + self.translation,
+                      self.width, self.height)
+
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) world points → (N, 3) camera-frame points."""
+        return points @ self.rotation.T + self.translation
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) world points → pixels (N, 2) and depth z (N,); distortion applied as OpenCV does.
+
+        Points behind the camera (z ≤ 0) get NaN pixels.
+        """
+        pc = self.to_camera(np.asarray(points, dtype=np.float64))
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = pc[:, 0] / z, pc[:, 1] / z
+        k1, k2, p1, p2, k3 = self._dist5
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        k = self.matrix
+        uv = np.stack([k[0, 0] * xd + k[0, 1] * yd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
+        uv[z <= 0] = np.nan
+        return uv, z
+
+    def in_image(self, pixels: np.ndarray) -> np.ndarray:
+        """(N,) bool: the pixel lies on the sensor."""
+        u, v = pixels[:, 0], pixels[:, 1]
+        with np.errstate(invalid="ignore"):
+            return (u >= -0.5) & (u < self.width - 0.5) & (v >= -0.5) & (v < self.height - 0.5)
+
+    def pixel_rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) pixels → ray origins (N, 3) and unit directions (N, 3) in world coordinates."""
+        pts = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if np.any(self._dist5):
+            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+            norm = cv2.undistortPointsIter(pts, self.matrix, self._dist5, None, None, criteria).reshape(-1, 2)
+        else:
+            k = self.matrix
+            y = (pts[:, 0, 1] - k[1, 2]) / k[1, 1]
+            x = (pts[:, 0, 0] - k[0, 2] - k[0, 1] * y) / k[0, 0]
+            norm = np.stack([x, y], axis=1)
+        d_cam = np.concatenate([norm, np.ones((len(norm), 1))], axis=1)
+        d_world = d_cam @ self.rotation  # R^T d for each row
+        d_world /= np.linalg.norm(d_world, axis=1, keepdims=True)
+        return np.broadcast_to(self.centre, d_world.shape).copy(), d_world
+
+    def pixel_grid(self) -> np.ndarray:
+        """(H·W, 2) every pixel centre, row-major (row = v)."""
+        v, u = np.mgrid[0 : self.height, 0 : self.width]
+        return np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+
+    def projected_area_px(self, points: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
+        """(N,) image area in pixels of small surface patches.
+
+        The patch subtends a solid angle area·cos(view angle)/d²; on the image plane (z = 1) that solid
+        angle covers 1/cos³φ as much at an angle φ off the optical axis, and cos φ = z/d, so the area is
+        area·cos(view)·d/z³, times fx·fy for pixels. The distortion's local magnification is ignored
+        (a few per cent at the image corners).
+        """
+        pc = self.to_camera(points)
+        z = pc[:, 2]
+        to_cam = self.centre - points
+        dist = np.linalg.norm(to_cam, axis=1)
+        cos_view = np.einsum("ij,ij->i", normals, to_cam) / np.maximum(dist, 1e-300)
+        zpos = np.maximum(z, 1e-300)
+        return np.where(z > 0, areas * np.clip(cos_view, 0, None) * dist / zpos**3
+                        * self.matrix[0, 0] * self.matrix[1, 1], 0.0)

@@ -1,0 +1,27 @@
+"""The application's errors: one tree rooted at :class:`HlrLabError` (see :mod:`drivers.errors`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from drivers.errors import HlrLabError
+
+__all__ = ["HlrLabError", "InputError", "PlanningError"]
+
+
+class InputError(HlrLabError):
+    """Bad input: names the offending file and field, and says what to do.
+
+    ``str(err)`` is the one line shown to the user, e.g.
+    ``plan.json: poses[3].light.elevation_deg: 97 is outside [-10, 85]; re-plan with this rig``.
+    """
+
+    def __init__(self, message: str, *, path: str | Path | None = None, field: str | None = None):
+        self.path = None if path is None else Path(path)
+        self.field = field
+        where = ": ".join(str(p) for p in (path, field) if p is not None)
+        super().__init__(f"{where}: {message}" if where else message)
+
+
+class PlanningError(HlrLabError):
+    """The planner cannot work with this geometry (e.g. the object does not fit inside the sphere)."""

@@ -1,0 +1,85 @@
+"""Reading and writing the project's files: one clear error per bad file, nothing half-written."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import tomllib
+from pathlib import Path
+from typing import TypeVar
+
+import pydantic
+
+from hlr_lab.errors import InputError
+
+Model = TypeVar("Model", bound=pydantic.BaseModel)
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write to a temporary file beside ``path``, fsync, then rename over it: a crash leaves the old
+    file or the new one, never a mix."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
+    atomic_write_text(path, model.model_dump_json(indent=1, exclude_none=True) + "\n")
+
+
+def read_json(path: str | Path) -> object:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file; check the path", path=path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"not valid JSON ({exc})", path=path) from exc
+
+
+def read_toml(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file; check the path", path=path)
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"not valid TOML ({exc})", path=path) from exc
+
+
+def check_header(data: object, path: Path, fmt: str, versions: set[int], header: str | None = None) -> None:
+    """Reject a file of another format or an unknown version before validating its body."""
+    block = data.get(header, {}) if isinstance(data, dict) and header else data
+    if not isinstance(block, dict) or block.get("format") != fmt:
+        where = f"{header}.format" if header else "format"
+        raise InputError(f"this is not an {fmt} file (expected format = {fmt!r})", path=path, field=where)
+    if block.get("version") not in versions:
+        raise InputError(f"version {block.get('version')!r} is not one this hlr-lab reads "
+                         f"({', '.join(map(str, sorted(versions)))}); upgrade hlr-lab or re-create the file",
+                         path=path, field=f"{header}.version" if header else "version")
+
+
+def validate(model: type[Model], data: object, path: str | Path) -> Model:
+    """Validate ``data`` against ``model``; the first problem becomes an InputError naming the field."""
+    try:
+        return model.model_validate(data)
+    except pydantic.ValidationError as exc:
+        err = exc.errors()[0]
+        field = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err["loc"]).lstrip(".")
+        more = f" (and {exc.error_count() - 1} more problems)" if exc.error_count() > 1 else ""
+        raise InputError(f"{err['msg']}{more}", path=path, field=field or None) from exc
