@@ -120,6 +120,15 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def arrays_sha256(*arrays: np.ndarray | None) -> str:
+    """Identity of a mesh that has no file (built-in objects): sha256 over its arrays' bytes."""
+    h = hashlib.sha256()
+    for a in arrays:
+        if a is not None:
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
 def load_mesh(path: str | Path, texture: str | Path | None = None, *, need_colour: bool = False) -> ColouredMesh:
     """Read an OBJ, PLY or glTF/GLB mesh with vertex colours or a UV texture.
 

@@ -1,8 +1,8 @@
 """Built-in procedural objects, so that planning and the demo run with no asset files.
 
 ``pebble``: a smooth, slightly lumpy body about 12 cm across whose six faces (±x, ±y, ±z of the
-undeformed sphere) are painted in five colours: the ±x patches share one colour, so "same colour
-but not connected" is exercised. :func:`paint_patches` colours any mesh in K spatial patches (used
+undeformed sphere) are painted in four colours: the ±x patches share one colour and so do ±z (the top,
+and the bottom that rests on the table), so "same colour but not connected" is exercised. :func:`paint_patches` colours any mesh in K spatial patches (used
 to give the Stanford bunny the paper's 8 regions).
 """
 
@@ -13,9 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 from scipy.cluster.vq import kmeans2
+from scipy.spatial import cKDTree
 
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import ColouredMesh
+from hlr_lab.mesh import ColouredMesh, arrays_sha256
 
 BUILTIN_PREFIX = "builtin:"
 
@@ -42,18 +43,24 @@ def pebble(subdivisions: int = 5, radius_m: float = 0.06) -> ProceduralObject:
     vertices = radius_m * d * r[:, None] * np.array([1.0, 0.85, 0.8])
     axis = np.argmax(np.abs(d), axis=1)
     patch = axis * 2 + (np.take_along_axis(d, axis[:, None], 1)[:, 0] < 0)  # +x −x +y −y +z −z → 0…5
-    material = np.array([0, 0, 1, 2, 3, 4])[patch]
-    mesh = ColouredMesh(vertices, np.asarray(sphere.faces, dtype=np.int64), PALETTE[material])
+    material = np.array([0, 0, 1, 2, 3, 3])[patch]
+    faces, colours = np.asarray(sphere.faces, dtype=np.int64), PALETTE[material]
+    mesh = ColouredMesh(vertices, faces, colours, sha256=arrays_sha256(vertices, faces, colours))
     return ProceduralObject(mesh, material, patch)
 
 
-def paint_patches(mesh: ColouredMesh, k: int, *, seed: int = 0) -> ProceduralObject:
-    """Colour ``mesh`` in ``k`` spatially compact patches (k-means on vertex positions), one colour each."""
+def paint_patches(mesh: ColouredMesh, k: int, *, seed: int = 0, among: np.ndarray | None = None
+                  ) -> ProceduralObject:
+    """Colour ``mesh`` in ``k`` spatially compact patches, one colour each: k-means on the positions of
+    the vertices selected by ``among`` (V,) bool (default all), every vertex joining the nearest centre."""
     if k > len(PALETTE):
         raise ValueError(f"at most {len(PALETTE)} distinct patch colours")
-    _, patch = kmeans2(mesh.vertices, k, seed=np.random.default_rng(seed), minit="++")
+    pts = mesh.vertices if among is None else mesh.vertices[among]
+    centres, _ = kmeans2(pts, k, seed=np.random.default_rng(seed), minit="++")
+    patch = cKDTree(centres).query(mesh.vertices)[1]
+    colours = PALETTE[patch]
     return ProceduralObject(
-        ColouredMesh(mesh.vertices, mesh.faces, PALETTE[patch], source=mesh.source, sha256=mesh.sha256),
+        ColouredMesh(mesh.vertices, mesh.faces, colours, sha256=arrays_sha256(mesh.vertices, mesh.faces, colours)),
         patch, patch)
 
 

@@ -107,17 +107,23 @@ class RayCaster:
                        depth.reshape(h, w), bary.reshape(h, w, 3))
 
 
-def visible_vertices(caster: RayCaster, camera: Camera, *, max_view_angle_deg: float) -> np.ndarray:
-    """(V,) bool: vertex in the image, facing the camera within ``max_view_angle_deg`` and unoccluded.
+def visible_points(caster: RayCaster, camera: Camera, points: np.ndarray, normals: np.ndarray, *,
+                   max_view_angle_deg: float) -> np.ndarray:
+    """(N,) bool: surface point in the image, facing the camera within ``max_view_angle_deg`` and unoccluded.
 
-    ``camera`` is expressed in the mesh frame.
+    ``camera``, ``points`` (N, 3) and ``normals`` (N, 3) are in the mesh frame.
     """
-    mesh = caster.mesh
-    pixels, z = camera.project(mesh.vertices)
-    to_cam = camera.centre - mesh.vertices
-    cos_view = np.einsum("ij,ij->i", mesh.vertex_normals, to_cam) / np.linalg.norm(to_cam, axis=1)
+    pixels, z = camera.project(points)
+    to_cam = camera.centre - points
+    cos_view = np.einsum("ij,ij->i", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
     candidate = (z > 0) & camera.in_image(pixels) & (cos_view >= np.cos(np.radians(max_view_angle_deg)))
-    visible = np.zeros(len(mesh.vertices), dtype=bool)
+    visible = np.zeros(len(points), dtype=bool)
     idx = np.flatnonzero(candidate)
-    visible[idx] = caster.visible_from(camera.centre, mesh.vertices[idx])
+    visible[idx] = caster.visible_from(camera.centre, points[idx])
     return visible
+
+
+def visible_vertices(caster: RayCaster, camera: Camera, *, max_view_angle_deg: float) -> np.ndarray:
+    """(V,) bool: :func:`visible_points` for the mesh's vertices."""
+    mesh = caster.mesh
+    return visible_points(caster, camera, mesh.vertices, mesh.vertex_normals, max_view_angle_deg=max_view_angle_deg)

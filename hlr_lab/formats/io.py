@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 import tomllib
 from pathlib import Path
@@ -38,8 +39,17 @@ def atomic_write_text(path: str | Path, text: str) -> None:
         os.close(dir_fd)
 
 
+_NUMBER_LIST = re.compile(r"\[\s*(-?[\d.eE+-]+(?:,\s*-?[\d.eE+-]+)*)\s*\]")
+
+
+def dumps(data: object) -> str:
+    """JSON indented for people, with lists of numbers kept on one line."""
+    text = json.dumps(data, indent=1, ensure_ascii=False)
+    return _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m.group(1).split(",")) + "]", text)
+
+
 def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
-    atomic_write_text(path, model.model_dump_json(indent=1, exclude_none=True) + "\n")
+    atomic_write_text(path, dumps(model.model_dump(mode="json", exclude_none=True)) + "\n")
 
 
 def read_json(path: str | Path) -> object:

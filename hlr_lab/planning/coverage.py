@@ -33,20 +33,30 @@ _PAIRS_PER_BATCH = 4_000_000  # bounds memory: ~40 bytes a pair while a batch is
 class ViewSamples:
     """The countable samples of one view (visible, not grazing vertices), in the turntable frame.
 
-    highlights (K samples); region (K,) int; weight (K,) in the plan's count unit; candidates (Q, 3)
-    light positions in the view's frame; candidate_dirs (Q, 3) and footprint_dirs (K, 3): unit directions
-    from S's centre of the candidates and of the samples' mirror points, both in the world frame so that
-    one KD-tree of candidates serves every view; sphere_radius of S.
+    highlights (K samples); region (K,) int; weight (K,) in the plan's count unit; candidate_dirs (Q, 3)
+    and footprint_dirs (K, 3): unit directions from S's centre of the candidate lights and of the samples'
+    mirror points, in the world frame so that one KD-tree of candidates serves every view; S's centre (3,)
+    in the view's frame and its radius; view_from_world (3, 3) rotation.
     """
 
     highlights: Highlights
     region: np.ndarray
     weight: np.ndarray
-    candidates: np.ndarray
     candidate_dirs: np.ndarray
     footprint_dirs: np.ndarray
+    sphere_centre: np.ndarray
     sphere_radius: float
+    view_from_world: np.ndarray
     n_regions: int
+
+    def light_position(self, dirs_world: np.ndarray) -> np.ndarray:
+        """(…, 3) world directions from S's centre → light positions on S in the view's frame."""
+        return self.sphere_centre + self.sphere_radius * dirs_world @ self.view_from_world.T
+
+    @cached_property
+    def candidates(self) -> np.ndarray:
+        """(Q, 3) the candidate light positions in the view's frame."""
+        return self.light_position(self.candidate_dirs)
 
     @property
     def region_weight(self) -> np.ndarray:
@@ -54,9 +64,12 @@ class ViewSamples:
 
     def footprint_radius(self, theta_c: float) -> np.ndarray:
         """(K,) chord radius on the unit sphere that contains each sample's cone footprint on S."""
+        return self._footprint_scale * np.tan(theta_c)
+
+    @cached_property
+    def _footprint_scale(self) -> np.ndarray:
         h = self.highlights
-        return (_FOOTPRINT_MARGIN * h.distance * np.tan(theta_c)
-                / np.maximum(h.cos_incidence, _MIN_COS_INCIDENCE) / self.sphere_radius)
+        return _FOOTPRINT_MARGIN * h.distance / np.maximum(h.cos_incidence, _MIN_COS_INCIDENCE) / self.sphere_radius
 
     @cached_property
     def footprint_tree(self) -> cKDTree:

@@ -19,9 +19,10 @@ import numpy as np
 
 # A light must add at least this much (count unit) to be worth a photograph.
 MIN_GAIN = 1.0
-# Accept the best exactly-scored light when no estimate beats it by more than this fraction.
-TOLERANCE = 0.01
-MAX_EVALUATIONS = 48
+# Accept the best exactly-scored light when no estimate beats it by more than this fraction: estimates
+# come from coarser samples than the exact counts, and chasing the last per cent costs many ray casts.
+TOLERANCE = 0.05
+MAX_EVALUATIONS = 32
 
 
 @dataclass(frozen=True)
@@ -46,12 +47,13 @@ def score(bounds: np.ndarray, need: np.ndarray, capped: bool) -> np.ndarray:
 
 
 def select_lights(bounds_of: Callable[[int], np.ndarray], n_views: int,
-                  evaluate: Callable[[int, int], np.ndarray], need: np.ndarray, *, capped: bool,
+                  evaluate: Callable[[int, int, np.ndarray], np.ndarray], need: np.ndarray, *, capped: bool,
                   max_lights: int, first_views: Sequence[int] = (0,)) -> Selection:
     """Choose lights until every region's need is met, nothing more helps, or ``max_lights``.
 
     ``bounds_of(v)`` gives view v's (Q, R) estimated counts (computed on first use; copied here, since
-    exact counts overwrite them); ``evaluate(v, q)`` the exact (R,) counts. Views beyond ``first_views`` are
+    exact counts overwrite them); ``evaluate(v, q, need)`` the exact (R,) counts (it may refine the
+    candidate for the current need). Views beyond ``first_views`` are
     opened only when the open ones cannot help any more (each new view is a turntable move).
     """
     need = need.astype(np.float64).copy()
@@ -99,7 +101,7 @@ def _best(bounds, exact, used, need, capped, evaluate):
         if best_estimate is None or (best_exact is not None and best_exact[2] >= (1 - TOLERANCE) * best_estimate[2]):
             return None if best_exact is None else best_exact[:2]
         v, q, _ = best_estimate
-        bounds[v][q] = evaluate(v, q)
+        bounds[v][q] = evaluate(v, q, need)
         exact[v][q] = True
     best_exact, _ = _top(bounds, exact, used, need, capped)
     return None if best_exact is None else best_exact[:2]

@@ -1,9 +1,13 @@
 """Plan light positions (and turntable views) that give every region at least M highlight samples.
 
 The paper's algorithm (§3.2) with the additions of DESIGN §1, each on by default and reported:
-visibility, shadows and grazing angles decide whether a vertex counts; only reachable light positions
+visibility, shadows and grazing angles decide whether a sample counts; only reachable light positions
 are candidates; a region counts only up to what it still needs (the plain count is reported too);
 extra turntable views open when a region cannot be served from the first; M counts expected pixels.
+
+Candidates come at two densities: estimates for the greedy are computed on a coarse grid (θc/5), and
+evaluating a coarse candidate exactly refines it over the dense grid (≤ ``spacing_deg``) points in its
+Voronoi cell — the lights of a plan are always dense-grid points with exact counts.
 All geometry runs in the turntable frame (the placed object at turntable angle 0).
 """
 
@@ -20,13 +24,17 @@ from scipy.spatial import cKDTree
 from hlr_lab.mesh import ColouredMesh
 from hlr_lab.planning.coverage import ViewSamples, count_estimates, exact_counts
 from hlr_lab.planning.geometry import LightSphere, light_sphere, mirror_highlights
-from hlr_lab.planning.greedy import Selection, select_lights
-from hlr_lab.raycast import RayCaster, visible_vertices
+from hlr_lab.planning.greedy import Selection, score, select_lights
+from hlr_lab.planning.samples import SurfaceSamples, surface_samples, vertex_samples
+from hlr_lab.raycast import RayCaster, visible_points
 from hlr_lab.rig import Rig
 from hlr_lab.segment import Segmentation
 from hlr_lab.sphere import azimuth_elevation, directions_with_spacing, rotation_z
 
 CountUnit = Literal["pixels", "vertices"]
+Criterion = Literal["capped", "plain"]
+COARSE_FRACTION_OF_THETA_C = 0.2  # estimate grid spacing = θc/5: five points across a cone's radius
+POOL_FRACTION = 4.0  # pool samples whose mirror points lie within θc/4 into one estimate cone
 
 
 @dataclass(frozen=True)
@@ -41,7 +49,8 @@ class PlanSettings:
     max_view_angle_deg: float = 80.0  # grazing limit for the camera and the light
     max_lights: int = 64
     shadows: bool = True
-    paper_count: bool = True  # also run the paper's plain count, for the summary
+    criterion: Criterion = "capped"  # "plain": the paper's count, every sample of a short region counts
+    compare_criteria: bool = True  # also plan with the other criterion, for the summary
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,10 +73,10 @@ class PlanResult:
     coverage: np.ndarray  # (R,) total expected samples
     satisfied: np.ndarray  # (R,) bool
     uncovered: dict[int, str]  # region → reason
-    lights_paper_count: int | None
+    lights_by_criterion: dict[str, int]  # light count of this plan's criterion and (if compared) the other
     views_considered: list[float]
-    candidates: int
-    reachable: int
+    candidates: int  # dense-grid points on S
+    reachable: int  # of which the gantry reaches
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -85,116 +94,155 @@ def auto_views(limits_deg: tuple[float, float], step_deg: float) -> list[float]:
     return angles
 
 
+class _Candidates:
+    """Reachable light directions (world, unit, from S's centre) at the dense and the coarse spacing, and
+    which dense points refine each coarse one (its Voronoi cell)."""
+
+    def __init__(self, sphere: LightSphere, rig: Rig, spacing_deg: float, coarse_deg: float):
+        def reachable(spacing: float) -> tuple[np.ndarray, int]:
+            d = directions_with_spacing(spacing)
+            return d[sphere.reachable(sphere.centre + sphere.radius * d, rig.camera)], len(d)
+
+        self.fine, self.total = reachable(spacing_deg)
+        self.coarse = reachable(coarse_deg)[0] if coarse_deg > spacing_deg else self.fine
+        self.coarse_tree = cKDTree(self.coarse)
+        owner = self.coarse_tree.query(self.fine)[1] if len(self.coarse) else np.zeros(0, np.int64)
+        self._order = np.argsort(owner, kind="stable")
+        self._start = np.searchsorted(owner[self._order], np.arange(len(self.coarse) + 1))
+
+    def cell(self, coarse_index: int) -> np.ndarray:
+        """Indices of the dense candidates whose nearest coarse candidate is ``coarse_index``."""
+        return self._order[self._start[coarse_index]:self._start[coarse_index + 1]]
+
+
 def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
                 settings: PlanSettings = PlanSettings(), *, caster: RayCaster | None = None) -> PlanResult:
-    """Plan on ``placed``, the mesh already in the turntable frame (see ``geometry.placement``)."""
+    """Plan on ``placed``, the mesh already in the turntable frame (see ``geometry.placement``).
+
+    A vertex (``count="vertices"``) or surface sample (``"pixels"``) counts for a light when it is visible
+    from the camera at that view, not at a grazing angle to camera or light, the light lies in its cone,
+    and nothing shadows it from the light.
+    """
     clock = _Clock()
     theta_c = np.radians(settings.theta_c_deg)
     sphere = light_sphere(rig.gantry, placed.vertices, settings.sphere_scale)
     caster = caster or RayCaster(placed)
     clock.lap("ray engine")
-
-    dirs_world = directions_with_spacing(settings.spacing_deg)
-    reach = sphere.reachable(sphere.centre + sphere.radius * dirs_world, rig.camera)
-    dirs_world = dirs_world[reach]
-    tree = cKDTree(dirs_world)
+    cands = _Candidates(sphere, rig, settings.spacing_deg, settings.theta_c_deg * COARSE_FRACTION_OF_THETA_C)
+    # exact counts use samples as fine as the count unit needs; the greedy's estimates only steer, and
+    # the vertices (weighted in the same unit) do that at a fraction of the cost on a coarse mesh
+    surface = surface_samples(placed, segmentation, rig.camera, settings.count)
+    coarse_surface = vertex_samples(placed, segmentation) if len(surface) > len(placed.vertices) else surface
     clock.lap("candidates")
 
     views = list(settings.views_deg) if settings.views_deg is not None else auto_views(
         rig.turntable_limits_deg, settings.view_step_deg)
     n_regions = segmentation.n_regions
     samples: dict[int, ViewSamples] = {}
-    bounds_cache: dict[int, np.ndarray] = {}
-    cell = max(np.radians(settings.spacing_deg), theta_c / 4)
+    estimates: dict[int, np.ndarray] = {}
+    pool_cell = np.radians(max(settings.spacing_deg, settings.theta_c_deg / POOL_FRACTION))
 
     def view_samples(v: int) -> ViewSamples:
         if v not in samples:
-            samples[v] = _view_samples(placed, segmentation, rig, sphere, caster, dirs_world, views[v], settings)
+            samples[v] = _view_samples(surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings)
         return samples[v]
 
-    def bounds_of(v: int) -> np.ndarray:
-        if v not in bounds_cache:
-            bounds_cache[v] = count_estimates(view_samples(v), caster, theta_c, cell, tree)
-        return bounds_cache[v]
+    def estimates_of(v: int) -> np.ndarray:
+        if v not in estimates:
+            vs = view_samples(v) if coarse_surface is surface else _view_samples(
+                coarse_surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings)
+            estimates[v] = count_estimates(vs, caster, theta_c, pool_cell, cands.coarse_tree)
+        return estimates[v]
 
-    exact_cache: dict[tuple[int, int], np.ndarray] = {}
+    refined: dict[tuple[int, int], tuple[int, np.ndarray]] = {}  # (view, coarse) → (dense index, counts)
 
-    def evaluate(v: int, q: int) -> np.ndarray:
-        if (v, q) not in exact_cache:
+    def evaluate(v: int, q: int, need: np.ndarray, capped: bool) -> np.ndarray:
+        if (v, q) not in refined:
             vs = view_samples(v)
-            exact_cache[v, q] = exact_counts(vs, caster, vs.candidates[q], vs.candidate_dirs[q], theta_c=theta_c,
-                                             max_light_angle=np.radians(settings.max_view_angle_deg),
-                                             shadows=settings.shadows)[0]
-        return exact_cache[v, q]
+            best = (-1, np.zeros(n_regions), -np.inf)
+            for f in cands.cell(q):
+                counts = exact_counts(vs, caster, vs.light_position(cands.fine[f]), cands.fine[f], theta_c=theta_c,
+                                      max_light_angle=np.radians(settings.max_view_angle_deg),
+                                      shadows=settings.shadows)[0]
+                s = score(counts[None], need, capped)[0]
+                if s > best[2]:
+                    best = (int(f), counts, s)
+            refined[v, q] = best[:2]
+        return refined[v, q][1]
 
     need = np.full(n_regions, float(settings.min_samples))
-    bounds_of(0)
+    estimates_of(0)
     clock.lap("cones")
-    selection = select_lights(bounds_of, len(views), evaluate, need, capped=True, max_lights=settings.max_lights)
-    clock.lap("greedy")
-    paper = None
-    if settings.paper_count:
-        paper = len(select_lights(bounds_of, len(views), evaluate, need, capped=False,
-                                  max_lights=settings.max_lights).choices)
-        clock.lap("paper count")
+    capped = settings.criterion == "capped"
 
-    lights = _lights(selection, samples, views, sphere, rig)
+    def run(capped_: bool) -> Selection:
+        refined.clear()  # a refinement chosen under one criterion's needs is not the other's
+        return select_lights(estimates_of, len(views), lambda v, q, n: evaluate(v, q, n, capped_), need,
+                             capped=capped_, max_lights=settings.max_lights)
+
+    lights_by_criterion = {}
+    if settings.compare_criteria:
+        other = "plain" if capped else "capped"
+        lights_by_criterion[other] = len(run(not capped).choices)
+        clock.lap("other criterion")
+    selection = run(capped)
+    lights_by_criterion[settings.criterion] = len(selection.choices)
+    clock.lap("greedy")
+
+    lights = _lights(selection, refined, cands, samples, views, sphere, rig)
     coverage = np.sum([light.expected for light in lights], axis=0) if lights else np.zeros(n_regions)
     satisfied = coverage >= settings.min_samples - 1e-9
-    uncovered = _reasons(satisfied, coverage, selection, samples, bounds_cache, views, settings, view_samples,
-                         bounds_of)
+    uncovered = _reasons(satisfied, coverage, selection, views, settings, view_samples, estimates_of)
     clock.lap("report")
-    return PlanResult(settings, sphere, lights, coverage, satisfied, uncovered, paper, views,
-                      len(reach), int(reach.sum()), clock.laps)
+    return PlanResult(settings, sphere, lights, coverage, satisfied, uncovered, lights_by_criterion, views,
+                      cands.total, len(cands.fine), clock.laps)
 
 
-def _view_samples(placed, segmentation, rig, sphere, caster, dirs_world, turntable_deg, settings) -> ViewSamples:
-    """The samples one view can count: visible, not grazing vertices with their mirror points on S."""
-    world_from_tt = rotation_z(np.radians(turntable_deg))
-    tt_from_world = world_from_tt.T
-    camera = rig.camera.in_frame(world_from_tt)
-    visible = visible_vertices(caster, camera, max_view_angle_deg=settings.max_view_angle_deg)
-    idx = np.flatnonzero(visible)
-    points, normals = placed.vertices[idx], placed.vertex_normals[idx]
-    centre_tt = tt_from_world[:3, :3] @ sphere.centre
+def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: LightSphere, caster: RayCaster,
+                  dirs_world: np.ndarray, turntable_deg: float, settings: PlanSettings) -> ViewSamples:
+    """The samples one view can count: visible, not grazing surface points with their mirror points on S."""
+    world_from_tt = rotation_z(np.radians(turntable_deg))[:3, :3]
+    camera = rig.camera.in_frame(rotation_z(np.radians(turntable_deg)))
+    idx = np.flatnonzero(visible_points(caster, camera, surface.point, surface.normal,
+                                        max_view_angle_deg=settings.max_view_angle_deg))
+    points, normals = surface.point[idx], surface.normal[idx]
+    centre_tt = world_from_tt.T @ sphere.centre
     h = mirror_highlights(points, normals, camera.centre, centre_tt, sphere.radius)
     if settings.count == "pixels":
-        weight = camera.projected_area_px(points, normals, placed.vertex_areas[idx])
+        weight = camera.projected_area_px(points, normals, surface.area[idx])
     else:
         weight = np.ones(len(idx))
-    candidates = centre_tt + sphere.radius * dirs_world @ tt_from_world[:3, :3].T
-    return ViewSamples(h, segmentation.vertex_labels[idx], weight, candidates, dirs_world,
-                       h.footprint @ world_from_tt[:3, :3].T, sphere.radius, segmentation.n_regions)
+    return ViewSamples(h, surface.region[idx], weight, dirs_world, h.footprint @ world_from_tt.T, centre_tt,
+                       sphere.radius, world_from_tt.T, n_regions)
 
 
-def _lights(selection: Selection, samples, views, sphere: LightSphere, rig: Rig) -> list[PlannedLight]:
+def _lights(selection: Selection, refined, cands: _Candidates, samples, views, sphere: LightSphere,
+            rig: Rig) -> list[PlannedLight]:
+    """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
     order = sorted(range(len(selection.choices)),
                    key=lambda i: (selection.views_used.index(selection.choices[i].view), i))
     lights = []
     for i in order:
         c = selection.choices[i]
-        vs = samples[c.view]
-        d = vs.candidate_dirs[c.candidate]
+        d = cands.fine[refined[c.view, c.candidate][0]]
         az, el = azimuth_elevation(d)
-        world_from_tt = rotation_z(np.radians(views[c.view]))
+        world_from_tt = rotation_z(np.radians(views[c.view]))[:3, :3]
         lights.append(PlannedLight(
             step=i, turntable_deg=float(views[c.view]), light_world=sphere.centre + sphere.radius * d,
             azimuth_deg=float(np.degrees(az)), elevation_deg=float(np.degrees(el)),
-            light_turntable=vs.candidates[c.candidate],
-            camera_turntable=world_from_tt[:3, :3].T @ rig.camera.centre, expected=c.counts))
+            light_turntable=samples[c.view].light_position(d),
+            camera_turntable=world_from_tt.T @ rig.camera.centre, expected=c.counts))
     return lights
 
 
-def _reasons(satisfied, coverage, selection, samples, bounds_cache, views, settings, view_samples, bounds_of):
-    """Why each unsatisfied region is short, in the operator's words."""
-    reasons = {}
+def _reasons(satisfied, coverage, selection, views, settings, view_samples, estimates_of) -> dict[int, str]:
+    """Why each unsatisfied region is short, in the operator's words (this needs every view's evidence)."""
     short = np.flatnonzero(~satisfied)
     if len(short) == 0:
-        return reasons
-    for v in range(len(views)):  # the verdict needs every view's evidence
-        bounds_of(v)
+        return {}
     seen = np.sum([view_samples(v).region_weight for v in range(len(views))], axis=0)
-    reach = np.sum([bounds_cache[v].max(axis=0) for v in range(len(views))], axis=0)
+    reach = np.sum([estimates_of(v).max(axis=0) for v in range(len(views))], axis=0)
+    reasons = {}
     for r in short:
         if seen[r] <= 0:
             reasons[int(r)] = "not visible from any view (or only at grazing angles)"

@@ -1,0 +1,53 @@
+"""``hlr-lab bench``: benchmarks that print figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from hlr_lab.bench import PAPER_SETTINGS, mesh_label, nearest_neighbour_spacing_deg, run_plan_case
+from hlr_lab.cli.common import console, out
+from hlr_lab.sphere import directions_with_spacing
+
+
+@click.group()
+def bench() -> None:
+    """Benchmarks that print figures (targets in the README)."""
+
+
+@bench.command("plan")
+@click.option("--mesh", "mesh_path", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Mesh to plan on (default: the built-in pebble). The paper's: the Stanford bunny.")
+@click.option("--up", default="z", show_default=True, help="Mesh axis that points up (y for the bunny).")
+@click.option("--scale", type=float, default=1.0, show_default=True, help="Mesh units → metres.")
+@click.option("--large", "min_vertices", type=click.IntRange(min=0), default=1_000_000, show_default=True,
+              help="Also plan on the mesh subdivided to at least this many vertices (0: skip).")
+def bench_plan(mesh_path, up, scale, min_vertices) -> None:
+    """Planning time and peak memory: the paper's 4.1 set-up (8 regions in view, sphere 2× the bounding
+    sphere, θc = 5°, one view, candidate spacing 0.5°) on the mesh and on a ≥ 1 M-vertex subdivision.
+
+    \b
+    Example:
+      hlr-lab bench plan --mesh ../shared/assets/stanford-bunny.obj --up y
+    """
+    spacing = nearest_neighbour_spacing_deg(directions_with_spacing(PAPER_SETTINGS.spacing_deg))
+    console.print(f"candidate spacing: requested {PAPER_SETTINGS.spacing_deg}°, measured max nearest-neighbour "
+                  f"{spacing:.3f}°")
+    name = mesh_label(str(mesh_path) if mesh_path else None)
+    cases = [(name, None if mesh_path is None else str(mesh_path), up, scale, 0)]
+    if min_vertices:
+        cases.append((f"{name} subdivided", None if mesh_path is None else str(mesh_path), up, scale, min_vertices))
+    t = Table(title="plan benchmark (fresh process per case; mesh loading and segmentation excluded)",
+              title_justify="left")
+    for col in ("case", "vertices", "regions", "lights", "plain count", "uncovered", "plan s", "stages s",
+                "RSS before MB", "peak RSS MB"):
+        t.add_column(col, justify="right")
+    for case in cases:
+        with console.status(f"planning {case[0]}…"):
+            f = run_plan_case(*case)
+        stages = ", ".join(f"{k} {v:.2f}" for k, v in f.stages.items())
+        t.add_row(f.case, f"{f.vertices:,}", str(f.regions), str(f.lights), str(f.lights_plain), str(f.uncovered),
+                  f"{f.plan_s:.2f}", stages, f"{f.rss_before_mb:.0f}", f"{f.rss_peak_plan_mb:.0f}")
+    out.print(t)

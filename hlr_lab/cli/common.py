@@ -1,0 +1,57 @@
+"""What several commands share: the console, mesh and rig options, tables."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from hlr_lab.errors import InputError
+from hlr_lab.mesh import ColouredMesh, load_mesh
+from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
+from hlr_lab.rig import Rig, load_rig, sim_rig
+from hlr_lab.segment import Region
+
+console = Console(stderr=True, highlight=False)  # stdout stays clean for data; people read stderr
+out = Console(highlight=False)
+
+
+def mesh_options(f):
+    f = click.option("--texture", type=click.Path(dir_okay=False, path_type=Path),
+                     help="Texture image for an OBJ whose UVs do not reference one.")(f)
+    f = click.option("--mesh", "mesh_spec", required=True, metavar="FILE",
+                     help="Mesh (OBJ, PLY, glTF/GLB) with vertex colours or a texture, or builtin:pebble.")(f)
+    return f
+
+
+def load_coloured_mesh(spec: str, texture: Path | None) -> ColouredMesh:
+    if spec.startswith(BUILTIN_PREFIX):
+        if texture is not None:
+            raise InputError("--texture cannot be used with a built-in object", field="--texture")
+        return builtin_object(spec).mesh
+    return load_mesh(spec, texture, need_colour=True)
+
+
+def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:
+    if rig_path is not None and use_sim:
+        raise InputError("give either --rig FILE or --sim, not both", field="--rig")
+    if rig_path is None and not use_sim:
+        raise InputError("which rig? give --rig rig.toml for a real rig, or --sim for the built-in simulated rig",
+                         field="--rig")
+    return sim_rig() if use_sim else load_rig(rig_path)
+
+
+def swatch(colour: tuple[int, int, int]) -> str:
+    r, g, b = colour
+    return f"[on rgb({r},{g},{b})]    [/] {r:3d},{g:3d},{b:3d}"
+
+
+def region_table(regions: list[Region], title: str) -> Table:
+    t = Table(title=title, title_justify="left")
+    for name in ("region", "material", "colour (sRGB)", "vertices", "faces", "area m²"):
+        t.add_column(name, justify="right")
+    for r in regions:
+        t.add_row(str(r.id), str(r.material), swatch(r.colour), str(r.vertices), str(r.faces), f"{r.area_m2:.4g}")
+    return t

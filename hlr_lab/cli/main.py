@@ -1,0 +1,67 @@
+"""``hlr-lab``: one clear line per error, exit status ≠ 0, a traceback only with ``--debug``."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from hlr_lab import __version__
+from hlr_lab.cli.bench_cmd import bench
+from hlr_lab.cli.common import console
+from hlr_lab.cli.plan_cmd import plan
+from hlr_lab.cli.segment_cmd import segment
+from hlr_lab.errors import HlrLabError
+
+EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
+EXIT_INTERNAL = 70  # a bug in hlr-lab (EX_SOFTWARE)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="hlr-lab")
+@click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """hlr-lab: measure the reflectance of an object of known shape.
+
+    \b
+    Segment the mesh into same-colour regions, plan light positions that put highlights on as many
+    regions as possible at once, then (later steps) acquire, fit and export Phong materials.
+
+    \b
+    Example, on the built-in simulated rig and procedural object:
+      hlr-lab plan --mesh builtin:pebble --sim -o plan.json
+    """
+    ctx.obj = {"debug": debug}
+
+
+cli.add_command(segment)
+cli.add_command(plan)
+cli.add_command(bench)
+
+
+def main(argv: list[str] | None = None) -> int:
+    debug = "--debug" in (argv if argv is not None else sys.argv[1:])
+    try:
+        return cli.main(args=argv, prog_name="hlr-lab", standalone_mode=False) or 0
+    except click.exceptions.Abort:
+        console.print("[red]interrupted[/]")
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except HlrLabError as exc:
+        if debug:
+            console.print_exception()
+        console.print(f"[bold red]error:[/] {exc}", soft_wrap=True)
+        return EXIT_ERROR
+    except Exception as exc:  # the last line of defence: a bug must still end in one clear line
+        if debug:
+            console.print_exception()
+        console.print(f"[bold red]internal error:[/] {type(exc).__name__}: {exc} — please report it with the "
+                      "output of the same command run with --debug", soft_wrap=True)
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

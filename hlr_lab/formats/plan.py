@@ -1,0 +1,144 @@
+"""``plan.json`` (DESIGN §4): what ``hlr-lab acquire`` runs. The skeleton is fixed (other tools read it);
+hlr-lab adds fields: the mesh → turntable placement, the sphere, the criterion, a summary.
+
+``position_mesh_m`` and ``camera_position_mesh_m`` are in the mesh file's own frame and units (metres
+unless ``object.scale`` ≠ 1), so a reader can check the plan against the mesh alone.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from hlr_lab import __version__
+from hlr_lab.formats.io import check_header, read_json, validate, write_json
+from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.planning.planner import PlanResult
+from hlr_lab.segment import Segmentation
+
+PLAN_FORMAT = "hlr-lab.plan"
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Matrix4 = Annotated[list[Annotated[list[float], Field(min_length=4, max_length=4)]],
+                    Field(min_length=4, max_length=4)]
+
+
+class _Open(BaseModel):
+    model_config = ConfigDict(extra="allow")  # hlr-lab and other tools may add fields
+
+
+class PlanObject(_Open):
+    mesh: str
+    sha256: str
+    regions: list[RegionEntry]
+    texture: str | None = None
+    mesh_to_turntable: Matrix4 | None = None
+    up: str = "z"
+    scale: float = 1.0
+
+
+class PlanParameters(_Open):
+    theta_c_deg: float = Field(gt=0, lt=90)
+    min_samples: float = Field(gt=0)
+    sphere_radius_m: float = Field(gt=0)
+    count: Literal["pixels", "vertices"]
+    criterion: Literal["capped", "plain"] = "capped"
+
+
+class PlanLight(_Open):
+    azimuth_deg: float
+    elevation_deg: float
+    position_m: Vec3
+    position_mesh_m: Vec3
+
+
+class PlanPose(_Open):
+    id: str
+    turntable_deg: float
+    light: PlanLight
+    camera_position_mesh_m: Vec3
+    exposures_s: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=1)]
+    expected: dict[str, float]
+
+
+class RegionCoverage(_Open):
+    samples: float = Field(ge=0)
+    satisfied: bool
+
+
+class Uncovered(_Open):
+    region: int
+    reason: str
+
+
+class PlanFile(_Open):
+    format: Literal["hlr-lab.plan"]
+    version: Literal[1]
+    object: PlanObject
+    parameters: PlanParameters
+    poses: list[PlanPose]
+    coverage: dict[str, RegionCoverage]
+    uncovered: list[Uncovered] = []
+
+
+def build_plan(result: PlanResult, seg: Segmentation, *, mesh_ref: str, sha256: str, texture_ref: str | None,
+               mesh_to_turntable: np.ndarray, up: str, scale: float, exposures_s: tuple[float, ...],
+               rig_name: str) -> PlanFile:
+    mesh_from_tt = np.linalg.inv(mesh_to_turntable)
+    s = result.settings
+
+    def to_mesh(p: np.ndarray) -> list[float]:
+        return _r(mesh_from_tt[:3, :3] @ p + mesh_from_tt[:3, 3])
+
+    poses = [
+        PlanPose(
+            id=f"p{i:03d}", turntable_deg=round(light.turntable_deg, 6),
+            light=PlanLight(azimuth_deg=round(light.azimuth_deg, 4), elevation_deg=round(light.elevation_deg, 4),
+                            position_m=_r(light.light_world), position_mesh_m=to_mesh(light.light_turntable)),
+            camera_position_mesh_m=to_mesh(light.camera_turntable), exposures_s=list(exposures_s),
+            expected={str(r): round(float(c), 1) for r, c in enumerate(light.expected) if c > 0},
+            greedy_step=light.step)
+        for i, light in enumerate(result.lights)
+    ]
+    return PlanFile(
+        format=PLAN_FORMAT, version=1,
+        object=PlanObject(mesh=mesh_ref, sha256=sha256, texture=texture_ref,
+                          regions=[RegionEntry.of(r) for r in seg.regions],
+                          mesh_to_turntable=[_r(row, 9) for row in mesh_to_turntable], up=up, scale=scale),
+        parameters=PlanParameters(
+            theta_c_deg=s.theta_c_deg, min_samples=s.min_samples, sphere_radius_m=round(result.sphere.radius, 6),
+            count=s.count, criterion=s.criterion, sphere_centre_m=_r(result.sphere.centre),
+            sphere_source=result.sphere.source, cone="half-angle theta_c about the mirror direction",
+            candidate_spacing_deg=s.spacing_deg, max_view_angle_deg=s.max_view_angle_deg, shadows=s.shadows,
+            views_deg=[float(v) for v in result.views_considered], max_lights=s.max_lights),
+        poses=poses,
+        coverage={str(r): RegionCoverage(samples=round(float(result.coverage[r]), 1),
+                                         satisfied=bool(result.satisfied[r]), needed=s.min_samples)
+                  for r in range(seg.n_regions)},
+        uncovered=[Uncovered(region=r, reason=why) for r, why in sorted(result.uncovered.items())],
+        summary={"lights": len(result.lights), "lights_by_criterion": result.lights_by_criterion,
+                 "views_used": sorted({p.turntable_deg for p in poses}), "candidates": result.candidates,
+                 "reachable_candidates": result.reachable, "rig": rig_name,
+                 "seconds": {k: round(v, 3) for k, v in result.seconds.items()},
+                 "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+                 "software": f"hlr-lab {__version__}"},
+    )
+
+
+def write_plan(path: str | Path, plan: PlanFile) -> None:
+    write_json(path, plan)
+
+
+def read_plan(path: str | Path) -> PlanFile:
+    """Read and validate a plan; an unknown format or version, or a malformed field, is one InputError."""
+    path = Path(path)
+    data = read_json(path)
+    check_header(data, path, PLAN_FORMAT, {1})
+    return validate(PlanFile, data, path)
+
+
+def _r(v, digits: int = 6) -> list[float]:
+    return [round(float(x), digits) for x in v]
