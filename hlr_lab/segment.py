@@ -95,10 +95,13 @@ def segment(mesh: ColouredMesh, *, delta_e: float = DEFAULT_DELTA_E, n_materials
         face_labels = weighted_mode(vertex_labels[mesh.faces], mesh.vertex_areas[mesh.faces])
 
     material = _material_of(node_label, node_material)
-    linear = srgb8_to_linear(samples)
-    node_linear = linear.reshape(len(mesh.faces), -1, 3).mean(axis=1) if on_faces else linear
-    return _summarise(mesh, vertex_labels, face_labels, node_label, node_linear, node_weight, material,
-                      delta_e, split_connected, min_fragment)
+    per_node = len(samples) // len(node_label)
+    sample_region = np.repeat(node_label, per_node)
+    # a region's colour is that of its material's samples: anti-aliased borders and the odd texel of
+    # another colour inside it (an eye's glint) would otherwise pull the mean toward other regions
+    own = sample_label == np.repeat(node_material, per_node)
+    return _summarise(mesh, vertex_labels, face_labels, node_label, material, sample_region[own],
+                      srgb8_to_linear(samples[own]), sample_weight[own], delta_e, split_connected, min_fragment)
 
 
 def cluster_colours(lab: np.ndarray, weight: np.ndarray, *, delta_e: float, n_clusters: int | None = None
@@ -254,19 +257,19 @@ def _material_of(node_label: np.ndarray, colour_label: np.ndarray) -> np.ndarray
     return heaviest_label(node_label, colour_label, np.ones(len(node_label)), int(node_label.max()) + 1)
 
 
-def _summarise(mesh, vertex_labels, face_labels, node_label, node_linear, node_weight, material,
-               delta_e, split_connected, min_fragment) -> Segmentation:
+def _summarise(mesh, vertex_labels, face_labels, node_label, material, sample_region, sample_linear,
+               sample_weight, delta_e, split_connected, min_fragment) -> Segmentation:
     used = np.unique(np.concatenate([vertex_labels, face_labels]))
     area = np.bincount(face_labels, weights=mesh.face_areas, minlength=used.max() + 1)
     order = used[np.lexsort((used, -area[used]))]  # largest area first, ties by old id
     new_id = np.full(used.max() + 1, -1)
     new_id[order] = np.arange(len(order))
     vertex_labels, face_labels = new_id[vertex_labels], new_id[face_labels]
-    node_new = new_id[node_label]
+    sample_new = new_id[sample_region]
 
     colour_sum = np.zeros((len(order), 3))
-    np.add.at(colour_sum, node_new, node_linear * node_weight[:, None])
-    mass = np.bincount(node_new, weights=node_weight, minlength=len(order))
+    np.add.at(colour_sum, sample_new, sample_linear * sample_weight[:, None])
+    mass = np.bincount(sample_new, weights=sample_weight, minlength=len(order))
     mean_colour = linear_to_srgb8(colour_sum / np.maximum(mass, 1e-300)[:, None])
     n_vert = np.bincount(vertex_labels, minlength=len(order))
     n_face = np.bincount(face_labels, minlength=len(order))

@@ -33,12 +33,14 @@ _PAIRS_PER_BATCH = 4_000_000  # bounds memory: ~40 bytes a pair while a batch is
 class ViewSamples:
     """The countable samples of one view (visible, not grazing vertices), in the turntable frame.
 
-    highlights (K samples); region (K,) int; weight (K,) in the plan's count unit; candidate_dirs (Q, 3)
+    index (K,) of each sample in the plan's SurfaceSamples; highlights (K samples); region (K,) int;
+    weight (K,) in the plan's count unit; candidate_dirs (Q, 3)
     and footprint_dirs (K, 3): unit directions from S's centre of the candidate lights and of the samples'
     mirror points, in the world frame so that one KD-tree of candidates serves every view; S's centre (3,)
     in the view's frame and its radius; view_from_world (3, 3) rotation.
     """
 
+    index: np.ndarray
     highlights: Highlights
     region: np.ndarray
     weight: np.ndarray

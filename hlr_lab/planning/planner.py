@@ -63,6 +63,7 @@ class PlannedLight:
     light_turntable: np.ndarray  # (3,) in the turntable frame (the placed object at angle 0)
     camera_turntable: np.ndarray  # (3,)
     expected: np.ndarray  # (R,) samples per region, in the count unit
+    counted: np.ndarray  # indices into PlanResult.samples of the samples this light counts
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +78,7 @@ class PlanResult:
     views_considered: list[float]
     candidates: int  # dense-grid points on S
     reachable: int  # of which the gantry reaches
+    samples: SurfaceSamples | None = None  # what was counted (points in the turntable frame)
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -189,13 +191,19 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
     lights_by_criterion[settings.criterion] = len(selection.choices)
     clock.lap("greedy")
 
-    lights = _lights(selection, refined, cands, samples, views, sphere, rig)
+    def counted(v: int, d: np.ndarray) -> np.ndarray:
+        vs = view_samples(v)
+        local = exact_counts(vs, caster, vs.light_position(d), d, theta_c=theta_c,
+                             max_light_angle=np.radians(settings.max_view_angle_deg), shadows=settings.shadows)[1]
+        return vs.index[local]
+
+    lights = _lights(selection, refined, cands, samples, views, sphere, rig, counted)
     coverage = np.sum([light.expected for light in lights], axis=0) if lights else np.zeros(n_regions)
     satisfied = coverage >= settings.min_samples - 1e-9
     uncovered = _reasons(satisfied, coverage, selection, views, settings, view_samples, estimates_of)
     clock.lap("report")
     return PlanResult(settings, sphere, lights, coverage, satisfied, uncovered, lights_by_criterion, views,
-                      cands.total, len(cands.fine), clock.laps)
+                      cands.total, len(cands.fine), surface, clock.laps)
 
 
 def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: LightSphere, caster: RayCaster,
@@ -212,12 +220,12 @@ def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: Lig
         weight = camera.projected_area_px(points, normals, surface.area[idx])
     else:
         weight = np.ones(len(idx))
-    return ViewSamples(h, surface.region[idx], weight, dirs_world, h.footprint @ world_from_tt.T, centre_tt,
+    return ViewSamples(idx, h, surface.region[idx], weight, dirs_world, h.footprint @ world_from_tt.T, centre_tt,
                        sphere.radius, world_from_tt.T, n_regions)
 
 
 def _lights(selection: Selection, refined, cands: _Candidates, samples, views, sphere: LightSphere,
-            rig: Rig) -> list[PlannedLight]:
+            rig: Rig, counted) -> list[PlannedLight]:
     """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
     order = sorted(range(len(selection.choices)),
                    key=lambda i: (selection.views_used.index(selection.choices[i].view), i))
@@ -231,7 +239,7 @@ def _lights(selection: Selection, refined, cands: _Candidates, samples, views, s
             step=i, turntable_deg=float(views[c.view]), light_world=sphere.centre + sphere.radius * d,
             azimuth_deg=float(np.degrees(az)), elevation_deg=float(np.degrees(el)),
             light_turntable=samples[c.view].light_position(d),
-            camera_turntable=world_from_tt.T @ rig.camera.centre, expected=c.counts))
+            camera_turntable=world_from_tt.T @ rig.camera.centre, expected=c.counts, counted=counted(c.view, d)))
     return lights
 
 

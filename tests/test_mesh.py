@@ -1,0 +1,109 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from hlr_lab.errors import InputError
+from hlr_lab.mesh import load_mesh, sample_texture
+from hlr_lab.procedural import pebble
+
+
+def write_coloured_ply(path: Path) -> None:
+    m = pebble(subdivisions=2).mesh
+    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(path)
+
+
+def write_textured_quad(folder: Path) -> tuple[Path, Path]:
+    """Two triangles with UVs (split at a seam: duplicated positions), and a two-colour texture."""
+    obj = folder / "quad.obj"
+    obj.write_text(
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 1 0 0\n"
+        "vt 0 0\nvt 0.49 0\nvt 0.49 1\nvt 0 1\nvt 0.51 0\nvt 1 0\nvt 1 1\n"
+        "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    tex = np.zeros((8, 8, 3), np.uint8)
+    tex[:, :4] = [200, 30, 30]
+    tex[:, 4:] = [30, 30, 200]
+    png = folder / "quad.png"
+    Image.fromarray(tex).save(png)
+    return obj, png
+
+
+def test_vertex_coloured_ply(tmp_path):
+    write_coloured_ply(tmp_path / "p.ply")
+    mesh = load_mesh(tmp_path / "p.ply", need_colour=True)
+    ref = pebble(subdivisions=2).mesh
+    assert mesh.vertex_colours is not None and len(mesh.faces) == len(ref.faces)
+    assert len(mesh.sha256) == 64
+    # PLY may reorder nothing, but compare as sets of (position, colour) to be independent of order
+    got = {(tuple(np.round(v, 6)), tuple(c)) for v, c in zip(mesh.vertices, mesh.vertex_colours, strict=True)}
+    want = {(tuple(np.round(v, 6)), tuple(c)) for v, c in zip(ref.vertices, ref.vertex_colours, strict=True)}
+    assert got == want
+
+
+def test_glb_keeps_vertex_colours(tmp_path):
+    m = pebble(subdivisions=2).mesh
+    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(tmp_path / "p.glb")
+    mesh = load_mesh(tmp_path / "p.glb", need_colour=True)
+    assert len(mesh.faces) == len(m.faces)
+    assert {tuple(c) for c in mesh.vertex_colours} == {tuple(c) for c in m.vertex_colours}
+
+
+def test_textured_obj_with_separate_texture_is_welded(tmp_path):
+    obj, png = write_textured_quad(tmp_path)
+    with pytest.raises(InputError, match="no colour"):
+        load_mesh(obj, need_colour=True)  # UVs but no image: trimesh's 2×2 placeholder is not a texture
+    mesh = load_mesh(obj, png, need_colour=True)
+    assert len(mesh.vertices) == 4  # the seam duplicate of (1, 0, 0) is welded
+    assert mesh.corner_uv.shape == (2, 3, 2) and mesh.texture.shape == (8, 8, 3)
+    assert mesh.texture_source == png
+
+
+def test_spot_loads_with_its_texture(spot_paths):
+    obj, png = spot_paths
+    mesh = load_mesh(obj, png, need_colour=True)
+    assert len(mesh.vertices) < 3225  # seams welded
+    assert mesh.vertex_normals.shape == mesh.vertices.shape
+    assert np.isfinite(mesh.vertex_normals).all()
+
+
+def test_texture_lookup_orientation():
+    tex = np.zeros((2, 2, 3), np.uint8)
+    tex[0, 0] = 1  # top-left texel is v = 1
+    tex[1, 1] = 2  # bottom-right texel is u = 1, v = 0
+    assert sample_texture(tex, np.array([0.25, 0.75]))[0] == 1
+    assert sample_texture(tex, np.array([0.75, 0.25]))[0] == 2
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no faces"),
+        ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "no colour"),
+    ],
+)
+def test_bad_meshes_get_one_clear_error(tmp_path, content, message):
+    path = tmp_path / "bad.obj"
+    path.write_text(content)
+    with pytest.raises(InputError, match=message) as err:
+        load_mesh(path, need_colour=True)
+    assert str(path) in str(err.value)
+
+
+def test_missing_and_unreadable_files(tmp_path):
+    with pytest.raises(InputError, match="no such mesh file"):
+        load_mesh(tmp_path / "nope.ply")
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n\x00\x01")
+    with pytest.raises(InputError, match="garbage.ply"):
+        load_mesh(garbage)
+
+
+def test_texture_without_uvs_is_refused(tmp_path):
+    write_coloured_ply(tmp_path / "p.ply")
+    _, png = write_textured_quad(tmp_path)
+    with pytest.raises(InputError, match="no texture coordinates"):
+        load_mesh(tmp_path / "p.ply", png)

@@ -1,0 +1,109 @@
+import numpy as np
+import pytest
+
+from hlr_lab.colour import delta_e, srgb8_to_lab
+from hlr_lab.errors import InputError
+from hlr_lab.mesh import ColouredMesh, load_mesh
+from hlr_lab.procedural import PALETTE, paint_patches
+from hlr_lab.segment import merge_fragments, segment, weighted_mode
+from tests.conftest import same_partition
+
+
+def test_pebble_materials_recovered_exactly(pebble_object):
+    seg = segment(pebble_object.mesh)
+    assert seg.n_regions == 4
+    assert same_partition(seg.vertex_labels, pebble_object.material)
+    # every region's mean colour is the colour it was painted with
+    for r in seg.regions:
+        painted = pebble_object.mesh.vertex_colours[seg.vertex_labels == r.id]
+        assert (painted == r.colour).all()
+    assert [r.area_m2 for r in seg.regions] == sorted((r.area_m2 for r in seg.regions), reverse=True)
+
+
+def test_split_connected_separates_same_colour_patches(pebble_object):
+    seg = segment(pebble_object.mesh, split_connected=True)
+    assert seg.n_regions == 6
+    assert same_partition(seg.vertex_labels, pebble_object.patch)
+    assert len({r.material for r in seg.regions}) == 4
+
+
+def test_face_labels_follow_the_vertex_majority(pebble_object):
+    seg = segment(pebble_object.mesh)
+    corner_labels = seg.vertex_labels[pebble_object.mesh.faces]
+    unanimous = (corner_labels == corner_labels[:, :1]).all(axis=1)
+    assert np.array_equal(seg.face_labels[unanimous], corner_labels[unanimous, 0])
+
+
+def test_noisy_colours_still_form_the_painted_regions(pebble_object):
+    rng = np.random.default_rng(7)
+    m = pebble_object.mesh
+    noisy = np.clip(m.vertex_colours + rng.normal(0, 3, m.vertex_colours.shape), 0, 255).astype(np.uint8)
+    seg = segment(ColouredMesh(m.vertices, m.faces, noisy))
+    assert same_partition(seg.vertex_labels, pebble_object.material)
+
+
+def test_speckles_merge_into_their_surroundings(pebble_object):
+    m = pebble_object.mesh
+    rng = np.random.default_rng(11)
+    speckled = m.vertex_colours.copy()
+    isolated = rng.choice(len(m.vertices), 12, replace=False)
+    speckled[isolated] = [255, 0, 255]  # magenta dots: a distinct colour but one vertex each
+    seg = segment(ColouredMesh(m.vertices, m.faces, speckled))
+    assert seg.n_regions == 4
+    clean = np.ones(len(m.vertices), bool)
+    clean[isolated] = False
+    assert same_partition(seg.vertex_labels[clean], pebble_object.material[clean])
+
+
+def test_fixed_region_count(pebble_object):
+    seg = segment(pebble_object.mesh, n_materials=2)
+    assert seg.n_regions == 2
+    with pytest.raises(InputError, match="more regions than"):
+        segment(pebble_object.mesh, n_materials=50)
+
+
+def test_mesh_without_colour_is_refused(pebble_object):
+    m = pebble_object.mesh
+    with pytest.raises(InputError, match="no colour"):
+        segment(ColouredMesh(m.vertices, m.faces))
+
+
+def test_weighted_mode_and_fragment_merge_primitives():
+    labels = np.array([[0, 1, 1], [2, 2, 0]])
+    weights = np.array([[5.0, 1.0, 1.0], [1.0, 1.0, 3.0]])
+    assert weighted_mode(labels, weights).tolist() == [0, 0]
+    # a path graph 0-1-2-3-4: label 1 at node 2 is a light fragment between two 0s
+    import scipy.sparse as sp
+
+    a = sp.coo_matrix((np.ones(4, bool), ([0, 1, 2, 3], [1, 2, 3, 4])), shape=(5, 5)).tocsr()
+    a = (a + a.T).tocsr()
+    out = merge_fragments(np.array([0, 0, 1, 0, 0]), a, np.ones(5), min_weight=2)
+    assert out.tolist() == [0, 0, 0, 0, 0]
+
+
+def test_bunny_with_eight_painted_regions(bunny_path):
+    bunny = load_mesh(bunny_path)
+    painted = paint_patches(bunny, 8)
+    seg = segment(painted.mesh)
+    assert seg.n_regions == 8
+    assert same_partition(seg.vertex_labels, painted.patch)
+
+
+def test_spot_texture_regions(spot_paths):
+    obj, png = spot_paths
+    seg = segment(load_mesh(obj, png))
+    lab = srgb8_to_lab(np.array([r.colour for r in seg.regions]))
+    # cream body, peach muzzle/udder, dark patches, grey horns, brown hooves … at least five materials,
+    # and no two regions of the same colour
+    assert 5 <= seg.n_regions <= 9
+    d = delta_e(lab[:, None], lab[None])
+    assert (d[~np.eye(len(lab), dtype=bool)] > 5).all()
+    cream = srgb8_to_lab(np.array([255, 238, 230]))
+    assert delta_e(lab[0], cream) < 5  # the largest region is the body colour
+    assert sum(r.faces for r in seg.regions) == len(seg.face_labels)
+
+
+def test_palette_colours_are_far_apart():
+    lab = srgb8_to_lab(PALETTE)
+    d = delta_e(lab[:, None], lab[None])
+    assert d[~np.eye(len(lab), dtype=bool)].min() > 30

@@ -1,0 +1,31 @@
+import numpy as np
+import pytest
+
+from hlr_lab.bench import nearest_neighbour_spacing_deg
+from hlr_lab.sphere import azimuth_elevation, direction, directions_with_spacing, fibonacci_directions
+
+
+@pytest.mark.parametrize("spacing", [0.5, 1.0, 2.0])
+def test_candidate_spacing_is_at_most_the_request(spacing):
+    d = directions_with_spacing(spacing)
+    measured = nearest_neighbour_spacing_deg(d)
+    assert spacing * 0.8 < measured <= spacing
+
+
+def test_fibonacci_points_are_uniform():
+    d = fibonacci_directions(20000)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+    # equal area: the fraction of points in any z-band equals the band's area fraction (Archimedes)
+    for lo, hi in [(-1, -0.5), (-0.2, 0.3), (0.9, 1.0)]:
+        frac = np.mean((d[:, 2] >= lo) & (d[:, 2] < hi))
+        assert frac == pytest.approx((hi - lo) / 2, abs=2e-3)
+    az = np.arctan2(d[:, 1], d[:, 0])
+    assert np.mean(az > 0) == pytest.approx(0.5, abs=5e-3)
+
+
+def test_azimuth_elevation_round_trip():
+    rng = np.random.default_rng(0)
+    az, el = rng.uniform(-np.pi, np.pi, 100), rng.uniform(-1.5, 1.5, 100)
+    az2, el2 = azimuth_elevation(direction(az, el))
+    np.testing.assert_allclose(az2, az, atol=1e-12)
+    np.testing.assert_allclose(el2, el, atol=1e-12)
