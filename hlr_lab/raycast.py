@@ -24,6 +24,8 @@ except ImportError as exc:  # pragma: no cover - embreex is a hard dependency
 SURFACE_OFFSET = 1e-5
 # How much nearer than expected a hit may be and still count as the expected surface (visibility).
 HIT_TOLERANCE = 1e-4
+# Rays per Embree call: bounds the temporaries trimesh makes (~200 bytes a ray) on million-ray queries.
+_RAY_CHUNK = 1 << 18
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,12 +61,11 @@ class RayCaster:
         directions = np.ascontiguousarray(directions, dtype=np.float64)
         face = np.full(len(origins), -1, dtype=np.int64)
         dist = np.full(len(origins), np.inf)
-        if len(origins) == 0:
-            return face, dist
-        tri, ray, loc = self._intersector.intersects_id(origins, directions, multiple_hits=False,
-                                                        return_locations=True)
-        face[ray] = tri
-        dist[ray] = np.linalg.norm(loc - origins[ray], axis=1)
+        for start in range(0, len(origins), _RAY_CHUNK):
+            o, d = origins[start:start + _RAY_CHUNK], directions[start:start + _RAY_CHUNK]
+            tri, ray, loc = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
+            face[start + ray] = tri
+            dist[start + ray] = np.linalg.norm(loc - o[ray], axis=1)
         return face, dist
 
     def segment_blocked(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
@@ -107,16 +108,21 @@ class RayCaster:
                        depth.reshape(h, w), bary.reshape(h, w, 3))
 
 
-def visible_points(caster: RayCaster, camera: Camera, points: np.ndarray, normals: np.ndarray, *,
-                   max_view_angle_deg: float) -> np.ndarray:
-    """(N,) bool: surface point in the image, facing the camera within ``max_view_angle_deg`` and unoccluded.
+def facing(camera: Camera, points: np.ndarray, normals: np.ndarray, *, max_view_angle_deg: float) -> np.ndarray:
+    """(N,) bool: surface point in the image and facing the camera within ``max_view_angle_deg`` (no ray test).
 
     ``camera``, ``points`` (N, 3) and ``normals`` (N, 3) are in the mesh frame.
     """
     pixels, z = camera.project(points)
     to_cam = camera.centre - points
     cos_view = np.einsum("ij,ij->i", normals, to_cam) / np.linalg.norm(to_cam, axis=1)
-    candidate = (z > 0) & camera.in_image(pixels) & (cos_view >= np.cos(np.radians(max_view_angle_deg)))
+    return (z > 0) & camera.in_image(pixels) & (cos_view >= np.cos(np.radians(max_view_angle_deg)))
+
+
+def visible_points(caster: RayCaster, camera: Camera, points: np.ndarray, normals: np.ndarray, *,
+                   max_view_angle_deg: float) -> np.ndarray:
+    """(N,) bool: :func:`facing` and nothing between the camera and the point."""
+    candidate = facing(camera, points, normals, max_view_angle_deg=max_view_angle_deg)
     visible = np.zeros(len(points), dtype=bool)
     idx = np.flatnonzero(candidate)
     visible[idx] = caster.visible_from(camera.centre, points[idx])

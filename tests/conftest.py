@@ -20,7 +20,10 @@ SHARED_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 def no_leaked_threads():
     before = set(threading.enumerate())
     yield
-    leaked = [t for t in threading.enumerate() if t not in before and t.is_alive()]
+    new = [t for t in threading.enumerate() if t not in before]
+    for t in new:  # threads told to stop (rich's refresh thread, say) get a moment to finish
+        t.join(timeout=2.0)
+    leaked = [t for t in new if t.is_alive()]
     assert not leaked, f"the test left threads running: {leaked}"
 
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.table import Table
-
 from hlr_lab.bench import PAPER_SETTINGS, mesh_label, nearest_neighbour_spacing_deg, run_plan_case
 from hlr_lab.cli.common import console, out
 from hlr_lab.sphere import directions_with_spacing
@@ -39,15 +37,13 @@ def bench_plan(mesh_path, up, scale, min_vertices) -> None:
     cases = [(name, None if mesh_path is None else str(mesh_path), up, scale, 0)]
     if min_vertices:
         cases.append((f"{name} subdivided", None if mesh_path is None else str(mesh_path), up, scale, min_vertices))
-    t = Table(title="plan benchmark (fresh process per case; mesh loading and segmentation excluded)",
-              title_justify="left")
-    for col in ("case", "vertices", "regions", "lights", "plain count", "uncovered", "plan s", "stages s",
-                "RSS before MB", "peak RSS MB"):
-        t.add_column(col, justify="right")
+    out.print("plan benchmark: one fresh process per case; mesh loading and segmentation excluded")
     for case in cases:
         with console.status(f"planning {case[0]}…"):
             f = run_plan_case(*case)
         stages = ", ".join(f"{k} {v:.2f}" for k, v in f.stages.items())
-        t.add_row(f.case, f"{f.vertices:,}", str(f.regions), str(f.lights), str(f.lights_plain), str(f.uncovered),
-                  f"{f.plan_s:.2f}", stages, f"{f.rss_before_mb:.0f}", f"{f.rss_peak_plan_mb:.0f}")
-    out.print(t)
+        out.print(f"{f.case}: {f.vertices:,} vertices, {f.regions} regions", soft_wrap=True, markup=False)
+        out.print(f"  lights {f.lights} (plain count {f.lights_plain}), uncovered regions {f.uncovered}", soft_wrap=True, markup=False)
+        out.print(f"  plan time {f.plan_s:.2f} s  [{stages}]", soft_wrap=True, markup=False)
+        out.print(f"  memory: RSS {f.rss_before_mb:.0f} MB before planning, peak RSS {f.rss_peak_plan_mb:.0f} MB "
+                  "while planning", soft_wrap=True, markup=False)

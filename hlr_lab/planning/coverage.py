@@ -12,13 +12,14 @@ Two levels, so that planning stays fast on million-vertex meshes yet every count
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hlr_lab.planning.geometry import Highlights, in_cone
+from hlr_lab.planning.geometry import Highlights
 from hlr_lab.raycast import RayCaster
 
 # First-order footprint radius (distance·tanθc/cos incidence) times this covers the exact footprint's
@@ -26,12 +27,15 @@ from hlr_lab.raycast import RayCaster
 _FOOTPRINT_MARGIN = 1.25
 _MIN_COS_INCIDENCE = 0.25
 _RADIUS_CLASS = 1.25  # pooled samples' footprint radii differ by at most this factor
-_PAIRS_PER_BATCH = 4_000_000  # bounds memory: ~40 bytes a pair while a batch is filtered
+_PAIRS_PER_BATCH = 1_000_000  # bounds memory: ~100 bytes a pair while a batch is filtered
 
 
 @dataclass(frozen=True, eq=False)
 class ViewSamples:
-    """The countable samples of one view (visible, not grazing vertices), in the turntable frame.
+    """The samples of one view that face the camera (in the image, not grazing), in the turntable frame.
+
+    Whether each is also unoccluded is found lazily with ``caster`` (:meth:`visible`): exact counts only
+    ever need the few thousand samples near a light, and a fine sampling has hundreds of thousands.
 
     index (K,) of each sample in the plan's SurfaceSamples; highlights (K samples); region (K,) int;
     weight (K,) in the plan's count unit; candidate_dirs (Q, 3)
@@ -50,6 +54,19 @@ class ViewSamples:
     sphere_radius: float
     view_from_world: np.ndarray
     n_regions: int
+    camera_centre: np.ndarray
+    caster: RayCaster
+
+    def __post_init__(self):
+        object.__setattr__(self, "_visibility", np.full(len(self.region), -1, np.int8))  # −1: not tested yet
+
+    def visible(self, which: np.ndarray) -> np.ndarray:
+        """Bool per sample index in ``which``: no surface between the camera and the sample (cached)."""
+        state = self._visibility
+        todo = which[state[which] < 0]
+        if len(todo):
+            state[todo] = self.caster.visible_from(self.camera_centre, self.highlights.point[todo])
+        return state[which] == 1
 
     def light_position(self, dirs_world: np.ndarray) -> np.ndarray:
         """(…, 3) world directions from S's centre → light positions on S in the view's frame."""
@@ -60,9 +77,10 @@ class ViewSamples:
         """(Q, 3) the candidate light positions in the view's frame."""
         return self.light_position(self.candidate_dirs)
 
-    @property
     def region_weight(self) -> np.ndarray:
-        return np.bincount(self.region, weights=self.weight, minlength=self.n_regions)
+        """(R,) total weight of the visible samples per region."""
+        seen = self.visible(np.arange(len(self.region)))
+        return np.bincount(self.region[seen], weights=self.weight[seen], minlength=self.n_regions)
 
     def footprint_radius(self, theta_c: float) -> np.ndarray:
         """(K,) chord radius on the unit sphere that contains each sample's cone footprint on S."""
@@ -89,8 +107,10 @@ def count_estimates(view: ViewSamples, caster: RayCaster, theta_c: float, cell: 
     if len(view.region) == 0 or q == 0:
         return estimates.reshape(q, view.n_regions)
     tree = tree or cKDTree(view.candidate_dirs)
-    lit = ~caster.shadowed(h.point, h.normal, h.point + h.mirror * h.distance[:, None])
-    pools = _pool(view, lit, view.footprint_radius(theta_c), cell)
+    seen = np.flatnonzero(view.visible(np.arange(len(view.region))))
+    keep = np.zeros(len(view.region), bool)
+    keep[seen] = ~caster.shadowed(h.point[seen], h.normal[seen], h.point[seen] + h.mirror[seen] * h.distance[seen, None])
+    pools = _pool(view, keep, view.footprint_radius(theta_c), cell)
     order = np.argsort(pools.radius)
     density = q / (4 * np.pi)  # candidates per steradian
     cos_c = np.cos(theta_c)
@@ -150,6 +170,32 @@ def _pool(view: ViewSamples, keep: np.ndarray, radius: np.ndarray, cell: float) 
     return _Pools(mean(h.point[idx]), mirror, footprint, disc, np.bincount(group, weights=w, minlength=n), region)
 
 
+def _in_cones(view: ViewSamples, lights: np.ndarray, light_dirs: np.ndarray, theta_c: float,
+              max_light_angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Samples whose cone holds each of m lights (m, 3) (view frame; ``light_dirs`` their world directions
+    from S's centre) and which those lights reach at less than ``max_light_angle`` from the normal.
+
+    Returns ``near`` (n,) sample indices and ``inside`` (n, m) bool. A KD-tree over the mirror points
+    finds the candidates; the test itself is exact.
+    """
+    h = view.highlights
+    radius = view.footprint_radius(theta_c)
+    if len(radius) == 0:
+        return np.zeros(0, np.int64), np.zeros((0, len(lights)), bool)
+    centre = light_dirs.mean(axis=0)
+    centre /= np.linalg.norm(centre)
+    spread = np.linalg.norm(light_dirs - centre, axis=1).max()
+    near = np.asarray(view.footprint_tree.query_ball_point(centre, radius.max() + spread), dtype=np.int64)
+    gap = np.linalg.norm(view.footprint_dirs[near, None, :] - light_dirs[None], axis=2)  # (n, m)
+    near = near[(gap <= radius[near, None]).any(axis=1)]
+    near = near[view.visible(near)]
+    to_light = lights[None, :, :] - h.point[near, None, :]  # (n, m, 3)
+    dist = np.linalg.norm(to_light, axis=2)
+    cos_cone = np.einsum("nmd,nd->nm", to_light, h.mirror[near]) / dist
+    cos_light = np.einsum("nmd,nd->nm", to_light, h.normal[near]) / dist
+    return near, (cos_cone >= np.cos(theta_c)) & (cos_light >= np.cos(max_light_angle))
+
+
 def exact_counts(view: ViewSamples, caster: RayCaster, light: np.ndarray, light_dir: np.ndarray, *,
                  theta_c: float, max_light_angle: float, shadows: bool) -> tuple[np.ndarray, np.ndarray]:
     """Exact highlight counts per region (R,) for one light position (3,) (view frame; ``light_dir`` its
@@ -158,18 +204,40 @@ def exact_counts(view: ViewSamples, caster: RayCaster, light: np.ndarray, light_
     A sample counts when the light is inside its cone, lights it at less than ``max_light_angle`` from
     the normal, and (with ``shadows``) reaches it unobstructed.
     """
-    h = view.highlights
-    radius = view.footprint_radius(theta_c)
-    near = np.asarray(view.footprint_tree.query_ball_point(light_dir, radius.max() if len(radius) else 0.0),
-                      dtype=np.int64)
-    near = near[np.linalg.norm(view.footprint_dirs[near] - light_dir, axis=1) <= radius[near]]
-    sub = Highlights(h.point[near], h.normal[near], h.mirror[near], h.distance[near], h.footprint[near],
-                     h.cos_incidence[near])
-    inside = in_cone(sub, light, theta_c)
-    to_light = light - sub.point
-    cos_light = np.einsum("ij,ij->i", sub.normal, to_light) / np.linalg.norm(to_light, axis=1)
-    counted = near[inside & (cos_light >= np.cos(max_light_angle))]
+    near, inside = _in_cones(view, light[None], light_dir[None], theta_c, max_light_angle)
+    counted = near[inside[:, 0]]
     if shadows and len(counted):
+        h = view.highlights
         counted = counted[~caster.shadowed(h.point[counted], h.normal[counted], light)]
     counts = np.bincount(view.region[counted], weights=view.weight[counted], minlength=view.n_regions)
     return counts, np.sort(counted)
+
+
+def best_light(view: ViewSamples, caster: RayCaster, lights: np.ndarray, light_dirs: np.ndarray,
+               rank: Callable[[np.ndarray], np.ndarray], *, theta_c: float, max_light_angle: float,
+               shadows: bool) -> tuple[int, np.ndarray]:
+    """The best of m nearby lights by ``rank`` ((m, R) counts → (m,) scores) with its exact (R,) counts.
+
+    Branch and bound: unshadowed counts bound the shadowed ones from above, so shadow rays are cast
+    only for lights whose bound still beats the best exact score found.
+    """
+    near, inside = _in_cones(view, lights, light_dirs, theta_c, max_light_angle)
+    onehot = np.zeros((len(near), view.n_regions))
+    onehot[np.arange(len(near)), view.region[near]] = view.weight[near]
+    bound = inside.T.astype(np.float64) @ onehot  # (m, R)
+    if not shadows:
+        j = int(np.argmax(rank(bound)))
+        return j, bound[j]
+    upper = rank(bound)
+    best, best_counts, best_score = -1, np.zeros(view.n_regions), -np.inf
+    h = view.highlights
+    for j in np.argsort(-upper, kind="stable"):
+        if upper[j] <= best_score:
+            break
+        members = near[inside[:, j]]
+        lit = members[~caster.shadowed(h.point[members], h.normal[members], lights[j])] if len(members) else members
+        counts = np.bincount(view.region[lit], weights=view.weight[lit], minlength=view.n_regions)
+        s = rank(counts[None])[0]
+        if s > best_score:
+            best, best_counts, best_score = int(j), counts, s
+    return best, best_counts

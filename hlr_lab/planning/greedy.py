@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# A light must add at least this much (count unit) to be worth a photograph.
+# A light must add at least this much (count unit) to be worth a photograph, or all that is still needed.
 MIN_GAIN = 1.0
 # Accept the best exactly-scored light when no estimate beats it by more than this fraction: estimates
 # come from coarser samples than the exact counts, and chasing the last per cent costs many ray casts.
@@ -81,7 +81,7 @@ def select_lights(bounds_of: Callable[[int], np.ndarray], n_views: int,
             # open the view whose best bound is highest (ties: the earlier view)
             gains = {v: score(bounds[v], need, capped).max(initial=0.0) for v in unopened}
             v_best = max(unopened, key=lambda v: (gains[v], -v))
-            if gains[v_best] < MIN_GAIN:
+            if gains[v_best] < min(MIN_GAIN, float(need[need > 0].min())):
                 break
             used.append(v_best)
             continue
@@ -108,13 +108,15 @@ def _best(bounds, exact, used, need, capped, evaluate):
 
 
 def _top(bounds, exact, used, need, capped):
-    """Best (view, candidate, score) among exactly scored and among estimated candidates (None if < MIN_GAIN)."""
+    """Best (view, candidate, score) among exactly scored and among estimated candidates (None below the
+    minimum gain)."""
+    worth = min(MIN_GAIN, float(need[need > 0].min()) if (need > 0).any() else MIN_GAIN)
     best = {True: None, False: None}
     for v in used:
         s = score(bounds[v], need, capped)
         for is_exact in (True, False):
             masked = np.where(exact[v] == is_exact, s, -np.inf)
             q = int(np.argmax(masked)) if len(masked) else -1
-            if q >= 0 and masked[q] >= MIN_GAIN and (best[is_exact] is None or masked[q] > best[is_exact][2]):
+            if q >= 0 and masked[q] >= worth and (best[is_exact] is None or masked[q] > best[is_exact][2]):
                 best[is_exact] = (v, q, float(masked[q]))
     return best[True], best[False]

@@ -22,11 +22,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from hlr_lab.mesh import ColouredMesh
-from hlr_lab.planning.coverage import ViewSamples, count_estimates, exact_counts
+from hlr_lab.planning.coverage import ViewSamples, best_light, count_estimates, exact_counts
 from hlr_lab.planning.geometry import LightSphere, light_sphere, mirror_highlights
 from hlr_lab.planning.greedy import Selection, score, select_lights
 from hlr_lab.planning.samples import SurfaceSamples, surface_samples, vertex_samples
-from hlr_lab.raycast import RayCaster, visible_points
+from hlr_lab.raycast import RayCaster, facing
 from hlr_lab.rig import Rig
 from hlr_lab.segment import Segmentation
 from hlr_lab.sphere import azimuth_elevation, directions_with_spacing, rotation_z
@@ -160,16 +160,13 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
 
     def evaluate(v: int, q: int, need: np.ndarray, capped: bool) -> np.ndarray:
         if (v, q) not in refined:
-            vs = view_samples(v)
-            best = (-1, np.zeros(n_regions), -np.inf)
-            for f in cands.cell(q):
-                counts = exact_counts(vs, caster, vs.light_position(cands.fine[f]), cands.fine[f], theta_c=theta_c,
-                                      max_light_angle=np.radians(settings.max_view_angle_deg),
-                                      shadows=settings.shadows)[0]
-                s = score(counts[None], need, capped)[0]
-                if s > best[2]:
-                    best = (int(f), counts, s)
-            refined[v, q] = best[:2]
+            vs, cell = view_samples(v), cands.cell(q)
+            if len(cell) == 0:
+                return np.zeros(n_regions)
+            j, counts = best_light(vs, caster, vs.light_position(cands.fine[cell]), cands.fine[cell],
+                                   lambda c: score(c, need, capped), theta_c=theta_c,
+                                   max_light_angle=np.radians(settings.max_view_angle_deg), shadows=settings.shadows)
+            refined[v, q] = (int(cell[j]), counts)
         return refined[v, q][1]
 
     need = np.full(n_regions, float(settings.min_samples))
@@ -208,11 +205,10 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
 
 def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: LightSphere, caster: RayCaster,
                   dirs_world: np.ndarray, turntable_deg: float, settings: PlanSettings) -> ViewSamples:
-    """The samples one view can count: visible, not grazing surface points with their mirror points on S."""
+    """The samples one view may count (facing the camera, not grazing) with their mirror points on S."""
     world_from_tt = rotation_z(np.radians(turntable_deg))[:3, :3]
     camera = rig.camera.in_frame(rotation_z(np.radians(turntable_deg)))
-    idx = np.flatnonzero(visible_points(caster, camera, surface.point, surface.normal,
-                                        max_view_angle_deg=settings.max_view_angle_deg))
+    idx = np.flatnonzero(facing(camera, surface.point, surface.normal, max_view_angle_deg=settings.max_view_angle_deg))
     points, normals = surface.point[idx], surface.normal[idx]
     centre_tt = world_from_tt.T @ sphere.centre
     h = mirror_highlights(points, normals, camera.centre, centre_tt, sphere.radius)
@@ -221,7 +217,7 @@ def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: Lig
     else:
         weight = np.ones(len(idx))
     return ViewSamples(idx, h, surface.region[idx], weight, dirs_world, h.footprint @ world_from_tt.T, centre_tt,
-                       sphere.radius, world_from_tt.T, n_regions)
+                       sphere.radius, world_from_tt.T, n_regions, camera.centre, caster)
 
 
 def _lights(selection: Selection, refined, cands: _Candidates, samples, views, sphere: LightSphere,
@@ -248,7 +244,7 @@ def _reasons(satisfied, coverage, selection, views, settings, view_samples, esti
     short = np.flatnonzero(~satisfied)
     if len(short) == 0:
         return {}
-    seen = np.sum([view_samples(v).region_weight for v in range(len(views))], axis=0)
+    seen = np.sum([view_samples(v).region_weight() for v in range(len(views))], axis=0)
     reach = np.sum([estimates_of(v).max(axis=0) for v in range(len(views))], axis=0)
     reasons = {}
     for r in short:

@@ -1,0 +1,111 @@
+"""The command line as an operator meets it: exit codes, one-line errors, files written or not at all."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+import trimesh
+
+from hlr_lab.cli.main import main
+from hlr_lab.formats.plan import read_plan
+from hlr_lab.procedural import pebble
+
+
+def run(capsys, *args):
+    code = main(list(args))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_segment_then_plan_on_the_builtin_object(capsys, tmp_path):
+    regions = tmp_path / "regions.json"
+    code, _, err = run(capsys, "segment", "--mesh", "builtin:pebble", "-o", str(regions))
+    assert code == 0, err
+    assert "4 regions" in err
+    plan = tmp_path / "plan.json"
+    code, _, err = run(capsys, "plan", "--mesh", "builtin:pebble", "--regions", str(regions), "--sim",
+                       "--spacing", "1", "-o", str(plan))
+    assert code == 0, err
+    assert "coverage" in err and "plain count would need" in err
+    p = read_plan(plan)
+    assert p.poses and all(c.satisfied for c in p.coverage.values())
+    assert p.parameters.criterion == "capped" and p.summary["lights_by_criterion"]["plain"] >= len(p.poses)
+
+
+def test_uncovered_regions_give_exit_status_3_and_a_written_plan(capsys, tmp_path):
+    plan = tmp_path / "plan.json"
+    code, _, err = run(capsys, "plan", "--mesh", "builtin:pebble", "--sim", "--views", "0", "--spacing", "1",
+                       "-o", str(plan))
+    assert code == 3
+    assert "not visible" in err
+    uncovered = json.loads(plan.read_text())["uncovered"]
+    assert uncovered and uncovered[0]["reason"].startswith("not visible")
+
+
+def test_plan_a_vertex_coloured_ply_with_a_fixed_region_count(capsys, tmp_path):
+    m = pebble(subdivisions=3).mesh
+    ply = tmp_path / "pebble.ply"
+    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(ply)
+    regions = tmp_path / "regions.json"
+    code, _, err = run(capsys, "segment", "--mesh", str(ply), "--regions", "3", "-o", str(regions))
+    assert code == 0, err
+    data = json.loads(regions.read_text())
+    assert len(data["regions"]) == 3 and data["mesh"] == "pebble.ply"  # relative to the regions file
+    code, _, err = run(capsys, "plan", "--mesh", str(ply), "--regions", str(regions), "--sim", "--count",
+                       "vertices", "--min-samples", "10", "--spacing", "1", "-o", str(tmp_path / "plan.json"))
+    assert code in (0, 3), err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["plan", "--mesh", "missing.ply", "--sim"], "missing.ply: no such mesh file"),
+        (["plan", "--mesh", "builtin:pebble"], "which rig?"),
+        (["plan", "--mesh", "builtin:pebble", "--sim", "--views", "0,east"], "--views"),
+        (["plan", "--mesh", "builtin:cube", "--sim"], "unknown built-in object"),
+        (["plan", "--mesh", "builtin:pebble", "--rig", "nowhere.toml"], "nowhere.toml: no such file"),
+        (["plan", "--mesh", "builtin:pebble", "--sim", "--sphere-scale", "0.5"], "--sphere-scale"),
+    ],
+)
+def test_errors_are_one_clear_line_and_write_nothing(capsys, tmp_path, args, message):
+    out_file = tmp_path / "plan.json"
+    code, out, err = run(capsys, *args, "-o", str(out_file))
+    assert code == 1
+    assert message in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out_file.exists()
+
+
+def test_debug_shows_the_traceback(capsys, tmp_path):
+    code, _, err = run(capsys, "--debug", "plan", "--mesh", "missing.ply", "--sim", "-o", str(tmp_path / "p.json"))
+    assert code == 1 and "Traceback" in err
+
+
+@pytest.mark.parametrize("command", [["segment"], ["plan"], ["bench", "plan"]])
+def test_every_command_has_help_with_an_example(capsys, command):
+    code, out, _ = run(capsys, *command, "--help")
+    assert code == 0
+    assert "Example" in out
+
+
+def test_usage_errors_exit_2(capsys):
+    code, _, err = run(capsys, "plan", "--theta-c", "-3")
+    assert code == 2 and "theta-c" in err
+
+
+def test_console_script_runs_as_a_process(tmp_path):
+    exe = shutil.which("hlr-lab")
+    cmd = [exe] if exe else [sys.executable, "-m", "hlr_lab.cli.main"]
+    proc = subprocess.run([*cmd, "plan", "--mesh", "missing.obj", "--sim", "-o", str(tmp_path / "p.json")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and "no such mesh file" in proc.stderr
+
+
+@pytest.mark.slow
+def test_plan_benchmark_prints_figures(capsys):
+    code, out, err = run(capsys, "bench", "plan", "--large", "0")
+    assert code == 0, err
+    assert "builtin:pebble" in out and "plan time" in out and "peak RSS" in out
+    assert "measured max nearest-neighbour" in err

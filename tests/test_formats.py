@@ -1,0 +1,134 @@
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.formats.plan import build_plan, read_plan, write_plan
+from hlr_lab.formats.regions import read_regions, write_regions
+from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.planner import PlanSettings, plan_lights
+from hlr_lab.procedural import pebble
+from hlr_lab.rig import load_rig
+from hlr_lab.segment import segment
+from hlr_lab.sphere import rotation_z
+
+SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
+
+
+@pytest.fixture(scope="module")
+def plan_file(tmp_path_factory, rig):
+    obj = pebble(subdivisions=4)
+    seg = segment(obj.mesh)
+    m = placement(obj.mesh)
+    result = plan_lights(obj.mesh.transformed(m), seg, rig,
+                         PlanSettings(views_deg=[0.0, 90.0], spacing_deg=1.0, compare_criteria=False))
+    plan = build_plan(result, seg, mesh_ref="builtin:pebble", sha256=obj.mesh.sha256, texture_ref=None,
+                      mesh_to_turntable=m, up="z", scale=1.0, exposures_s=rig.exposure_bracket_s, rig_name=rig.name)
+    path = tmp_path_factory.mktemp("plan") / "plan.json"
+    write_plan(path, plan)
+    return path, result, obj, m
+
+
+def test_plan_round_trip_and_skeleton(plan_file):
+    path, result, obj, m = plan_file
+    plan = read_plan(path)
+    raw = json.loads(path.read_text())
+    assert raw["format"] == "hlr-lab.plan" and raw["version"] == 1
+    assert set(raw) >= {"object", "parameters", "poses", "coverage", "uncovered"}
+    assert set(raw["parameters"]) >= {"theta_c_deg", "min_samples", "sphere_radius_m", "count", "criterion"}
+    assert len(plan.poses) == len(result.lights)
+    for pose, light in zip(plan.poses, result.lights, strict=True):
+        # position_mesh_m is in the mesh's own frame: mapping it through the placement and the turntable
+        # angle gives the world position
+        p_mesh = np.append(pose.light.position_mesh_m, 1.0)
+        world = (rotation_z(np.radians(pose.turntable_deg)) @ m @ p_mesh)[:3]
+        np.testing.assert_allclose(world, pose.light.position_m, atol=2e-6)
+        assert sum(pose.expected.values()) == pytest.approx(light.expected.sum(), abs=0.5)
+    assert plan.object.sha256 == obj.mesh.sha256
+
+
+def _mutated(path: Path, tmp_path: Path, change) -> Path:
+    data = json.loads(path.read_text())
+    change(data)
+    out = tmp_path / "bad.json"
+    out.write_text(json.dumps(data))
+    return out
+
+
+@pytest.mark.parametrize(
+    ("change", "field", "message"),
+    [
+        (lambda d: d.update(format="something.else"), "format", "not an hlr-lab.plan"),
+        (lambda d: d.update(version=2), "version", "upgrade"),
+        (lambda d: d.pop("poses"), "poses", "required"),
+        (lambda d: d["poses"][0].update(exposures_s=[]), "poses[0].exposures_s", "at least 1"),
+        (lambda d: d["parameters"].update(count="photons"), "parameters.count", "pixels"),
+    ],
+)
+def test_malformed_plans_name_the_field(plan_file, tmp_path, change, field, message):
+    bad = _mutated(plan_file[0], tmp_path, change)
+    with pytest.raises(InputError, match=message) as err:
+        read_plan(bad)
+    assert field in str(err.value) and str(bad) in str(err.value)
+
+
+def test_not_json(tmp_path):
+    p = tmp_path / "plan.json"
+    p.write_text("{ not json")
+    with pytest.raises(InputError, match="not valid JSON"):
+        read_plan(p)
+
+
+def test_regions_round_trip_and_mesh_check(tmp_path):
+    obj = pebble(subdivisions=3)
+    seg = segment(obj.mesh, split_connected=True)
+    path = tmp_path / "regions.json"
+    write_regions(path, obj.mesh, seg, mesh_name="builtin:pebble", regions_requested=None)
+    back = read_regions(path, obj.mesh)
+    assert np.array_equal(back.vertex_labels, seg.vertex_labels)
+    assert np.array_equal(back.face_labels, seg.face_labels)
+    assert back.split_connected
+    for a, b in zip(back.regions, seg.regions, strict=True):
+        assert (a.id, a.material, a.colour, a.vertices, a.faces) == (b.id, b.material, b.colour, b.vertices, b.faces)
+        assert a.area_m2 == pytest.approx(b.area_m2, abs=1e-9)
+    other = pebble(subdivisions=2).mesh
+    with pytest.raises(InputError, match="another mesh"):
+        read_regions(path, other)
+
+
+def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
+    p = tmp_path / "plan.json"
+    atomic_write_text(p, "old")
+    with pytest.raises(TypeError):
+        atomic_write_text(p, b"bytes are not text")  # fails inside the write
+    assert p.read_text() == "old"
+    assert [f.name for f in tmp_path.iterdir()] == ["plan.json"]  # no temporary left behind
+
+
+def test_sim_rig_file_loads():
+    rig = load_rig(SIM_RIG)
+    assert rig.gantry.arm_radius == 0.30 and rig.camera.width == 1280
+    np.testing.assert_allclose(rig.camera.centre, [0.0, -0.62, 0.30])
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ("elevation_limits_deg = [-10.0, 80.0]", "elevation_limits_deg = [80.0, -10.0]", "gantry"),
+        ("arm_radius_m = 0.30", "arm_radius_m = -1", "gantry.arm_radius_m"),
+        ("[turntable]", "[turntable]\nspeed = 3", "turntable.speed"),
+        ('format = "hlr-lab.rig"', 'format = "hlr-lab.plan"', "rig.format"),
+        ("width = 1280", "width = 1280 1280", "not valid TOML"),
+    ],
+)
+def test_bad_rig_files_name_the_field(tmp_path, old, new, message):
+    text = SIM_RIG.read_text()
+    assert old in text
+    bad = tmp_path / "rig.toml"
+    bad.write_text(text.replace(old, new))
+    with pytest.raises(InputError, match=message.replace(".", r"\.")) as err:
+        load_rig(bad)
+    assert str(bad) in str(err.value)
