@@ -25,11 +25,14 @@ from hlr_lab.rig import Rig, sim_rig
 from hlr_lab.segment import segment
 
 PAPER_REGIONS = 8
-PAPER_SETTINGS = PlanSettings(theta_c_deg=5.0, min_samples=50, sphere_scale=2.0, views_deg=[0.0], spacing_deg=0.5)
+PAPER_SETTINGS = PlanSettings(
+    theta_c_deg=5.0, min_samples=50, sphere_scale=2.0, views_deg=[0.0], spacing_deg=0.5
+)
 
 
-def paper_41_object(mesh: ColouredMesh, rig: Rig, *, up: str = "z", scale: float = 1.0,
-                    k: int = PAPER_REGIONS) -> ColouredMesh:
+def paper_41_object(
+    mesh: ColouredMesh, rig: Rig, *, up: str = "z", scale: float = 1.0, k: int = PAPER_REGIONS
+) -> ColouredMesh:
     """The paper's 4.1 set-up: the placed mesh painted in ``k`` patches that all face the camera at
     turntable 0° (clustered among the visible vertices), like the paper's 8 regions in view."""
     placed = mesh.transformed(placement(mesh, up=up, scale=scale))
@@ -100,9 +103,18 @@ def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vert
         t = time.perf_counter()
         result = plan_lights(painted, seg, rig, PAPER_SETTINGS)
         elapsed = time.perf_counter() - t
-    return PlanFigures(case, len(painted.vertices), seg.n_regions, len(result.lights),
-                       result.lights_by_criterion.get("plain", -1), len(result.uncovered), elapsed,
-                       result.seconds, before / 2**20, rss.peak / 2**20)
+    return PlanFigures(
+        case,
+        len(painted.vertices),
+        seg.n_regions,
+        len(result.lights),
+        result.lights_by_criterion.get("plain", -1),
+        len(result.uncovered),
+        elapsed,
+        result.seconds,
+        before / 2**20,
+        rss.peak / 2**20,
+    )
 
 
 def run_plan_case(*args) -> PlanFigures:

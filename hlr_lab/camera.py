@@ -45,8 +45,14 @@ class Camera:
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
         rotation = np.stack([x, y, z])
-        return cls(np.asarray(matrix, float), np.asarray(distortion, float), rotation, -rotation @ position,
-                   int(width), int(height))
+        return cls(
+            np.asarray(matrix, float),
+            np.asarray(distortion, float),
+            rotation,
+            -rotation @ position,
+            int(width),
+            int(height),
+        )
 
     @property
     def centre(self) -> np.ndarray:
@@ -61,8 +67,14 @@ class Camera:
     def in_frame(self, world_from_frame: np.ndarray) -> Camera:
         """The same physical camera expressed in another frame; ``world_from_frame`` is 4×4 rigid."""
         a, b = world_from_frame[:3, :3], world_from_frame[:3, 3]
-        return Camera(self.matrix, self.distortion, self.rotation @ a, self.rotation @ b + self.translation,
-                      self.width, self.height)
+        return Camera(
+            self.matrix,
+            self.distortion,
+            self.rotation @ a,
+            self.rotation @ b + self.translation,
+            self.width,
+            self.height,
+        )
 
     def to_camera(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) world points → (N, 3) camera-frame points."""
@@ -132,5 +144,8 @@ class Camera:
         dist = np.linalg.norm(to_cam, axis=1)
         cos_view = np.einsum("ij,ij->i", normals, to_cam) / np.maximum(dist, 1e-300)
         zpos = np.maximum(z, 1e-300)
-        return np.where(z > 0, areas * np.clip(cos_view, 0, None) * dist / zpos**3
-                        * self.matrix[0, 0] * self.matrix[1, 1], 0.0)
+        return np.where(
+            z > 0,
+            areas * np.clip(cos_view, 0, None) * dist / zpos**3 * self.matrix[0, 0] * self.matrix[1, 1],
+            0.0,
+        )

@@ -107,9 +107,14 @@ class ColouredMesh:
         """The same mesh with a rigid/similarity 4×4 ``matrix`` applied to its vertices."""
         v = self.vertices @ matrix[:3, :3].T + matrix[:3, 3]
         faces = self.faces if np.linalg.det(matrix[:3, :3]) > 0 else self.faces[:, ::-1]
-        uv = None if self.corner_uv is None else (self.corner_uv if faces is self.faces else self.corner_uv[:, ::-1])
-        return ColouredMesh(v, faces, self.vertex_colours, uv, self.texture, self.source, self.sha256,
-                            self.texture_source)
+        uv = (
+            None
+            if self.corner_uv is None
+            else (self.corner_uv if faces is self.faces else self.corner_uv[:, ::-1])
+        )
+        return ColouredMesh(
+            v, faces, self.vertex_colours, uv, self.texture, self.source, self.sha256, self.texture_source
+        )
 
 
 def file_sha256(path: str | Path) -> str:
@@ -129,7 +134,9 @@ def arrays_sha256(*arrays: np.ndarray | None) -> str:
     return h.hexdigest()
 
 
-def load_mesh(path: str | Path, texture: str | Path | None = None, *, need_colour: bool = False) -> ColouredMesh:
+def load_mesh(
+    path: str | Path, texture: str | Path | None = None, *, need_colour: bool = False
+) -> ColouredMesh:
     """Read an OBJ, PLY or glTF/GLB mesh with vertex colours or a UV texture.
 
     ``texture`` supplies the image for an OBJ that has UVs but does not reference one.
@@ -142,11 +149,14 @@ def load_mesh(path: str | Path, texture: str | Path | None = None, *, need_colou
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for malformed files
-        raise InputError(f"cannot read the mesh ({type(exc).__name__}: {exc}); "
-                         "give an OBJ, PLY, glTF or GLB file", path=path) from exc
+        raise InputError(
+            f"cannot read the mesh ({type(exc).__name__}: {exc}); give an OBJ, PLY, glTF or GLB file",
+            path=path,
+        ) from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise InputError("the mesh has no faces; hlr-lab needs a triangle mesh (a point cloud will not do)",
-                         path=path)
+        raise InputError(
+            "the mesh has no faces; hlr-lab needs a triangle mesh (a point cloud will not do)", path=path
+        )
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
     faces = np.asarray(loaded.faces, dtype=np.int64)
     if not np.isfinite(vertices).all():
@@ -171,10 +181,15 @@ def load_mesh(path: str | Path, texture: str | Path | None = None, *, need_colou
     faces, corner_uv = faces[~degenerate], None if corner_uv is None else corner_uv[~degenerate]
     if len(faces) == 0:
         raise InputError("every face of the mesh is degenerate (zero area)", path=path)
-    mesh = ColouredMesh(vertices, faces, vertex_colours, corner_uv, image, path, file_sha256(path), texture_source)
+    mesh = ColouredMesh(
+        vertices, faces, vertex_colours, corner_uv, image, path, file_sha256(path), texture_source
+    )
     if need_colour and not mesh.has_colour:
-        raise InputError("the mesh has no colour (neither vertex colours nor a texture); give a coloured "
-                         "mesh or --texture PNG for an OBJ with UVs", path=path)
+        raise InputError(
+            "the mesh has no colour (neither vertex colours nor a texture); give a coloured "
+            "mesh or --texture PNG for an OBJ with UVs",
+            path=path,
+        )
     return mesh
 
 

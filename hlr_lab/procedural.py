@@ -2,8 +2,9 @@
 
 ``pebble``: a smooth, slightly lumpy body about 12 cm across whose six faces (±x, ±y, ±z of the
 undeformed sphere) are painted in four colours: the ±x patches share one colour and so do ±z (the top,
-and the bottom that rests on the table), so "same colour but not connected" is exercised. :func:`paint_patches` colours any mesh in K spatial patches (used
-to give the Stanford bunny the paper's 8 regions).
+and the bottom that rests on the table), so "same colour but not connected" is exercised.
+:func:`paint_patches` colours any mesh in K spatial patches (used to give the Stanford bunny the
+paper's 8 regions).
 """
 
 from __future__ import annotations
@@ -21,8 +22,19 @@ from hlr_lab.mesh import ColouredMesh, arrays_sha256
 BUILTIN_PREFIX = "builtin:"
 
 PALETTE = np.array(  # 8-bit sRGB, pairwise ΔE > 30
-    [[200, 50, 40], [60, 160, 70], [50, 80, 190], [220, 190, 60], [235, 235, 230], [150, 60, 170],
-     [40, 170, 180], [120, 80, 40], [240, 140, 170], [90, 90, 90]], dtype=np.uint8
+    [
+        [200, 50, 40],
+        [60, 160, 70],
+        [50, 80, 190],
+        [220, 190, 60],
+        [235, 235, 230],
+        [150, 60, 170],
+        [40, 170, 180],
+        [120, 80, 40],
+        [240, 140, 170],
+        [90, 90, 90],
+    ],
+    dtype=np.uint8,
 )
 
 
@@ -49,8 +61,9 @@ def pebble(subdivisions: int = 5, radius_m: float = 0.06) -> ProceduralObject:
     return ProceduralObject(mesh, material, patch)
 
 
-def paint_patches(mesh: ColouredMesh, k: int, *, seed: int = 0, among: np.ndarray | None = None
-                  ) -> ProceduralObject:
+def paint_patches(
+    mesh: ColouredMesh, k: int, *, seed: int = 0, among: np.ndarray | None = None
+) -> ProceduralObject:
     """Colour ``mesh`` in ``k`` spatially compact patches, one colour each: k-means on the positions of
     the vertices selected by ``among`` (V,) bool (default all), every vertex joining the nearest centre."""
     if k > len(PALETTE):
@@ -60,8 +73,12 @@ def paint_patches(mesh: ColouredMesh, k: int, *, seed: int = 0, among: np.ndarra
     patch = cKDTree(centres).query(mesh.vertices)[1]
     colours = PALETTE[patch]
     return ProceduralObject(
-        ColouredMesh(mesh.vertices, mesh.faces, colours, sha256=arrays_sha256(mesh.vertices, mesh.faces, colours)),
-        patch, patch)
+        ColouredMesh(
+            mesh.vertices, mesh.faces, colours, sha256=arrays_sha256(mesh.vertices, mesh.faces, colours)
+        ),
+        patch,
+        patch,
+    )
 
 
 BUILTINS = {"pebble": pebble}
@@ -71,6 +88,8 @@ def builtin_object(spec: str) -> ProceduralObject:
     """``builtin:NAME`` → the procedural object; unknown names are an input error listing the known ones."""
     name = spec.removeprefix(BUILTIN_PREFIX)
     if name not in BUILTINS:
-        raise InputError(f"unknown built-in object {name!r}; known: "
-                         + ", ".join(BUILTIN_PREFIX + n for n in BUILTINS), field="--mesh")
+        raise InputError(
+            f"unknown built-in object {name!r}; known: " + ", ".join(BUILTIN_PREFIX + n for n in BUILTINS),
+            field="--mesh",
+        )
     return BUILTINS[name]()

@@ -62,7 +62,7 @@ class RayCaster:
         face = np.full(len(origins), -1, dtype=np.int64)
         dist = np.full(len(origins), np.inf)
         for start in range(0, len(origins), _RAY_CHUNK):
-            o, d = origins[start:start + _RAY_CHUNK], directions[start:start + _RAY_CHUNK]
+            o, d = origins[start : start + _RAY_CHUNK], directions[start : start + _RAY_CHUNK]
             tri, ray, loc = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
             face[start + ray] = tri
             dist[start + ray] = np.linalg.norm(loc - o[ray], axis=1)
@@ -104,11 +104,18 @@ class RayCaster:
             normal[hit] = n / np.linalg.norm(n, axis=1, keepdims=True)
         depth = np.full(h * w, np.inf)
         depth[hit] = camera.to_camera(point[hit])[:, 2]
-        return GBuffer(face.reshape(h, w), point.reshape(h, w, 3), normal.reshape(h, w, 3),
-                       depth.reshape(h, w), bary.reshape(h, w, 3))
+        return GBuffer(
+            face.reshape(h, w),
+            point.reshape(h, w, 3),
+            normal.reshape(h, w, 3),
+            depth.reshape(h, w),
+            bary.reshape(h, w, 3),
+        )
 
 
-def facing(camera: Camera, points: np.ndarray, normals: np.ndarray, *, max_view_angle_deg: float) -> np.ndarray:
+def facing(
+    camera: Camera, points: np.ndarray, normals: np.ndarray, *, max_view_angle_deg: float
+) -> np.ndarray:
     """(N,) bool: surface point in the image and facing the camera within ``max_view_angle_deg`` (no ray test).
 
     ``camera``, ``points`` (N, 3) and ``normals`` (N, 3) are in the mesh frame.
@@ -119,8 +126,9 @@ def facing(camera: Camera, points: np.ndarray, normals: np.ndarray, *, max_view_
     return (z > 0) & camera.in_image(pixels) & (cos_view >= np.cos(np.radians(max_view_angle_deg)))
 
 
-def visible_points(caster: RayCaster, camera: Camera, points: np.ndarray, normals: np.ndarray, *,
-                   max_view_angle_deg: float) -> np.ndarray:
+def visible_points(
+    caster: RayCaster, camera: Camera, points: np.ndarray, normals: np.ndarray, *, max_view_angle_deg: float
+) -> np.ndarray:
     """(N,) bool: :func:`facing` and nothing between the camera and the point."""
     candidate = facing(camera, points, normals, max_view_angle_deg=max_view_angle_deg)
     visible = np.zeros(len(points), dtype=bool)
@@ -132,4 +140,6 @@ def visible_points(caster: RayCaster, camera: Camera, points: np.ndarray, normal
 def visible_vertices(caster: RayCaster, camera: Camera, *, max_view_angle_deg: float) -> np.ndarray:
     """(V,) bool: :func:`visible_points` for the mesh's vertices."""
     mesh = caster.mesh
-    return visible_points(caster, camera, mesh.vertices, mesh.vertex_normals, max_view_angle_deg=max_view_angle_deg)
+    return visible_points(
+        caster, camera, mesh.vertices, mesh.vertex_normals, max_view_angle_deg=max_view_angle_deg
+    )

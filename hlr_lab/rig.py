@@ -109,14 +109,28 @@ def sim_rig() -> Rig:
     ref = resources.files("hlr_lab.data") / SIM_RIG
     with resources.as_file(ref) as path:
         rig = load_rig(path)
-    return Rig(rig.name, rig.camera, rig.exposure_bracket_s, rig.gantry, rig.turntable_limits_deg, "builtin:sim")
+    return Rig(
+        rig.name, rig.camera, rig.exposure_bracket_s, rig.gantry, rig.turntable_limits_deg, "builtin:sim"
+    )
 
 
 def _build(f: _RigFile, source: str) -> Rig:
     c, g = f.camera, f.gantry
-    camera = Camera.look_at(c.position_m, c.look_at_m, matrix=np.array(c.matrix), width=c.width,
-                            height=c.height, distortion=c.distortion, up=c.up)
-    gantry = Gantry(np.array(g.centre_m), g.arm_radius_m, tuple(np.radians(g.azimuth_limits_deg)),
-                    tuple(np.radians(g.elevation_limits_deg)), float(np.radians(g.camera_keepout_deg)),
-                    g.min_light_height_m)
+    camera = Camera.look_at(
+        c.position_m,
+        c.look_at_m,
+        matrix=np.array(c.matrix),
+        width=c.width,
+        height=c.height,
+        distortion=c.distortion,
+        up=c.up,
+    )
+    gantry = Gantry(
+        np.array(g.centre_m),
+        g.arm_radius_m,
+        tuple(np.radians(g.azimuth_limits_deg)),
+        tuple(np.radians(g.elevation_limits_deg)),
+        float(np.radians(g.camera_keepout_deg)),
+        g.min_light_height_m,
+    )
     return Rig(f.rig.name, camera, tuple(c.exposure_bracket_s), gantry, tuple(f.turntable.limits_deg), source)

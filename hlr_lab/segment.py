@@ -25,10 +25,21 @@ DEFAULT_MIN_FRAGMENT = 0.001  # fraction of the total surface area
 _LAB_BIN = 0.5  # ΔE; colours closer than this are one bin before clustering (speed only)
 _KMEANS_ITERATIONS = 20
 # barycentric sample points per face of a textured mesh: centroid plus six around it
-_FACE_SAMPLES = np.array(
-    [[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3],
-     [1 / 2, 1 / 2, 0.0], [0.0, 1 / 2, 1 / 2], [1 / 2, 0.0, 1 / 2]]
-) * 0.9 + 0.1 / 3  # pulled 10 % toward the centroid so edge samples are not shared by two faces
+_FACE_SAMPLES = (
+    np.array(
+        [
+            [1 / 3, 1 / 3, 1 / 3],
+            [2 / 3, 1 / 6, 1 / 6],
+            [1 / 6, 2 / 3, 1 / 6],
+            [1 / 6, 1 / 6, 2 / 3],
+            [1 / 2, 1 / 2, 0.0],
+            [0.0, 1 / 2, 1 / 2],
+            [1 / 2, 0.0, 1 / 2],
+        ]
+    )
+    * 0.9
+    + 0.1 / 3
+)  # pulled 10 % toward the centroid so edge samples are not shared by two faces
 
 
 @dataclass(frozen=True)
@@ -57,12 +68,19 @@ class Segmentation:
         return len(self.regions)
 
 
-def segment(mesh: ColouredMesh, *, delta_e: float = DEFAULT_DELTA_E, n_materials: int | None = None,
-            split_connected: bool = False, min_fragment: float = DEFAULT_MIN_FRAGMENT) -> Segmentation:
+def segment(
+    mesh: ColouredMesh,
+    *,
+    delta_e: float = DEFAULT_DELTA_E,
+    n_materials: int | None = None,
+    split_connected: bool = False,
+    min_fragment: float = DEFAULT_MIN_FRAGMENT,
+) -> Segmentation:
     """Split the surface of ``mesh`` into same-colour regions (ids ordered by area, largest first)."""
     if not mesh.has_colour:
-        raise InputError("the mesh has no colour to segment; give vertex colours or --texture PNG",
-                         path=mesh.source)
+        raise InputError(
+            "the mesh has no colour to segment; give vertex colours or --texture PNG", path=mesh.source
+        )
     if n_materials is not None and n_materials < 1:
         raise InputError(f"--regions must be at least 1, got {n_materials}", field="--regions")
     on_faces = mesh.vertex_colours is None
@@ -75,10 +93,14 @@ def segment(mesh: ColouredMesh, *, delta_e: float = DEFAULT_DELTA_E, n_materials
         samples, sample_weight = mesh.vertex_colours, mesh.vertex_areas
         node_weight, adjacency = mesh.vertex_areas, mesh.vertex_adjacency
 
-    sample_label = cluster_colours(srgb8_to_lab(samples), sample_weight, delta_e=delta_e, n_clusters=n_materials)
+    sample_label = cluster_colours(
+        srgb8_to_lab(samples), sample_weight, delta_e=delta_e, n_clusters=n_materials
+    )
     if on_faces:
-        node_label = weighted_mode(sample_label.reshape(len(mesh.faces), -1),
-                                   np.broadcast_to(sample_weight.reshape(len(mesh.faces), -1), srgb.shape[:2]))
+        node_label = weighted_mode(
+            sample_label.reshape(len(mesh.faces), -1),
+            np.broadcast_to(sample_weight.reshape(len(mesh.faces), -1), srgb.shape[:2]),
+        )
     else:
         node_label = sample_label
     if n_materials is None:  # with a fixed count, every requested material stays
@@ -100,12 +122,24 @@ def segment(mesh: ColouredMesh, *, delta_e: float = DEFAULT_DELTA_E, n_materials
     # a region's colour is that of its material's samples: anti-aliased borders and the odd texel of
     # another colour inside it (an eye's glint) would otherwise pull the mean toward other regions
     own = sample_label == np.repeat(node_material, per_node)
-    return _summarise(mesh, vertex_labels, face_labels, node_label, material, sample_region[own],
-                      srgb8_to_linear(samples[own]), sample_weight[own], delta_e, split_connected, min_fragment)
+    return _summarise(
+        mesh,
+        vertex_labels,
+        face_labels,
+        node_label,
+        material,
+        sample_region[own],
+        srgb8_to_linear(samples[own]),
+        sample_weight[own],
+        delta_e,
+        split_connected,
+        min_fragment,
+    )
 
 
-def cluster_colours(lab: np.ndarray, weight: np.ndarray, *, delta_e: float, n_clusters: int | None = None
-                    ) -> np.ndarray:
+def cluster_colours(
+    lab: np.ndarray, weight: np.ndarray, *, delta_e: float, n_clusters: int | None = None
+) -> np.ndarray:
     """Cluster (N, 3) Lab colours with (N,) weights; returns (N,) cluster ids 0…K−1.
 
     Automatic K: seed a centre at the heaviest colour not within ``delta_e`` of a centre, refine by
@@ -125,8 +159,11 @@ def cluster_colours(lab: np.ndarray, weight: np.ndarray, *, delta_e: float, n_cl
         centres = _leader_seeds(bin_lab, bin_w, delta_e)
     else:
         if n_clusters > len(bin_lab):
-            raise InputError(f"--regions {n_clusters} asks for more regions than the mesh has distinct "
-                             f"colours ({len(bin_lab)})", field="--regions")
+            raise InputError(
+                f"--regions {n_clusters} asks for more regions than the mesh has distinct "
+                f"colours ({len(bin_lab)})",
+                field="--regions",
+            )
         centres = _farthest_seeds(bin_lab, bin_w, n_clusters)
     label, centres = _kmeans(bin_lab, bin_w, centres)
     if n_clusters is None:
@@ -211,8 +248,9 @@ def heaviest_label(rows: np.ndarray, labels: np.ndarray, weights: np.ndarray, n_
     return out
 
 
-def merge_fragments(label: np.ndarray, adjacency: sp.csr_matrix, weight: np.ndarray, min_weight: float
-                    ) -> np.ndarray:
+def merge_fragments(
+    label: np.ndarray, adjacency: sp.csr_matrix, weight: np.ndarray, min_weight: float
+) -> np.ndarray:
     """Relabel connected same-label patches lighter than ``min_weight`` to the neighbouring label they
     share most edges with; repeats until none is left (a patch with no neighbour stays)."""
     label = label.copy()
@@ -229,8 +267,9 @@ def merge_fragments(label: np.ndarray, adjacency: sp.csr_matrix, weight: np.ndar
                 return label
             lightest = np.argmin(np.where(small, comp_w, np.inf))
             cross &= comp[a.row] == lightest
-        new_label_of_comp = heaviest_label(comp[a.row[cross]], label[a.col[cross]], np.ones(cross.sum()),
-                                           comp.max() + 1)
+        new_label_of_comp = heaviest_label(
+            comp[a.row[cross]], label[a.col[cross]], np.ones(cross.sum()), comp.max() + 1
+        )
         moved = new_label_of_comp[comp]
         label = np.where(moved >= 0, moved, label)
     return label
@@ -248,8 +287,9 @@ def _connected_patches(label: np.ndarray, adjacency: sp.csr_matrix) -> np.ndarra
 
 def _vertex_majority(mesh: ColouredMesh, face_labels: np.ndarray) -> np.ndarray:
     """Each vertex takes the label covering most of its adjacent area."""
-    return heaviest_label(mesh.faces.ravel(), np.repeat(face_labels, 3), np.repeat(mesh.face_areas, 3),
-                          len(mesh.vertices))
+    return heaviest_label(
+        mesh.faces.ravel(), np.repeat(face_labels, 3), np.repeat(mesh.face_areas, 3), len(mesh.vertices)
+    )
 
 
 def _material_of(node_label: np.ndarray, colour_label: np.ndarray) -> np.ndarray:
@@ -257,8 +297,19 @@ def _material_of(node_label: np.ndarray, colour_label: np.ndarray) -> np.ndarray
     return heaviest_label(node_label, colour_label, np.ones(len(node_label)), int(node_label.max()) + 1)
 
 
-def _summarise(mesh, vertex_labels, face_labels, node_label, material, sample_region, sample_linear,
-               sample_weight, delta_e, split_connected, min_fragment) -> Segmentation:
+def _summarise(
+    mesh,
+    vertex_labels,
+    face_labels,
+    node_label,
+    material,
+    sample_region,
+    sample_linear,
+    sample_weight,
+    delta_e,
+    split_connected,
+    min_fragment,
+) -> Segmentation:
     used = np.unique(np.concatenate([vertex_labels, face_labels]))
     area = np.bincount(face_labels, weights=mesh.face_areas, minlength=used.max() + 1)
     order = used[np.lexsort((used, -area[used]))]  # largest area first, ties by old id
@@ -276,8 +327,14 @@ def _summarise(mesh, vertex_labels, face_labels, node_label, material, sample_re
     area_new = np.bincount(face_labels, weights=mesh.face_areas, minlength=len(order))
     material_new = _compact(material[order])
     regions = [
-        Region(int(i), int(material_new[i]), tuple(int(c) for c in mean_colour[i]), int(n_vert[i]),
-               int(n_face[i]), float(area_new[i]))
+        Region(
+            int(i),
+            int(material_new[i]),
+            tuple(int(c) for c in mean_colour[i]),
+            int(n_vert[i]),
+            int(n_face[i]),
+            float(area_new[i]),
+        )
         for i in range(len(order))
     ]
     return Segmentation(vertex_labels, face_labels, regions, delta_e, split_connected, min_fragment)

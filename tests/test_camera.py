@@ -11,11 +11,13 @@ DIST = np.array([-0.12, 0.05, 0.001, -0.002, 0.01])
 
 @pytest.fixture
 def camera():
-    return Camera.look_at([0.1, -0.6, 0.3], [0.0, 0.0, 0.05], matrix=K, width=640, height=480, distortion=DIST)
+    return Camera.look_at(
+        [0.1, -0.6, 0.3], [0.0, 0.0, 0.05], matrix=K, width=640, height=480, distortion=DIST
+    )
 
 
 def test_projection_matches_opencv(camera):
-    pts = np.random.default_rng(0).uniform(-0.1, 0.1, (200, 3)) + [0, 0, 0.05]
+    pts = [*np.random.default_rng(0).uniform(-0.1, 0.1, (200, 3)), 0, 0, 0.05]
     ours, _ = camera.project(pts)
     rvec, _ = cv2.Rodrigues(camera.rotation)
     theirs, _ = cv2.projectPoints(pts, rvec, camera.translation, K, DIST)
@@ -40,7 +42,8 @@ def test_pixel_rays_invert_projection_with_distortion(camera):
 def test_points_behind_the_camera_do_not_project(camera):
     behind = camera.centre - camera.forward
     px, z = camera.project(behind[None])
-    assert z[0] < 0 and np.isnan(px).all()
+    assert z[0] < 0
+    assert np.isnan(px).all()
     assert not camera.in_image(px)[0]
 
 
@@ -49,7 +52,9 @@ def test_expressing_the_camera_in_another_frame_keeps_the_image(camera):
     frame[:3, 3] = [0.01, 0.02, -0.03]
     pts_frame = np.random.default_rng(2).uniform(-0.05, 0.05, (50, 3))
     pts_world = pts_frame @ frame[:3, :3].T + frame[:3, 3]
-    np.testing.assert_allclose(camera.in_frame(frame).project(pts_frame)[0], camera.project(pts_world)[0], atol=1e-9)
+    np.testing.assert_allclose(
+        camera.in_frame(frame).project(pts_frame)[0], camera.project(pts_world)[0], atol=1e-9
+    )
 
 
 def test_projected_area_matches_the_projected_polygon():

@@ -25,23 +25,39 @@ def test_segment_then_plan_on_the_builtin_object(capsys, tmp_path):
     assert code == 0, err
     assert "4 regions" in err
     plan = tmp_path / "plan.json"
-    code, _, err = run(capsys, "plan", "--mesh", "builtin:pebble", "--regions", str(regions), "--sim",
-                       "--spacing", "1", "-o", str(plan))
+    code, _, err = run(
+        capsys,
+        "plan",
+        "--mesh",
+        "builtin:pebble",
+        "--regions",
+        str(regions),
+        "--sim",
+        "--spacing",
+        "1",
+        "-o",
+        str(plan),
+    )
     assert code == 0, err
-    assert "coverage" in err and "plain count would need" in err
+    assert "coverage" in err
+    assert "plain count would need" in err
     p = read_plan(plan)
-    assert p.poses and all(c.satisfied for c in p.coverage.values())
-    assert p.parameters.criterion == "capped" and p.summary["lights_by_criterion"]["plain"] >= len(p.poses)
+    assert p.poses
+    assert all(c.satisfied for c in p.coverage.values())
+    assert p.parameters.criterion == "capped"
+    assert p.summary["lights_by_criterion"]["plain"] >= len(p.poses)
 
 
 def test_uncovered_regions_give_exit_status_3_and_a_written_plan(capsys, tmp_path):
     plan = tmp_path / "plan.json"
-    code, _, err = run(capsys, "plan", "--mesh", "builtin:pebble", "--sim", "--views", "0", "--spacing", "1",
-                       "-o", str(plan))
+    code, _, err = run(
+        capsys, "plan", "--mesh", "builtin:pebble", "--sim", "--views", "0", "--spacing", "1", "-o", str(plan)
+    )
     assert code == 3
     assert "not visible" in err
     uncovered = json.loads(plan.read_text())["uncovered"]
-    assert uncovered and uncovered[0]["reason"].startswith("not visible")
+    assert uncovered
+    assert uncovered[0]["reason"].startswith("not visible")
 
 
 def test_plan_a_vertex_coloured_ply_with_a_fixed_region_count(capsys, tmp_path):
@@ -52,9 +68,25 @@ def test_plan_a_vertex_coloured_ply_with_a_fixed_region_count(capsys, tmp_path):
     code, _, err = run(capsys, "segment", "--mesh", str(ply), "--regions", "3", "-o", str(regions))
     assert code == 0, err
     data = json.loads(regions.read_text())
-    assert len(data["regions"]) == 3 and data["mesh"] == "pebble.ply"  # relative to the regions file
-    code, _, err = run(capsys, "plan", "--mesh", str(ply), "--regions", str(regions), "--sim", "--count",
-                       "vertices", "--min-samples", "10", "--spacing", "1", "-o", str(tmp_path / "plan.json"))
+    assert len(data["regions"]) == 3
+    assert data["mesh"] == "pebble.ply"
+    code, _, err = run(
+        capsys,
+        "plan",
+        "--mesh",
+        str(ply),
+        "--regions",
+        str(regions),
+        "--sim",
+        "--count",
+        "vertices",
+        "--min-samples",
+        "10",
+        "--spacing",
+        "1",
+        "-o",
+        str(tmp_path / "plan.json"),
+    )
     assert code in (0, 3), err
 
 
@@ -71,16 +103,20 @@ def test_plan_a_vertex_coloured_ply_with_a_fixed_region_count(capsys, tmp_path):
 )
 def test_errors_are_one_clear_line_and_write_nothing(capsys, tmp_path, args, message):
     out_file = tmp_path / "plan.json"
-    code, out, err = run(capsys, *args, "-o", str(out_file))
+    code, _, err = run(capsys, *args, "-o", str(out_file))
     assert code == 1
     assert message in err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
     assert not out_file.exists()
 
 
 def test_debug_shows_the_traceback(capsys, tmp_path):
-    code, _, err = run(capsys, "--debug", "plan", "--mesh", "missing.ply", "--sim", "-o", str(tmp_path / "p.json"))
-    assert code == 1 and "Traceback" in err
+    code, _, err = run(
+        capsys, "--debug", "plan", "--mesh", "missing.ply", "--sim", "-o", str(tmp_path / "p.json")
+    )
+    assert code == 1
+    assert "Traceback" in err
 
 
 @pytest.mark.parametrize("command", [["segment"], ["plan"], ["bench", "plan"]])
@@ -92,20 +128,28 @@ def test_every_command_has_help_with_an_example(capsys, command):
 
 def test_usage_errors_exit_2(capsys):
     code, _, err = run(capsys, "plan", "--theta-c", "-3")
-    assert code == 2 and "theta-c" in err
+    assert code == 2
+    assert "theta-c" in err
 
 
 def test_console_script_runs_as_a_process(tmp_path):
     exe = shutil.which("hlr-lab")
     cmd = [exe] if exe else [sys.executable, "-m", "hlr_lab.cli.main"]
-    proc = subprocess.run([*cmd, "plan", "--mesh", "missing.obj", "--sim", "-o", str(tmp_path / "p.json")],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 1 and "no such mesh file" in proc.stderr
+    proc = subprocess.run(
+        [*cmd, "plan", "--mesh", "missing.obj", "--sim", "-o", str(tmp_path / "p.json")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 1
+    assert "no such mesh file" in proc.stderr
 
 
 @pytest.mark.slow
 def test_plan_benchmark_prints_figures(capsys):
     code, out, err = run(capsys, "bench", "plan", "--large", "0")
     assert code == 0, err
-    assert "builtin:pebble" in out and "plan time" in out and "peak RSS" in out
+    assert "builtin:pebble" in out
+    assert "plan time" in out
+    assert "peak RSS" in out
     assert "measured max nearest-neighbour" in err

@@ -23,10 +23,24 @@ def plan_file(tmp_path_factory, rig):
     obj = pebble(subdivisions=4)
     seg = segment(obj.mesh)
     m = placement(obj.mesh)
-    result = plan_lights(obj.mesh.transformed(m), seg, rig,
-                         PlanSettings(views_deg=[0.0, 90.0], spacing_deg=1.0, compare_criteria=False))
-    plan = build_plan(result, seg, mesh_ref="builtin:pebble", sha256=obj.mesh.sha256, texture_ref=None,
-                      mesh_to_turntable=m, up="z", scale=1.0, exposures_s=rig.exposure_bracket_s, rig_name=rig.name)
+    result = plan_lights(
+        obj.mesh.transformed(m),
+        seg,
+        rig,
+        PlanSettings(views_deg=[0.0, 90.0], spacing_deg=1.0, compare_criteria=False),
+    )
+    plan = build_plan(
+        result,
+        seg,
+        mesh_ref="builtin:pebble",
+        sha256=obj.mesh.sha256,
+        texture_ref=None,
+        mesh_to_turntable=m,
+        up="z",
+        scale=1.0,
+        exposures_s=rig.exposure_bracket_s,
+        rig_name=rig.name,
+    )
     path = tmp_path_factory.mktemp("plan") / "plan.json"
     write_plan(path, plan)
     return path, result, obj, m
@@ -36,7 +50,8 @@ def test_plan_round_trip_and_skeleton(plan_file):
     path, result, obj, m = plan_file
     plan = read_plan(path)
     raw = json.loads(path.read_text())
-    assert raw["format"] == "hlr-lab.plan" and raw["version"] == 1
+    assert raw["format"] == "hlr-lab.plan"
+    assert raw["version"] == 1
     assert set(raw) >= {"object", "parameters", "poses", "coverage", "uncovered"}
     assert set(raw["parameters"]) >= {"theta_c_deg", "min_samples", "sphere_radius_m", "count", "criterion"}
     assert len(plan.poses) == len(result.lights)
@@ -72,7 +87,8 @@ def test_malformed_plans_name_the_field(plan_file, tmp_path, change, field, mess
     bad = _mutated(plan_file[0], tmp_path, change)
     with pytest.raises(InputError, match=message) as err:
         read_plan(bad)
-    assert field in str(err.value) and str(bad) in str(err.value)
+    assert field in str(err.value)
+    assert str(bad) in str(err.value)
 
 
 def test_not_json(tmp_path):
@@ -92,7 +108,13 @@ def test_regions_round_trip_and_mesh_check(tmp_path):
     assert np.array_equal(back.face_labels, seg.face_labels)
     assert back.split_connected
     for a, b in zip(back.regions, seg.regions, strict=True):
-        assert (a.id, a.material, a.colour, a.vertices, a.faces) == (b.id, b.material, b.colour, b.vertices, b.faces)
+        assert (a.id, a.material, a.colour, a.vertices, a.faces) == (
+            b.id,
+            b.material,
+            b.colour,
+            b.vertices,
+            b.faces,
+        )
         assert a.area_m2 == pytest.approx(b.area_m2, abs=1e-9)
     other = pebble(subdivisions=2).mesh
     with pytest.raises(InputError, match="another mesh"):
@@ -110,7 +132,8 @@ def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
 
 def test_sim_rig_file_loads():
     rig = load_rig(SIM_RIG)
-    assert rig.gantry.arm_radius == 0.30 and rig.camera.width == 1280
+    assert rig.gantry.arm_radius == 0.30
+    assert rig.camera.width == 1280
     np.testing.assert_allclose(rig.camera.centre, [0.0, -0.62, 0.30])
 
 

@@ -35,7 +35,8 @@ def test_vertex_coloured_ply(tmp_path):
     write_coloured_ply(tmp_path / "p.ply")
     mesh = load_mesh(tmp_path / "p.ply", need_colour=True)
     ref = pebble(subdivisions=2).mesh
-    assert mesh.vertex_colours is not None and len(mesh.faces) == len(ref.faces)
+    assert mesh.vertex_colours is not None
+    assert len(mesh.faces) == len(ref.faces)
     assert len(mesh.sha256) == 64
     # PLY may reorder nothing, but compare as sets of (position, colour) to be independent of order
     got = {(tuple(np.round(v, 6)), tuple(c)) for v, c in zip(mesh.vertices, mesh.vertex_colours, strict=True)}
@@ -45,7 +46,9 @@ def test_vertex_coloured_ply(tmp_path):
 
 def test_glb_keeps_vertex_colours(tmp_path):
     m = pebble(subdivisions=2).mesh
-    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(tmp_path / "p.glb")
+    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(
+        tmp_path / "p.glb"
+    )
     mesh = load_mesh(tmp_path / "p.glb", need_colour=True)
     assert len(mesh.faces) == len(m.faces)
     assert {tuple(c) for c in mesh.vertex_colours} == {tuple(c) for c in m.vertex_colours}
@@ -57,7 +60,8 @@ def test_textured_obj_with_separate_texture_is_welded(tmp_path):
         load_mesh(obj, need_colour=True)  # UVs but no image: trimesh's 2×2 placeholder is not a texture
     mesh = load_mesh(obj, png, need_colour=True)
     assert len(mesh.vertices) == 4  # the seam duplicate of (1, 0, 0) is welded
-    assert mesh.corner_uv.shape == (2, 3, 2) and mesh.texture.shape == (8, 8, 3)
+    assert mesh.corner_uv.shape == (2, 3, 2)
+    assert mesh.texture.shape == (8, 8, 3)
     assert mesh.texture_source == png
 
 
@@ -98,7 +102,7 @@ def test_missing_and_unreadable_files(tmp_path):
         load_mesh(tmp_path / "nope.ply")
     garbage = tmp_path / "garbage.ply"
     garbage.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n\x00\x01")
-    with pytest.raises(InputError, match="garbage.ply"):
+    with pytest.raises(InputError, match=r"garbage\.ply"):
         load_mesh(garbage)
 
 

@@ -9,7 +9,6 @@ from hlr_lab.bench import PAPER_SETTINGS, paper_41_object
 from hlr_lab.camera import Camera
 from hlr_lab.errors import InputError, PlanningError
 from hlr_lab.mesh import load_mesh
-from hlr_lab.planning.coverage import exact_counts
 from hlr_lab.planning.geometry import light_sphere, mirror_highlights, placement
 from hlr_lab.planning.greedy import select_lights
 from hlr_lab.planning.planner import PlanResult, PlanSettings, auto_views, plan_lights
@@ -34,12 +33,18 @@ def brute_force_counted(result: PlanResult, caster: RayCaster, light_index: int,
     n, x = s.normal, s.point
     to_cam, to_light = cam - x, light.light_turntable - x
     view_angle = np.arccos(np.clip(np.einsum("ij,ij->i", n, to_cam) / np.linalg.norm(to_cam, axis=1), -1, 1))
-    light_angle = np.arccos(np.clip(np.einsum("ij,ij->i", n, to_light) / np.linalg.norm(to_light, axis=1), -1, 1))
+    light_angle = np.arccos(
+        np.clip(np.einsum("ij,ij->i", n, to_light) / np.linalg.norm(to_light, axis=1), -1, 1)
+    )
     v = to_cam / np.linalg.norm(to_cam, axis=1, keepdims=True)
     mirror = 2 * np.einsum("ij,ij->i", n, v)[:, None] * n - v
-    cone_angle = np.arccos(np.clip(np.einsum("ij,ij->i", mirror, to_light) / np.linalg.norm(to_light, axis=1), -1, 1))
+    cone_angle = np.arccos(
+        np.clip(np.einsum("ij,ij->i", mirror, to_light) / np.linalg.norm(to_light, axis=1), -1, 1)
+    )
     limit = np.radians(settings.max_view_angle_deg)
-    candidate = (view_angle <= limit) & (light_angle <= limit) & (cone_angle <= np.radians(settings.theta_c_deg))
+    candidate = (
+        (view_angle <= limit) & (light_angle <= limit) & (cone_angle <= np.radians(settings.theta_c_deg))
+    )
     idx = np.flatnonzero(candidate)
 
     def unobstructed(eye: np.ndarray, pts: np.ndarray) -> np.ndarray:  # cast from the eye toward the surface
@@ -55,7 +60,9 @@ def brute_force_counted(result: PlanResult, caster: RayCaster, light_index: int,
 
 def test_every_counted_highlight_is_in_its_cone_visible_lit_and_reachable(pebble_plan, rig):
     result, caster = pebble_plan
-    assert result.lights and result.satisfied.all() and not result.uncovered
+    assert result.lights
+    assert result.satisfied.all()
+    assert not result.uncovered
     g = rig.gantry
     for i, light in enumerate(result.lights):
         truth = brute_force_counted(result, caster, i, rig)
@@ -66,8 +73,11 @@ def test_every_counted_highlight_is_in_its_cone_visible_lit_and_reachable(pebble
         weights = cam.projected_area_px(result.samples.point, result.samples.normal, result.samples.area)
         assert weights[missed].sum() <= 0.01 * w  # complete but for samples on a ray-test knife edge
         assert weights[light.counted].sum() == pytest.approx(w)
-        regions = np.bincount(result.samples.region[light.counted], weights=weights[light.counted],
-                              minlength=len(light.expected))
+        regions = np.bincount(
+            result.samples.region[light.counted],
+            weights=weights[light.counted],
+            minlength=len(light.expected),
+        )
         np.testing.assert_allclose(regions, light.expected)
         # reachable: joint limits, camera keep-out, above the table
         d = (light.light_world - result.sphere.centre) / result.sphere.radius
@@ -88,13 +98,18 @@ def test_light_positions_agree_between_frames(pebble_plan):
         np.testing.assert_allclose(world, light.light_world, atol=1e-12)
 
 
-def test_a_region_hidden_from_the_first_view_gets_another_view(pebble_plan, placed_pebble, pebble_object, rig):
+def test_a_region_hidden_from_the_first_view_gets_another_view(
+    pebble_plan, placed_pebble, pebble_object, rig
+):
     result, _ = pebble_plan
-    assert len({light.turntable_deg for light in result.lights}) >= 2  # green faces away from the camera at 0°
+    assert (
+        len({light.turntable_deg for light in result.lights}) >= 2
+    )  # green faces away from the camera at 0°
     seg = segment(pebble_object.mesh)
     one_view = plan_lights(placed_pebble, seg, rig, PlanSettings(views_deg=[0.0]))
     hidden = [r for r, why in one_view.uncovered.items() if why.startswith("not visible")]
-    assert hidden and all(not one_view.satisfied[r] for r in hidden)
+    assert hidden
+    assert all(not one_view.satisfied[r] for r in hidden)
     assert {light.turntable_deg for light in one_view.lights} == {0.0}
 
 
@@ -115,8 +130,9 @@ def test_unreachable_highlights_are_reported_and_really_unreachable(placed_pebbl
     pos = pos[sphere.reachable(pos, high.camera)]
     v = placed_pebble.vertices
     members = np.isin(seg.vertex_labels, unreachable)
-    h = mirror_highlights(v[members], placed_pebble.vertex_normals[members], high.camera.centre, sphere.centre,
-                          sphere.radius)
+    h = mirror_highlights(
+        v[members], placed_pebble.vertex_normals[members], high.camera.centre, sphere.centre, sphere.radius
+    )
     to = pos[None, :, :] - h.point[:, None, :]
     cos = np.einsum("kqd,kd->kq", to, h.mirror) / np.linalg.norm(to, axis=2)
     assert (cos < np.cos(np.radians(settings.theta_c_deg))).all()
@@ -125,8 +141,9 @@ def test_unreachable_highlights_are_reported_and_really_unreachable(placed_pebbl
 def test_exact_counts_match_brute_force_at_wide_cones(placed_pebble, pebble_object, rig):
     """The KD-tree shortcut of exact_counts finds every sample whose cone holds the light (θc = 20°)."""
     seg = segment(pebble_object.mesh)
-    settings = PlanSettings(theta_c_deg=20.0, views_deg=[0.0], compare_criteria=False, min_samples=5000,
-                            max_lights=3)
+    settings = PlanSettings(
+        theta_c_deg=20.0, views_deg=[0.0], compare_criteria=False, min_samples=5000, max_lights=3
+    )
     result = plan_lights(placed_pebble, seg, rig, settings)
     caster = RayCaster(placed_pebble)
     assert result.lights
@@ -156,9 +173,11 @@ def test_greedy_caps_what_a_region_needs():
 def test_greedy_never_accepts_an_overestimated_light():
     estimates = np.array([[100.0], [90.0]])
     exact = np.array([[10.0], [80.0]])  # candidate 0 looked best but is mostly shadowed
-    sel = select_lights(lambda v: estimates, 1, lambda v, q, need: exact[q], np.array([50.0]), capped=False,
-                        max_lights=1)
-    assert sel.choices[0].candidate == 1 and sel.choices[0].counts[0] == 80.0
+    sel = select_lights(
+        lambda v: estimates, 1, lambda v, q, need: exact[q], np.array([50.0]), capped=False, max_lights=1
+    )
+    assert sel.choices[0].candidate == 1
+    assert sel.choices[0].counts[0] == 80.0
 
 
 def test_auto_views_start_at_zero_and_respect_limits():
@@ -171,7 +190,9 @@ def test_sub_triangles_tile_the_face():
         b = sub_triangle_centroids(level)
         assert b.shape == (level * level, 3)
         np.testing.assert_allclose(b.sum(axis=1), 1.0)
-        np.testing.assert_allclose(b.mean(axis=0), 1 / 3)  # equal-area pieces: their centroids average to the centroid
+        np.testing.assert_allclose(
+            b.mean(axis=0), 1 / 3
+        )  # equal-area pieces: their centroids average to the centroid
         assert len(np.unique(np.round(b, 9), axis=0)) == level * level
 
 
@@ -227,4 +248,5 @@ def test_spot_plan(spot_paths, rig):
 
 def test_camera_model_used_by_the_plan_is_the_rig_camera(rig):
     assert isinstance(rig.camera, Camera)
-    assert rig.camera.width == 1280 and rig.camera.height == 960
+    assert rig.camera.width == 1280
+    assert rig.camera.height == 960

@@ -17,7 +17,9 @@ def sphere_mesh(radius=0.05, subdivisions=6) -> ColouredMesh:
 def test_gbuffer_of_a_sphere_matches_the_analytic_intersection():
     radius = 0.05
     caster = RayCaster(sphere_mesh(radius))
-    cam = Camera.look_at([0.02, -0.4, 0.1], [0, 0, 0], matrix=K, width=320, height=240, distortion=[-0.1, 0.02])
+    cam = Camera.look_at(
+        [0.02, -0.4, 0.1], [0, 0, 0], matrix=K, width=320, height=240, distortion=[-0.1, 0.02]
+    )
     g = caster.gbuffer(cam)
     origins, dirs = cam.pixel_rays(cam.pixel_grid())
     b = np.einsum("ij,ij->i", dirs, origins)
@@ -36,10 +38,14 @@ def test_gbuffer_of_a_sphere_matches_the_analytic_intersection():
     assert np.abs(np.linalg.norm(p, axis=1) - radius).max() < 2e-4 * radius
     assert np.linalg.norm(p - p_true[sel], axis=1).max() < 2e-3 * radius
     normals = g.normal.reshape(-1, 3)[sel]
-    assert np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", normals, p_true[sel] / radius), -1, 1))).max() < 0.5
+    assert (
+        np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", normals, p_true[sel] / radius), -1, 1))).max()
+        < 0.5
+    )
     depth = cam.to_camera(p_true[sel])[:, 2]
     np.testing.assert_allclose(g.depth.ravel()[sel], depth, atol=2e-3 * radius)
-    assert np.isinf(g.depth.ravel()[~hit]).all() and (g.face.ravel()[~hit] == -1).all()
+    assert np.isinf(g.depth.ravel()[~hit]).all()
+    assert (g.face.ravel()[~hit] == -1).all()
     np.testing.assert_allclose(g.barycentric.reshape(-1, 3)[sel].sum(axis=1), 1.0, atol=1e-9)
 
 

@@ -19,10 +19,18 @@ out = Console(highlight=False)
 
 
 def mesh_options(f):
-    f = click.option("--texture", type=click.Path(dir_okay=False, path_type=Path),
-                     help="Texture image for an OBJ whose UVs do not reference one.")(f)
-    f = click.option("--mesh", "mesh_spec", required=True, metavar="FILE",
-                     help="Mesh (OBJ, PLY, glTF/GLB) with vertex colours or a texture, or builtin:pebble.")(f)
+    f = click.option(
+        "--texture",
+        type=click.Path(dir_okay=False, path_type=Path),
+        help="Texture image for an OBJ whose UVs do not reference one.",
+    )(f)
+    f = click.option(
+        "--mesh",
+        "mesh_spec",
+        required=True,
+        metavar="FILE",
+        help="Mesh (OBJ, PLY, glTF/GLB) with vertex colours or a texture, or builtin:pebble.",
+    )(f)
     return f
 
 
@@ -38,8 +46,10 @@ def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:
     if rig_path is not None and use_sim:
         raise InputError("give either --rig FILE or --sim, not both", field="--rig")
     if rig_path is None and not use_sim:
-        raise InputError("which rig? give --rig rig.toml for a real rig, or --sim for the built-in simulated rig",
-                         field="--rig")
+        raise InputError(
+            "which rig? give --rig rig.toml for a real rig, or --sim for the built-in simulated rig",
+            field="--rig",
+        )
     return sim_rig() if use_sim else load_rig(rig_path)
 
 
@@ -53,5 +63,7 @@ def region_table(regions: list[Region], title: str) -> Table:
     for name in ("region", "material", "colour (sRGB)", "vertices", "faces", "area m²"):
         t.add_column(name, justify="right")
     for r in regions:
-        t.add_row(str(r.id), str(r.material), swatch(r.colour), str(r.vertices), str(r.faces), f"{r.area_m2:.4g}")
+        t.add_row(
+            str(r.id), str(r.material), swatch(r.colour), str(r.vertices), str(r.faces), f"{r.area_m2:.4g}"
+        )
     return t

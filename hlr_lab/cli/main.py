@@ -58,8 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # the last line of defence: a bug must still end in one clear line
         if debug:
             console.print_exception()
-        console.print(f"[bold red]internal error:[/] {type(exc).__name__}: {exc} — please report it with the "
-                      "output of the same command run with --debug", soft_wrap=True)
+        console.print(
+            f"[bold red]internal error:[/] {type(exc).__name__}: {exc} — please report it with the "
+            "output of the same command run with --debug",
+            soft_wrap=True,
+        )
         return EXIT_INTERNAL
 
 

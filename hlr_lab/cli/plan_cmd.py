@@ -28,8 +28,9 @@ def parse_views(text: str) -> list[float] | None:
     try:
         views = [float(v) for v in text.split(",") if v.strip()]
     except ValueError as exc:
-        raise InputError(f"{text!r} is not 'auto' or a comma-separated list of angles in degrees",
-                         field="--views") from exc
+        raise InputError(
+            f"{text!r} is not 'auto' or a comma-separated list of angles in degrees", field="--views"
+        ) from exc
     if not views:
         raise InputError("give at least one angle, or 'auto'", field="--views")
     return views
@@ -37,38 +38,119 @@ def parse_views(text: str) -> list[float] | None:
 
 @click.command()
 @mesh_options
-@click.option("--regions", "regions_file", type=click.Path(dir_okay=False, path_type=Path),
-              help="regions.json from hlr-lab segment (default: segment here).")
+@click.option(
+    "--regions",
+    "regions_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="regions.json from hlr-lab segment (default: segment here).",
+)
 @segmentation_options
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml).")
+@click.option(
+    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
+)
 @click.option("--sim", is_flag=True, help="Plan for the built-in simulated rig.")
-@click.option("--theta-c", type=click.FloatRange(0.1, 45), default=5.0, show_default=True,
-              help="Cone half-angle θc about the mirror direction, degrees.")
-@click.option("--min-samples", type=click.FloatRange(min=1), default=50, show_default=True,
-              help="Highlight samples M each region needs (in the --count unit).")
-@click.option("--sphere-scale", type=float,
-              help="Light sphere = K × the object's bounding sphere (the paper: 2) instead of the gantry arm.")
-@click.option("--count", type=click.Choice(["pixels", "vertices"]), default="pixels", show_default=True,
-              help="Count expected pixels (vertex footprints through the camera) or vertices (the paper).")
-@click.option("--criterion", type=click.Choice(["capped", "plain"]), default="capped", show_default=True,
-              help="capped: a region counts only up to what it still needs; plain: the paper's count.")
-@click.option("--views", "views_text", default="auto", show_default=True, metavar="auto|DEG,DEG,…",
-              help="Turntable angles the planner may use (auto: every --view-step degrees, 0 first).")
-@click.option("--view-step", type=click.FloatRange(1, 180), default=45.0, show_default=True,
-              help="Spacing of the automatic turntable angles, degrees.")
-@click.option("--spacing", type=click.FloatRange(0.05, 5), default=0.5, show_default=True,
-              help="Spacing of the candidate light positions on the sphere, degrees.")
+@click.option(
+    "--theta-c",
+    type=click.FloatRange(0.1, 45),
+    default=5.0,
+    show_default=True,
+    help="Cone half-angle θc about the mirror direction, degrees.",
+)
+@click.option(
+    "--min-samples",
+    type=click.FloatRange(min=1),
+    default=50,
+    show_default=True,
+    help="Highlight samples M each region needs (in the --count unit).",
+)
+@click.option(
+    "--sphere-scale",
+    type=float,
+    help="Light sphere = K × the object's bounding sphere (the paper: 2) instead of the gantry arm.",
+)
+@click.option(
+    "--count",
+    type=click.Choice(["pixels", "vertices"]),
+    default="pixels",
+    show_default=True,
+    help="Count expected pixels (vertex footprints through the camera) or vertices (the paper).",
+)
+@click.option(
+    "--criterion",
+    type=click.Choice(["capped", "plain"]),
+    default="capped",
+    show_default=True,
+    help="capped: a region counts only up to what it still needs; plain: the paper's count.",
+)
+@click.option(
+    "--views",
+    "views_text",
+    default="auto",
+    show_default=True,
+    metavar="auto|DEG,DEG,…",
+    help="Turntable angles the planner may use (auto: every --view-step degrees, 0 first).",
+)
+@click.option(
+    "--view-step",
+    type=click.FloatRange(1, 180),
+    default=45.0,
+    show_default=True,
+    help="Spacing of the automatic turntable angles, degrees.",
+)
+@click.option(
+    "--spacing",
+    type=click.FloatRange(0.05, 5),
+    default=0.5,
+    show_default=True,
+    help="Spacing of the candidate light positions on the sphere, degrees.",
+)
 @click.option("--max-lights", type=click.IntRange(1, 1000), default=64, show_default=True)
-@click.option("--max-view-angle", type=click.FloatRange(10, 89), default=80.0, show_default=True,
-              help="Grazing limit: surfaces seen or lit beyond this angle from their normal do not count.")
+@click.option(
+    "--max-view-angle",
+    type=click.FloatRange(10, 89),
+    default=80.0,
+    show_default=True,
+    help="Grazing limit: surfaces seen or lit beyond this angle from their normal do not count.",
+)
 @click.option("--no-shadows", is_flag=True, help="Do not ray-cast shadows (the paper did not).")
-@click.option("--up", default="z", show_default=True, help="Mesh axis that points up on the turntable (y for most scans).")
+@click.option(
+    "--up",
+    default="z",
+    show_default=True,
+    help="Mesh axis that points up on the turntable (y for most scans).",
+)
 @click.option("--scale", type=float, default=1.0, show_default=True, help="Mesh units → metres.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="Where to write plan.json.")
-def plan(mesh_spec, texture, regions_file, delta_e, split_connected, min_fragment, rig_path, sim, theta_c,
-         min_samples, sphere_scale, count, criterion, views_text, view_step, spacing, max_lights, max_view_angle,
-         no_shadows, up, scale, output) -> int:
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Where to write plan.json.",
+)
+def plan(
+    mesh_spec,
+    texture,
+    regions_file,
+    delta_e,
+    split_connected,
+    min_fragment,
+    rig_path,
+    sim,
+    theta_c,
+    min_samples,
+    sphere_scale,
+    count,
+    criterion,
+    views_text,
+    view_step,
+    spacing,
+    max_lights,
+    max_view_angle,
+    no_shadows,
+    up,
+    scale,
+    output,
+) -> int:
     """Plan light positions that give every region M highlight samples.
 
     Exits with status 3 (after writing the plan) when some region cannot be covered; the table and
@@ -88,18 +170,40 @@ def plan(mesh_spec, texture, regions_file, delta_e, split_connected, min_fragmen
         seg = read_regions(regions_file, mesh)
     else:
         with console.status("segmenting…"):
-            seg = segment_mesh(mesh, delta_e=delta_e, split_connected=split_connected, min_fragment=min_fragment)
+            seg = segment_mesh(
+                mesh, delta_e=delta_e, split_connected=split_connected, min_fragment=min_fragment
+            )
     to_turntable = placement(mesh, up=up, scale=scale)
-    settings = PlanSettings(theta_c_deg=theta_c, min_samples=min_samples, count=count, sphere_scale=sphere_scale,
-                            views_deg=views, view_step_deg=view_step, spacing_deg=spacing,
-                            max_view_angle_deg=max_view_angle, max_lights=max_lights, shadows=not no_shadows,
-                            criterion=criterion)
-    with console.status(f"planning on {rig.name} ({len(mesh.vertices):,} vertices, {seg.n_regions} regions)…"):
+    settings = PlanSettings(
+        theta_c_deg=theta_c,
+        min_samples=min_samples,
+        count=count,
+        sphere_scale=sphere_scale,
+        views_deg=views,
+        view_step_deg=view_step,
+        spacing_deg=spacing,
+        max_view_angle_deg=max_view_angle,
+        max_lights=max_lights,
+        shadows=not no_shadows,
+        criterion=criterion,
+    )
+    with console.status(
+        f"planning on {rig.name} ({len(mesh.vertices):,} vertices, {seg.n_regions} regions)…"
+    ):
         result = plan_lights(mesh.transformed(to_turntable), seg, rig, settings)
     texture_ref = None if mesh.texture_source is None else mesh_reference(mesh.texture_source, output.parent)
-    plan_file = build_plan(result, seg, mesh_ref=mesh_reference(mesh_spec, output.parent), sha256=mesh.sha256 or "",
-                           texture_ref=texture_ref, mesh_to_turntable=to_turntable, up=up, scale=scale,
-                           exposures_s=rig.exposure_bracket_s, rig_name=rig.name)
+    plan_file = build_plan(
+        result,
+        seg,
+        mesh_ref=mesh_reference(mesh_spec, output.parent),
+        sha256=mesh.sha256 or "",
+        texture_ref=texture_ref,
+        mesh_to_turntable=to_turntable,
+        up=up,
+        scale=scale,
+        exposures_s=rig.exposure_bracket_s,
+        rig_name=rig.name,
+    )
     write_plan(output, plan_file)
     console.print(coverage_table(result, seg))
     _print_summary(result, output)
@@ -121,7 +225,7 @@ def coverage_table(result: PlanResult, seg: Segmentation) -> Table:
     for r in seg.regions:
         cells = [f"{light.expected[r.id]:.0f}" if light.expected[r.id] > 0 else "·" for light in shown]
         if len(result.lights) > len(shown):
-            cells.append(f"{sum(light.expected[r.id] for light in result.lights[len(shown):]):.0f}")
+            cells.append(f"{sum(light.expected[r.id] for light in result.lights[len(shown) :]):.0f}")
         ok = bool(result.satisfied[r.id])
         mark = "[green]yes[/]" if ok else f"[red]no[/]: {result.uncovered.get(r.id, '')}"
         t.add_row(str(r.id), swatch(r.colour), *cells, f"{result.coverage[r.id]:.0f}", mark)
@@ -132,15 +236,21 @@ def _print_summary(result: PlanResult, output: Path) -> None:
     by = result.lights_by_criterion
     crit = result.settings.criterion
     views = sorted({light.turntable_deg for light in result.lights})
-    line = (f"{len(result.lights)} lights over {len(views)} turntable view(s) {', '.join(f'{v:g}°' for v in views)}; "
-            f"sphere {result.sphere.radius:.3f} m ({result.sphere.source}); "
-            f"{result.reachable:,} of {result.candidates:,} candidate positions reachable")
+    line = (
+        f"{len(result.lights)} lights over {len(views)} turntable view(s) {', '.join(f'{v:g}°' for v in views)}; "
+        f"sphere {result.sphere.radius:.3f} m ({result.sphere.source}); "
+        f"{result.reachable:,} of {result.candidates:,} candidate positions reachable"
+    )
     console.print(line)
     other = [k for k in by if k != crit]
     if other:
-        console.print(f"the {other[0]} count would need {by[other[0]]} lights (this plan: {crit}, {by[crit]})")
+        console.print(
+            f"the {other[0]} count would need {by[other[0]]} lights (this plan: {crit}, {by[crit]})"
+        )
     n_bad = int(np.sum(~result.satisfied))
     if n_bad:
-        console.print(f"[yellow]{n_bad} region(s) cannot get their {result.settings.min_samples:g} samples; "
-                      "see 'uncovered' in the plan[/]")
+        console.print(
+            f"[yellow]{n_bad} region(s) cannot get their {result.settings.min_samples:g} samples; "
+            "see 'uncovered' in the plan[/]"
+        )
     console.print(f"wrote {output}")

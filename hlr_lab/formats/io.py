@@ -79,9 +79,12 @@ def check_header(data: object, path: Path, fmt: str, versions: set[int], header:
         where = f"{header}.format" if header else "format"
         raise InputError(f"this is not an {fmt} file (expected format = {fmt!r})", path=path, field=where)
     if block.get("version") not in versions:
-        raise InputError(f"version {block.get('version')!r} is not one this hlr-lab reads "
-                         f"({', '.join(map(str, sorted(versions)))}); upgrade hlr-lab or re-create the file",
-                         path=path, field=f"{header}.version" if header else "version")
+        raise InputError(
+            f"version {block.get('version')!r} is not one this hlr-lab reads "
+            f"({', '.join(map(str, sorted(versions)))}); upgrade hlr-lab or re-create the file",
+            path=path,
+            field=f"{header}.version" if header else "version",
+        )
 
 
 def validate(model: type[Model], data: object, path: str | Path) -> Model:

@@ -22,8 +22,9 @@ from hlr_lab.segment import Segmentation
 
 PLAN_FORMAT = "hlr-lab.plan"
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Matrix4 = Annotated[list[Annotated[list[float], Field(min_length=4, max_length=4)]],
-                    Field(min_length=4, max_length=4)]
+Matrix4 = Annotated[
+    list[Annotated[list[float], Field(min_length=4, max_length=4)]], Field(min_length=4, max_length=4)
+]
 
 
 class _Open(BaseModel):
@@ -84,9 +85,19 @@ class PlanFile(_Open):
     uncovered: list[Uncovered] = []
 
 
-def build_plan(result: PlanResult, seg: Segmentation, *, mesh_ref: str, sha256: str, texture_ref: str | None,
-               mesh_to_turntable: np.ndarray, up: str, scale: float, exposures_s: tuple[float, ...],
-               rig_name: str) -> PlanFile:
+def build_plan(
+    result: PlanResult,
+    seg: Segmentation,
+    *,
+    mesh_ref: str,
+    sha256: str,
+    texture_ref: str | None,
+    mesh_to_turntable: np.ndarray,
+    up: str,
+    scale: float,
+    exposures_s: tuple[float, ...],
+    rig_name: str,
+) -> PlanFile:
     mesh_from_tt = np.linalg.inv(mesh_to_turntable)
     s = result.settings
 
@@ -95,36 +106,69 @@ def build_plan(result: PlanResult, seg: Segmentation, *, mesh_ref: str, sha256: 
 
     poses = [
         PlanPose(
-            id=f"p{i:03d}", turntable_deg=round(light.turntable_deg, 6),
-            light=PlanLight(azimuth_deg=round(light.azimuth_deg, 4), elevation_deg=round(light.elevation_deg, 4),
-                            position_m=_r(light.light_world), position_mesh_m=to_mesh(light.light_turntable)),
-            camera_position_mesh_m=to_mesh(light.camera_turntable), exposures_s=list(exposures_s),
+            id=f"p{i:03d}",
+            turntable_deg=round(light.turntable_deg, 6),
+            light=PlanLight(
+                azimuth_deg=round(light.azimuth_deg, 4),
+                elevation_deg=round(light.elevation_deg, 4),
+                position_m=_r(light.light_world),
+                position_mesh_m=to_mesh(light.light_turntable),
+            ),
+            camera_position_mesh_m=to_mesh(light.camera_turntable),
+            exposures_s=list(exposures_s),
             expected={str(r): round(float(c), 1) for r, c in enumerate(light.expected) if c > 0},
-            greedy_step=light.step)
+            greedy_step=light.step,
+        )
         for i, light in enumerate(result.lights)
     ]
     return PlanFile(
-        format=PLAN_FORMAT, version=1,
-        object=PlanObject(mesh=mesh_ref, sha256=sha256, texture=texture_ref,
-                          regions=[RegionEntry.of(r) for r in seg.regions],
-                          mesh_to_turntable=[_r(row, 9) for row in mesh_to_turntable], up=up, scale=scale),
+        format=PLAN_FORMAT,
+        version=1,
+        object=PlanObject(
+            mesh=mesh_ref,
+            sha256=sha256,
+            texture=texture_ref,
+            regions=[RegionEntry.of(r) for r in seg.regions],
+            mesh_to_turntable=[_r(row, 9) for row in mesh_to_turntable],
+            up=up,
+            scale=scale,
+        ),
         parameters=PlanParameters(
-            theta_c_deg=s.theta_c_deg, min_samples=s.min_samples, sphere_radius_m=round(result.sphere.radius, 6),
-            count=s.count, criterion=s.criterion, sphere_centre_m=_r(result.sphere.centre),
-            sphere_source=result.sphere.source, cone="half-angle theta_c about the mirror direction",
-            candidate_spacing_deg=s.spacing_deg, max_view_angle_deg=s.max_view_angle_deg, shadows=s.shadows,
-            views_deg=[float(v) for v in result.views_considered], max_lights=s.max_lights),
+            theta_c_deg=s.theta_c_deg,
+            min_samples=s.min_samples,
+            sphere_radius_m=round(result.sphere.radius, 6),
+            count=s.count,
+            criterion=s.criterion,
+            sphere_centre_m=_r(result.sphere.centre),
+            sphere_source=result.sphere.source,
+            cone="half-angle theta_c about the mirror direction",
+            candidate_spacing_deg=s.spacing_deg,
+            max_view_angle_deg=s.max_view_angle_deg,
+            shadows=s.shadows,
+            views_deg=[float(v) for v in result.views_considered],
+            max_lights=s.max_lights,
+        ),
         poses=poses,
-        coverage={str(r): RegionCoverage(samples=round(float(result.coverage[r]), 1),
-                                         satisfied=bool(result.satisfied[r]), needed=s.min_samples)
-                  for r in range(seg.n_regions)},
+        coverage={
+            str(r): RegionCoverage(
+                samples=round(float(result.coverage[r]), 1),
+                satisfied=bool(result.satisfied[r]),
+                needed=s.min_samples,
+            )
+            for r in range(seg.n_regions)
+        },
         uncovered=[Uncovered(region=r, reason=why) for r, why in sorted(result.uncovered.items())],
-        summary={"lights": len(result.lights), "lights_by_criterion": result.lights_by_criterion,
-                 "views_used": sorted({p.turntable_deg for p in poses}), "candidates": result.candidates,
-                 "reachable_candidates": result.reachable, "rig": rig_name,
-                 "seconds": {k: round(v, 3) for k, v in result.seconds.items()},
-                 "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-                 "software": f"hlr-lab {__version__}"},
+        summary={
+            "lights": len(result.lights),
+            "lights_by_criterion": result.lights_by_criterion,
+            "views_used": sorted({p.turntable_deg for p in poses}),
+            "candidates": result.candidates,
+            "reachable_candidates": result.reachable,
+            "rig": rig_name,
+            "seconds": {k: round(v, 3) for k, v in result.seconds.items()},
+            "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            "software": f"hlr-lab {__version__}",
+        },
     )
 
 

@@ -37,8 +37,14 @@ class RegionEntry(BaseModel):
 
     @classmethod
     def of(cls, r: Region) -> RegionEntry:
-        return cls(id=r.id, color=list(r.colour), vertices=r.vertices, faces=r.faces,
-                   area_m2=round(r.area_m2, 9), material=r.material)
+        return cls(
+            id=r.id,
+            color=list(r.colour),
+            vertices=r.vertices,
+            faces=r.faces,
+            area_m2=round(r.area_m2, 9),
+            material=r.material,
+        )
 
 
 class SegmentParameters(BaseModel):
@@ -74,17 +80,30 @@ def mesh_reference(mesh_path: Path | str, relative_to: Path) -> str:
         return str(p.resolve())
 
 
-def write_regions(path: str | Path, mesh: ColouredMesh, seg: Segmentation, *, mesh_name: str,
-                  regions_requested: int | None) -> None:
+def write_regions(
+    path: str | Path, mesh: ColouredMesh, seg: Segmentation, *, mesh_name: str, regions_requested: int | None
+) -> None:
     path = Path(path)
-    write_json(path, RegionsFile(
-        format=REGIONS_FORMAT, version=1, mesh=mesh_reference(mesh_name, path.parent), sha256=mesh.sha256 or "",
-        texture=None if mesh.texture_source is None else mesh_reference(mesh.texture_source, path.parent),
-        texture_sha256=None if mesh.texture_source is None else file_sha256(mesh.texture_source),
-        parameters=SegmentParameters(delta_e=seg.delta_e, min_fragment=seg.min_fragment,
-                                     split_connected=seg.split_connected, regions_requested=regions_requested),
-        regions=[RegionEntry.of(r) for r in seg.regions],
-        vertex_labels=seg.vertex_labels.tolist(), face_labels=seg.face_labels.tolist()))
+    write_json(
+        path,
+        RegionsFile(
+            format=REGIONS_FORMAT,
+            version=1,
+            mesh=mesh_reference(mesh_name, path.parent),
+            sha256=mesh.sha256 or "",
+            texture=None if mesh.texture_source is None else mesh_reference(mesh.texture_source, path.parent),
+            texture_sha256=None if mesh.texture_source is None else file_sha256(mesh.texture_source),
+            parameters=SegmentParameters(
+                delta_e=seg.delta_e,
+                min_fragment=seg.min_fragment,
+                split_connected=seg.split_connected,
+                regions_requested=regions_requested,
+            ),
+            regions=[RegionEntry.of(r) for r in seg.regions],
+            vertex_labels=seg.vertex_labels.tolist(),
+            face_labels=seg.face_labels.tolist(),
+        ),
+    )
 
 
 def read_regions(path: str | Path, mesh: ColouredMesh) -> Segmentation:
@@ -94,11 +113,19 @@ def read_regions(path: str | Path, mesh: ColouredMesh) -> Segmentation:
     check_header(data, path, REGIONS_FORMAT, {1})
     f = validate(RegionsFile, data, path)
     if mesh.sha256 and f.sha256 != mesh.sha256:
-        raise InputError(f"made for another mesh ({f.mesh}, sha256 {f.sha256[:12]}…) than the one given "
-                         f"(sha256 {mesh.sha256[:12]}…); run hlr-lab segment on this mesh", path=path, field="sha256")
+        raise InputError(
+            f"made for another mesh ({f.mesh}, sha256 {f.sha256[:12]}…) than the one given "
+            f"(sha256 {mesh.sha256[:12]}…); run hlr-lab segment on this mesh",
+            path=path,
+            field="sha256",
+        )
     if len(f.vertex_labels) != len(mesh.vertices) or len(f.face_labels) != len(mesh.faces):
-        raise InputError(f"has {len(f.vertex_labels)} vertex / {len(f.face_labels)} face labels but the mesh has "
-                         f"{len(mesh.vertices)} / {len(mesh.faces)}", path=path, field="vertex_labels")
+        raise InputError(
+            f"has {len(f.vertex_labels)} vertex / {len(f.face_labels)} face labels but the mesh has "
+            f"{len(mesh.vertices)} / {len(mesh.faces)}",
+            path=path,
+            field="vertex_labels",
+        )
     ids = [r.id for r in f.regions]
     if ids != list(range(len(ids))):
         raise InputError("region ids must be 0, 1, 2, … in order", path=path, field="regions")
@@ -109,4 +136,3 @@ def read_regions(path: str | Path, mesh: ColouredMesh) -> Segmentation:
     regions = [Region(r.id, r.material, tuple(r.color), r.vertices, r.faces, r.area_m2) for r in f.regions]
     p = f.parameters
     return Segmentation(v, fl, regions, p.delta_e, p.split_connected, p.min_fragment)
-

@@ -89,15 +89,21 @@ class ViewSamples:
     @cached_property
     def _footprint_scale(self) -> np.ndarray:
         h = self.highlights
-        return _FOOTPRINT_MARGIN * h.distance / np.maximum(h.cos_incidence, _MIN_COS_INCIDENCE) / self.sphere_radius
+        return (
+            _FOOTPRINT_MARGIN
+            * h.distance
+            / np.maximum(h.cos_incidence, _MIN_COS_INCIDENCE)
+            / self.sphere_radius
+        )
 
     @cached_property
     def footprint_tree(self) -> cKDTree:
         return cKDTree(self.footprint_dirs)
 
 
-def count_estimates(view: ViewSamples, caster: RayCaster, theta_c: float, cell: float,
-                    tree: cKDTree | None = None) -> np.ndarray:
+def count_estimates(
+    view: ViewSamples, caster: RayCaster, theta_c: float, cell: float, tree: cKDTree | None = None
+) -> np.ndarray:
     """(Q, R) estimated highlight count of each candidate per region.
 
     ``cell`` (chord on the unit sphere) is the pooling grid; ``tree`` a KD-tree of candidate_dirs.
@@ -109,7 +115,9 @@ def count_estimates(view: ViewSamples, caster: RayCaster, theta_c: float, cell: 
     tree = tree or cKDTree(view.candidate_dirs)
     seen = np.flatnonzero(view.visible(np.arange(len(view.region))))
     keep = np.zeros(len(view.region), bool)
-    keep[seen] = ~caster.shadowed(h.point[seen], h.normal[seen], h.point[seen] + h.mirror[seen] * h.distance[seen, None])
+    keep[seen] = ~caster.shadowed(
+        h.point[seen], h.normal[seen], h.point[seen] + h.mirror[seen] * h.distance[seen, None]
+    )
     pools = _pool(view, keep, view.footprint_radius(theta_c), cell)
     order = np.argsort(pools.radius)
     density = q / (4 * np.pi)  # candidates per steradian
@@ -121,13 +129,17 @@ def count_estimates(view: ViewSamples, caster: RayCaster, theta_c: float, cell: 
         per_pool = max(1.0, np.pi * r_max**2 * density)
         stop = max(start + 1, min(stop, start + int(_PAIRS_PER_BATCH / per_pool)))
         batch = order[start:stop]
-        pairs = cKDTree(pools.footprint[batch]).sparse_distance_matrix(tree, pools.radius[batch].max(),
-                                                                       output_type="ndarray")
+        pairs = cKDTree(pools.footprint[batch]).sparse_distance_matrix(
+            tree, pools.radius[batch].max(), output_type="ndarray"
+        )
         g, cand = batch[pairs["i"]], pairs["j"]
         to_light = view.candidates[cand] - pools.point[g]
         inside = np.einsum("ij,ij->i", to_light, pools.mirror[g]) >= cos_c * np.linalg.norm(to_light, axis=1)
-        estimates += np.bincount(cand[inside] * view.n_regions + pools.region[g[inside]],
-                                 weights=pools.weight[g[inside]], minlength=len(estimates))
+        estimates += np.bincount(
+            cand[inside] * view.n_regions + pools.region[g[inside]],
+            weights=pools.weight[g[inside]],
+            minlength=len(estimates),
+        )
         start = stop
     return estimates.reshape(q, view.n_regions)
 
@@ -167,11 +179,14 @@ def _pool(view: ViewSamples, keep: np.ndarray, radius: np.ndarray, cell: float) 
     np.maximum.at(disc, group, reach)
     region = np.zeros(n, np.int64)
     region[group] = reg
-    return _Pools(mean(h.point[idx]), mirror, footprint, disc, np.bincount(group, weights=w, minlength=n), region)
+    return _Pools(
+        mean(h.point[idx]), mirror, footprint, disc, np.bincount(group, weights=w, minlength=n), region
+    )
 
 
-def _in_cones(view: ViewSamples, lights: np.ndarray, light_dirs: np.ndarray, theta_c: float,
-              max_light_angle: float) -> tuple[np.ndarray, np.ndarray]:
+def _in_cones(
+    view: ViewSamples, lights: np.ndarray, light_dirs: np.ndarray, theta_c: float, max_light_angle: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Samples whose cone holds each of m lights (m, 3) (view frame; ``light_dirs`` their world directions
     from S's centre) and which those lights reach at less than ``max_light_angle`` from the normal.
 
@@ -196,8 +211,16 @@ def _in_cones(view: ViewSamples, lights: np.ndarray, light_dirs: np.ndarray, the
     return near, (cos_cone >= np.cos(theta_c)) & (cos_light >= np.cos(max_light_angle))
 
 
-def exact_counts(view: ViewSamples, caster: RayCaster, light: np.ndarray, light_dir: np.ndarray, *,
-                 theta_c: float, max_light_angle: float, shadows: bool) -> tuple[np.ndarray, np.ndarray]:
+def exact_counts(
+    view: ViewSamples,
+    caster: RayCaster,
+    light: np.ndarray,
+    light_dir: np.ndarray,
+    *,
+    theta_c: float,
+    max_light_angle: float,
+    shadows: bool,
+) -> tuple[np.ndarray, np.ndarray]:
     """Exact highlight counts per region (R,) for one light position (3,) (view frame; ``light_dir`` its
     world direction from S's centre), and the indices of the counted samples.
 
@@ -213,9 +236,17 @@ def exact_counts(view: ViewSamples, caster: RayCaster, light: np.ndarray, light_
     return counts, np.sort(counted)
 
 
-def best_light(view: ViewSamples, caster: RayCaster, lights: np.ndarray, light_dirs: np.ndarray,
-               rank: Callable[[np.ndarray], np.ndarray], *, theta_c: float, max_light_angle: float,
-               shadows: bool) -> tuple[int, np.ndarray]:
+def best_light(
+    view: ViewSamples,
+    caster: RayCaster,
+    lights: np.ndarray,
+    light_dirs: np.ndarray,
+    rank: Callable[[np.ndarray], np.ndarray],
+    *,
+    theta_c: float,
+    max_light_angle: float,
+    shadows: bool,
+) -> tuple[int, np.ndarray]:
     """The best of m nearby lights by ``rank`` ((m, R) counts → (m,) scores) with its exact (R,) counts.
 
     Branch and bound: unshadowed counts bound the shadowed ones from above, so shadow rays are cast
@@ -235,7 +266,11 @@ def best_light(view: ViewSamples, caster: RayCaster, lights: np.ndarray, light_d
         if upper[j] <= best_score:
             break
         members = near[inside[:, j]]
-        lit = members[~caster.shadowed(h.point[members], h.normal[members], lights[j])] if len(members) else members
+        lit = (
+            members[~caster.shadowed(h.point[members], h.normal[members], lights[j])]
+            if len(members)
+            else members
+        )
         counts = np.bincount(view.region[lit], weights=view.weight[lit], minlength=view.n_regions)
         s = rank(counts[None])[0]
         if s > best_score:

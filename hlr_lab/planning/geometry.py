@@ -62,10 +62,14 @@ class LightSphere:
         g = self.gantry
         to_cam = camera.centre - self.centre
         to_cam /= np.linalg.norm(to_cam)
-        return ((az >= g.azimuth_limits[0]) & (az <= g.azimuth_limits[1])
-                & (el >= g.elevation_limits[0]) & (el <= g.elevation_limits[1])
-                & (d @ to_cam <= np.cos(g.camera_keepout))
-                & (positions[:, 2] >= g.min_light_height))
+        return (
+            (az >= g.azimuth_limits[0])
+            & (az <= g.azimuth_limits[1])
+            & (el >= g.elevation_limits[0])
+            & (el <= g.elevation_limits[1])
+            & (d @ to_cam <= np.cos(g.camera_keepout))
+            & (positions[:, 2] >= g.min_light_height)
+        )
 
 
 def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: float | None) -> LightSphere:
@@ -77,8 +81,9 @@ def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: floa
         centre, radius, source = np.asarray(gantry.centre, float), float(gantry.arm_radius), "rig"
     else:
         if sphere_scale <= 1:
-            raise InputError(f"--sphere-scale must exceed 1 (the paper uses 2), got {sphere_scale}",
-                             field="--sphere-scale")
+            raise InputError(
+                f"--sphere-scale must exceed 1 (the paper uses 2), got {sphere_scale}", field="--sphere-scale"
+            )
         lo, hi = placed_vertices.min(axis=0), placed_vertices.max(axis=0)
         centre = (lo + hi) / 2
         radius = sphere_scale * float(np.linalg.norm(placed_vertices - centre, axis=1).max())
@@ -87,8 +92,10 @@ def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: floa
     r_xy = np.linalg.norm(placed_vertices[:, :2], axis=1) + np.linalg.norm(centre[:2])
     reach = float(np.sqrt(r_xy**2 + (placed_vertices[:, 2] - centre[2]) ** 2).max())
     if reach >= radius:
-        raise PlanningError(f"the object reaches {reach:.3f} m from the light sphere's centre but the sphere's "
-                            f"radius is {radius:.3f} m; use a larger arm, --sphere-scale, or --scale")
+        raise PlanningError(
+            f"the object reaches {reach:.3f} m from the light sphere's centre but the sphere's "
+            f"radius is {radius:.3f} m; use a larger arm, --sphere-scale, or --scale"
+        )
     return LightSphere(centre, radius, source, gantry)
 
 
@@ -114,8 +121,9 @@ class Highlights:
     cos_incidence: np.ndarray
 
 
-def mirror_highlights(points: np.ndarray, normals: np.ndarray, eye: np.ndarray, centre: np.ndarray,
-                      radius: float) -> Highlights:
+def mirror_highlights(
+    points: np.ndarray, normals: np.ndarray, eye: np.ndarray, centre: np.ndarray, radius: float
+) -> Highlights:
     """Paper §3.2 step 2: the light position that puts a highlight on each point is where the mirror
     reflection of the view direction about the normal meets S (points must lie inside S)."""
     view = eye - points

@@ -46,9 +46,16 @@ def score(bounds: np.ndarray, need: np.ndarray, capped: bool) -> np.ndarray:
     return bounds[:, need > 0].sum(axis=1)
 
 
-def select_lights(bounds_of: Callable[[int], np.ndarray], n_views: int,
-                  evaluate: Callable[[int, int, np.ndarray], np.ndarray], need: np.ndarray, *, capped: bool,
-                  max_lights: int, first_views: Sequence[int] = (0,)) -> Selection:
+def select_lights(
+    bounds_of: Callable[[int], np.ndarray],
+    n_views: int,
+    evaluate: Callable[[int, int, np.ndarray], np.ndarray],
+    need: np.ndarray,
+    *,
+    capped: bool,
+    max_lights: int,
+    first_views: Sequence[int] = (0,),
+) -> Selection:
     """Choose lights until every region's need is met, nothing more helps, or ``max_lights``.
 
     ``bounds_of(v)`` gives view v's (Q, R) estimated counts (computed on first use; copied here, since
@@ -91,14 +98,18 @@ def select_lights(bounds_of: Callable[[int], np.ndarray], n_views: int,
         need -= counts
         bounds[v][q] = 0.0  # the same light again would photograph the same pixels
     views_used = sorted({c.view for c in choices}, key=[c.view for c in choices].index)
-    return Selection(choices, views_used, hit_light_limit=bool((need > 0).any() and len(choices) >= max_lights))
+    return Selection(
+        choices, views_used, hit_light_limit=bool((need > 0).any() and len(choices) >= max_lights)
+    )
 
 
 def _best(bounds, exact, used, need, capped, evaluate):
     """The (view, candidate) to accept among the open views, or None when nothing gains MIN_GAIN."""
     for _ in range(MAX_EVALUATIONS):
         best_exact, best_estimate = _top(bounds, exact, used, need, capped)
-        if best_estimate is None or (best_exact is not None and best_exact[2] >= (1 - TOLERANCE) * best_estimate[2]):
+        if best_estimate is None or (
+            best_exact is not None and best_exact[2] >= (1 - TOLERANCE) * best_estimate[2]
+        ):
             return None if best_exact is None else best_exact[:2]
         v, q, _ = best_estimate
         bounds[v][q] = evaluate(v, q, need)

@@ -114,11 +114,17 @@ class _Candidates:
 
     def cell(self, coarse_index: int) -> np.ndarray:
         """Indices of the dense candidates whose nearest coarse candidate is ``coarse_index``."""
-        return self._order[self._start[coarse_index]:self._start[coarse_index + 1]]
+        return self._order[self._start[coarse_index] : self._start[coarse_index + 1]]
 
 
-def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
-                settings: PlanSettings = PlanSettings(), *, caster: RayCaster | None = None) -> PlanResult:
+def plan_lights(
+    placed: ColouredMesh,
+    segmentation: Segmentation,
+    rig: Rig,
+    settings: PlanSettings = PlanSettings(),
+    *,
+    caster: RayCaster | None = None,
+) -> PlanResult:
     """Plan on ``placed``, the mesh already in the turntable frame (see ``geometry.placement``).
 
     A vertex (``count="vertices"``) or surface sample (``"pixels"``) counts for a light when it is visible
@@ -137,8 +143,11 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
     coarse_surface = vertex_samples(placed, segmentation) if len(surface) > len(placed.vertices) else surface
     clock.lap("candidates")
 
-    views = list(settings.views_deg) if settings.views_deg is not None else auto_views(
-        rig.turntable_limits_deg, settings.view_step_deg)
+    views = (
+        list(settings.views_deg)
+        if settings.views_deg is not None
+        else auto_views(rig.turntable_limits_deg, settings.view_step_deg)
+    )
     n_regions = segmentation.n_regions
     samples: dict[int, ViewSamples] = {}
     estimates: dict[int, np.ndarray] = {}
@@ -146,13 +155,20 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
 
     def view_samples(v: int) -> ViewSamples:
         if v not in samples:
-            samples[v] = _view_samples(surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings)
+            samples[v] = _view_samples(
+                surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings
+            )
         return samples[v]
 
     def estimates_of(v: int) -> np.ndarray:
         if v not in estimates:
-            vs = view_samples(v) if coarse_surface is surface else _view_samples(
-                coarse_surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings)
+            vs = (
+                view_samples(v)
+                if coarse_surface is surface
+                else _view_samples(
+                    coarse_surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings
+                )
+            )
             estimates[v] = count_estimates(vs, caster, theta_c, pool_cell, cands.coarse_tree)
         return estimates[v]
 
@@ -163,9 +179,16 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
             vs, cell = view_samples(v), cands.cell(q)
             if len(cell) == 0:
                 return np.zeros(n_regions)
-            j, counts = best_light(vs, caster, vs.light_position(cands.fine[cell]), cands.fine[cell],
-                                   lambda c: score(c, need, capped), theta_c=theta_c,
-                                   max_light_angle=np.radians(settings.max_view_angle_deg), shadows=settings.shadows)
+            j, counts = best_light(
+                vs,
+                caster,
+                vs.light_position(cands.fine[cell]),
+                cands.fine[cell],
+                lambda c: score(c, need, capped),
+                theta_c=theta_c,
+                max_light_angle=np.radians(settings.max_view_angle_deg),
+                shadows=settings.shadows,
+            )
             refined[v, q] = (int(cell[j]), counts)
         return refined[v, q][1]
 
@@ -176,8 +199,14 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
 
     def run(capped_: bool) -> Selection:
         refined.clear()  # a refinement chosen under one criterion's needs is not the other's
-        return select_lights(estimates_of, len(views), lambda v, q, n: evaluate(v, q, n, capped_), need,
-                             capped=capped_, max_lights=settings.max_lights)
+        return select_lights(
+            estimates_of,
+            len(views),
+            lambda v, q, n: evaluate(v, q, n, capped_),
+            need,
+            capped=capped_,
+            max_lights=settings.max_lights,
+        )
 
     lights_by_criterion = {}
     if settings.compare_criteria:
@@ -190,8 +219,15 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
 
     def counted(v: int, d: np.ndarray) -> np.ndarray:
         vs = view_samples(v)
-        local = exact_counts(vs, caster, vs.light_position(d), d, theta_c=theta_c,
-                             max_light_angle=np.radians(settings.max_view_angle_deg), shadows=settings.shadows)[1]
+        local = exact_counts(
+            vs,
+            caster,
+            vs.light_position(d),
+            d,
+            theta_c=theta_c,
+            max_light_angle=np.radians(settings.max_view_angle_deg),
+            shadows=settings.shadows,
+        )[1]
         return vs.index[local]
 
     lights = _lights(selection, refined, cands, samples, views, sphere, rig, counted)
@@ -199,16 +235,38 @@ def plan_lights(placed: ColouredMesh, segmentation: Segmentation, rig: Rig,
     satisfied = coverage >= settings.min_samples - 1e-9
     uncovered = _reasons(satisfied, coverage, selection, views, settings, view_samples, estimates_of)
     clock.lap("report")
-    return PlanResult(settings, sphere, lights, coverage, satisfied, uncovered, lights_by_criterion, views,
-                      cands.total, len(cands.fine), surface, clock.laps)
+    return PlanResult(
+        settings,
+        sphere,
+        lights,
+        coverage,
+        satisfied,
+        uncovered,
+        lights_by_criterion,
+        views,
+        cands.total,
+        len(cands.fine),
+        surface,
+        clock.laps,
+    )
 
 
-def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: LightSphere, caster: RayCaster,
-                  dirs_world: np.ndarray, turntable_deg: float, settings: PlanSettings) -> ViewSamples:
+def _view_samples(
+    surface: SurfaceSamples,
+    n_regions: int,
+    rig: Rig,
+    sphere: LightSphere,
+    caster: RayCaster,
+    dirs_world: np.ndarray,
+    turntable_deg: float,
+    settings: PlanSettings,
+) -> ViewSamples:
     """The samples one view may count (facing the camera, not grazing) with their mirror points on S."""
     world_from_tt = rotation_z(np.radians(turntable_deg))[:3, :3]
     camera = rig.camera.in_frame(rotation_z(np.radians(turntable_deg)))
-    idx = np.flatnonzero(facing(camera, surface.point, surface.normal, max_view_angle_deg=settings.max_view_angle_deg))
+    idx = np.flatnonzero(
+        facing(camera, surface.point, surface.normal, max_view_angle_deg=settings.max_view_angle_deg)
+    )
     points, normals = surface.point[idx], surface.normal[idx]
     centre_tt = world_from_tt.T @ sphere.centre
     h = mirror_highlights(points, normals, camera.centre, centre_tt, sphere.radius)
@@ -216,26 +274,49 @@ def _view_samples(surface: SurfaceSamples, n_regions: int, rig: Rig, sphere: Lig
         weight = camera.projected_area_px(points, normals, surface.area[idx])
     else:
         weight = np.ones(len(idx))
-    return ViewSamples(idx, h, surface.region[idx], weight, dirs_world, h.footprint @ world_from_tt.T, centre_tt,
-                       sphere.radius, world_from_tt.T, n_regions, camera.centre, caster)
+    return ViewSamples(
+        idx,
+        h,
+        surface.region[idx],
+        weight,
+        dirs_world,
+        h.footprint @ world_from_tt.T,
+        centre_tt,
+        sphere.radius,
+        world_from_tt.T,
+        n_regions,
+        camera.centre,
+        caster,
+    )
 
 
-def _lights(selection: Selection, refined, cands: _Candidates, samples, views, sphere: LightSphere,
-            rig: Rig, counted) -> list[PlannedLight]:
+def _lights(
+    selection: Selection, refined, cands: _Candidates, samples, views, sphere: LightSphere, rig: Rig, counted
+) -> list[PlannedLight]:
     """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
-    order = sorted(range(len(selection.choices)),
-                   key=lambda i: (selection.views_used.index(selection.choices[i].view), i))
+    order = sorted(
+        range(len(selection.choices)),
+        key=lambda i: (selection.views_used.index(selection.choices[i].view), i),
+    )
     lights = []
     for i in order:
         c = selection.choices[i]
         d = cands.fine[refined[c.view, c.candidate][0]]
         az, el = azimuth_elevation(d)
         world_from_tt = rotation_z(np.radians(views[c.view]))[:3, :3]
-        lights.append(PlannedLight(
-            step=i, turntable_deg=float(views[c.view]), light_world=sphere.centre + sphere.radius * d,
-            azimuth_deg=float(np.degrees(az)), elevation_deg=float(np.degrees(el)),
-            light_turntable=samples[c.view].light_position(d),
-            camera_turntable=world_from_tt.T @ rig.camera.centre, expected=c.counts, counted=counted(c.view, d)))
+        lights.append(
+            PlannedLight(
+                step=i,
+                turntable_deg=float(views[c.view]),
+                light_world=sphere.centre + sphere.radius * d,
+                azimuth_deg=float(np.degrees(az)),
+                elevation_deg=float(np.degrees(el)),
+                light_turntable=samples[c.view].light_position(d),
+                camera_turntable=world_from_tt.T @ rig.camera.centre,
+                expected=c.counts,
+                counted=counted(c.view, d),
+            )
+        )
     return lights
 
 
@@ -253,11 +334,15 @@ def _reasons(satisfied, coverage, selection, views, settings, view_samples, esti
         elif reach[r] <= 0:
             reasons[int(r)] = "highlight unreachable: no reachable light position puts a highlight on it"
         elif selection.hit_light_limit:
-            reasons[int(r)] = (f"only {coverage[r]:.0f} of {settings.min_samples:g} samples within "
-                               f"--max-lights {settings.max_lights}")
+            reasons[int(r)] = (
+                f"only {coverage[r]:.0f} of {settings.min_samples:g} samples within "
+                f"--max-lights {settings.max_lights}"
+            )
         else:
-            reasons[int(r)] = (f"only {coverage[r]:.0f} of {settings.min_samples:g} samples: its remaining "
-                               "highlights are shadowed or at grazing light")
+            reasons[int(r)] = (
+                f"only {coverage[r]:.0f} of {settings.min_samples:g} samples: its remaining "
+                "highlights are shadowed or at grazing light"
+            )
     return reasons
 
 

@@ -41,14 +41,18 @@ def surface_samples(mesh: ColouredMesh, seg: Segmentation, camera: Camera, count
     """Samples for the count unit; ``camera`` (in the mesh's frame) sets the pixel scale."""
     if count == "vertices":
         return vertex_samples(mesh, seg)
-    px_per_m2 = camera.matrix[0, 0] * camera.matrix[1, 1] / np.sum((camera.centre - mesh.vertices) ** 2, axis=1)
+    px_per_m2 = (
+        camera.matrix[0, 0] * camera.matrix[1, 1] / np.sum((camera.centre - mesh.vertices) ** 2, axis=1)
+    )
     if np.median(mesh.vertex_areas * px_per_m2) <= TARGET_PX:
         return vertex_samples(mesh, seg)
     # a face's footprint when facing the camera, from its nearest corner
     face_px = mesh.face_areas * px_per_m2[mesh.faces].max(axis=1)
     level = np.clip(np.ceil(np.sqrt(face_px / TARGET_PX)), 1, MAX_LEVEL).astype(np.int64)
     parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level)]
-    return SurfaceSamples(*(np.concatenate([getattr(p, k) for p in parts]) for k in ("point", "normal", "region", "area")))
+    return SurfaceSamples(
+        *(np.concatenate([getattr(p, k) for p in parts]) for k in ("point", "normal", "region", "area"))
+    )
 
 
 def sub_triangle_centroids(level: int) -> np.ndarray:
@@ -56,7 +60,9 @@ def sub_triangle_centroids(level: int) -> np.ndarray:
     i, j = np.meshgrid(np.arange(level), np.arange(level), indexing="ij")
     up = (i + j) <= level - 1
     down = (i + j) <= level - 2
-    uv = np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], 1), np.stack([i[down] + 2 / 3, j[down] + 2 / 3], 1)])
+    uv = np.concatenate(
+        [np.stack([i[up] + 1 / 3, j[up] + 1 / 3], 1), np.stack([i[down] + 2 / 3, j[down] + 2 / 3], 1)]
+    )
     uv /= level
     return np.column_stack([1 - uv.sum(axis=1), uv])
 
@@ -68,5 +74,6 @@ def _split_faces(mesh: ColouredMesh, seg: Segmentation, faces: np.ndarray, level
     normal = np.einsum("kc,ncd->nkd", bary, mesh.vertex_normals[corners]).reshape(-1, 3)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     k = len(bary)
-    return SurfaceSamples(point, normal, np.repeat(seg.face_labels[faces], k),
-                          np.repeat(mesh.face_areas[faces] / k, k))
+    return SurfaceSamples(
+        point, normal, np.repeat(seg.face_labels[faces], k), np.repeat(mesh.face_areas[faces] / k, k)
+    )
