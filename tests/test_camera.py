@@ -17,7 +17,7 @@ def camera():
 
 
 def test_projection_matches_opencv(camera):
-    pts = [*np.random.default_rng(0).uniform(-0.1, 0.1, (200, 3)), 0, 0, 0.05]
+    pts = np.random.default_rng(0).uniform(-0.1, 0.1, (200, 3)) + np.array([0.0, 0.0, 0.05])
     ours, _ = camera.project(pts)
     rvec, _ = cv2.Rodrigues(camera.rotation)
     theirs, _ = cv2.projectPoints(pts, rvec, camera.translation, K, DIST)
