@@ -34,6 +34,16 @@ def mesh_options(f):
     return f
 
 
+def output_option(what: str):
+    return click.option(
+        "-o",
+        "--output",
+        type=click.Path(dir_okay=False, path_type=Path),
+        required=True,
+        help=f"Where to write {what}.",
+    )
+
+
 def load_coloured_mesh(spec: str, texture: Path | None) -> ColouredMesh:
     if spec.startswith(BUILTIN_PREFIX):
         if texture is not None:

@@ -8,7 +8,7 @@ import click
 import numpy as np
 from rich.table import Table
 
-from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options, resolve_rig, swatch
+from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options, output_option, resolve_rig, swatch
 from hlr_lab.cli.segment_cmd import segmentation_options
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import build_plan, write_plan
@@ -120,13 +120,7 @@ def parse_views(text: str) -> list[float] | None:
     help="Mesh axis that points up on the turntable (y for most scans).",
 )
 @click.option("--scale", type=float, default=1.0, show_default=True, help="Mesh units → metres.")
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="Where to write plan.json.",
-)
+@output_option("plan.json")
 def plan(
     mesh_spec,
     texture,

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
-from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options, region_table
+from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options, output_option, region_table
 from hlr_lab.formats.regions import write_regions
 from hlr_lab.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
 from hlr_lab.segment import segment as segment_mesh
@@ -44,13 +42,7 @@ def segmentation_options(f):
     help="Exactly this many colour regions (overrides --delta-e).",
 )
 @segmentation_options
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="Where to write regions.json.",
-)
+@output_option("regions.json")
 def segment(mesh_spec, texture, n_regions, delta_e, split_connected, min_fragment, output) -> int:
     """Split the surface into same-colour regions (per-vertex and per-face labels).
 

@@ -53,23 +53,20 @@ def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
 
 
 def read_json(path: str | Path) -> object:
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("no such file; check the path", path=path)
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"not valid JSON ({exc})", path=path) from exc
+    return _parse(Path(path), json.loads, json.JSONDecodeError, "JSON")
 
 
 def read_toml(path: str | Path) -> dict:
-    path = Path(path)
+    return _parse(Path(path), tomllib.loads, tomllib.TOMLDecodeError, "TOML")
+
+
+def _parse(path: Path, loads, error: type[Exception], kind: str):
     if not path.is_file():
         raise InputError("no such file; check the path", path=path)
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(f"not valid TOML ({exc})", path=path) from exc
+        return loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, error) as exc:
+        raise InputError(f"not valid {kind} ({exc})", path=path) from exc
 
 
 def check_header(data: object, path: Path, fmt: str, versions: set[int], header: str | None = None) -> None:

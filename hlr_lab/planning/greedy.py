@@ -39,15 +39,15 @@ class Selection:
     hit_light_limit: bool
 
 
-def score(bounds: np.ndarray, need: np.ndarray, capped: bool) -> np.ndarray:
-    """(Q,) score of candidates with per-region counts ``bounds`` (Q, R) given what regions need (R,)."""
+def score(estimates: np.ndarray, need: np.ndarray, capped: bool) -> np.ndarray:
+    """(Q,) score of candidates with per-region counts ``estimates`` (Q, R) given what regions need (R,)."""
     if capped:
-        return np.minimum(bounds, np.maximum(need, 0.0)).sum(axis=1)
-    return bounds[:, need > 0].sum(axis=1)
+        return np.minimum(estimates, np.maximum(need, 0.0)).sum(axis=1)
+    return estimates[:, need > 0].sum(axis=1)
 
 
 def select_lights(
-    bounds_of: Callable[[int], np.ndarray],
+    estimates_of: Callable[[int], np.ndarray],
     n_views: int,
     evaluate: Callable[[int, int, np.ndarray], np.ndarray],
     need: np.ndarray,
@@ -58,73 +58,79 @@ def select_lights(
 ) -> Selection:
     """Choose lights until every region's need is met, nothing more helps, or ``max_lights``.
 
-    ``bounds_of(v)`` gives view v's (Q, R) estimated counts (computed on first use; copied here, since
+    ``estimates_of(v)`` gives view v's (Q, R) estimated counts (computed on first use; copied here, since
     exact counts overwrite them); ``evaluate(v, q, need)`` the exact (R,) counts (it may refine the
-    candidate for the current need). Views beyond ``first_views`` are
-    opened only when the open ones cannot help any more (each new view is a turntable move).
+    candidate for the current need). Views beyond ``first_views`` are opened only when the open ones
+    cannot help any more (each new view is a turntable move).
     """
     need = need.astype(np.float64).copy()
-    bounds: dict[int, np.ndarray] = {}
+    estimates: dict[int, np.ndarray] = {}
     exact: dict[int, np.ndarray] = {}
     used: list[int] = []
 
     def ensure(v: int) -> None:
-        if v not in bounds:
-            bounds[v] = np.array(bounds_of(v), dtype=np.float64, copy=True)
-            exact[v] = np.zeros(len(bounds[v]), bool)
+        if v not in estimates:
+            estimates[v] = np.array(estimates_of(v), dtype=np.float64, copy=True)
+            exact[v] = np.zeros(len(estimates[v]), bool)
 
     for v in first_views:
         ensure(v)
         used.append(v)
     choices: list[Choice] = []
     while (need > 0).any() and len(choices) < max_lights:
-        best = _best(bounds, exact, used, need, capped, evaluate)
+        best = _best(estimates, exact, used, need, capped, evaluate)
         if best is None:
             unopened = [v for v in range(n_views) if v not in used]
             if not unopened:
                 break
             for v in unopened:
                 ensure(v)
-            # open the view whose best bound is highest (ties: the earlier view)
-            gains = {v: score(bounds[v], need, capped).max(initial=0.0) for v in unopened}
+            # open the view whose best estimate is highest (ties: the earlier view)
+            gains = {v: score(estimates[v], need, capped).max(initial=0.0) for v in unopened}
             v_best = max(unopened, key=lambda v: (gains[v], -v))
-            if gains[v_best] < min(MIN_GAIN, float(need[need > 0].min())):
+            if gains[v_best] < _min_gain(need):
                 break
             used.append(v_best)
             continue
         v, q = best
-        counts = bounds[v][q].copy()
+        counts = estimates[v][q].copy()
         choices.append(Choice(v, q, counts))
         need -= counts
-        bounds[v][q] = 0.0  # the same light again would photograph the same pixels
+        estimates[v][q] = 0.0  # the same light again would photograph the same pixels
     views_used = sorted({c.view for c in choices}, key=[c.view for c in choices].index)
     return Selection(
         choices, views_used, hit_light_limit=bool((need > 0).any() and len(choices) >= max_lights)
     )
 
 
-def _best(bounds, exact, used, need, capped, evaluate):
+def _min_gain(need: np.ndarray) -> float:
+    """What a light must add to be chosen: MIN_GAIN, or less when a region is short by less than that."""
+    short = need[need > 0]
+    return min(MIN_GAIN, float(short.min())) if len(short) else MIN_GAIN
+
+
+def _best(estimates, exact, used, need, capped, evaluate):
     """The (view, candidate) to accept among the open views, or None when nothing gains MIN_GAIN."""
     for _ in range(MAX_EVALUATIONS):
-        best_exact, best_estimate = _top(bounds, exact, used, need, capped)
+        best_exact, best_estimate = _top(estimates, exact, used, need, capped)
         if best_estimate is None or (
             best_exact is not None and best_exact[2] >= (1 - TOLERANCE) * best_estimate[2]
         ):
             return None if best_exact is None else best_exact[:2]
         v, q, _ = best_estimate
-        bounds[v][q] = evaluate(v, q, need)
+        estimates[v][q] = evaluate(v, q, need)
         exact[v][q] = True
-    best_exact, _ = _top(bounds, exact, used, need, capped)
+    best_exact, _ = _top(estimates, exact, used, need, capped)
     return None if best_exact is None else best_exact[:2]
 
 
-def _top(bounds, exact, used, need, capped):
+def _top(estimates, exact, used, need, capped):
     """Best (view, candidate, score) among exactly scored and among estimated candidates (None below the
     minimum gain)."""
-    worth = min(MIN_GAIN, float(need[need > 0].min()) if (need > 0).any() else MIN_GAIN)
+    worth = _min_gain(need)
     best = {True: None, False: None}
     for v in used:
-        s = score(bounds[v], need, capped)
+        s = score(estimates[v], need, capped)
         for is_exact in (True, False):
             masked = np.where(exact[v] == is_exact, s, -np.inf)
             q = int(np.argmax(masked)) if len(masked) else -1

@@ -78,7 +78,7 @@ class PlanResult:
     views_considered: list[float]
     candidates: int  # dense-grid points on S
     reachable: int  # of which the gantry reaches
-    samples: SurfaceSamples | None = None  # what was counted (points in the turntable frame)
+    samples: SurfaceSamples  # what the counts count (points in the turntable frame)
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -132,123 +132,205 @@ def plan_lights(
     and nothing shadows it from the light.
     """
     clock = _Clock()
-    theta_c = np.radians(settings.theta_c_deg)
-    sphere = light_sphere(rig.gantry, placed.vertices, settings.sphere_scale)
-    caster = caster or RayCaster(placed)
-    clock.lap("ray engine")
-    cands = _Candidates(sphere, rig, settings.spacing_deg, settings.theta_c_deg * COARSE_FRACTION_OF_THETA_C)
-    # exact counts use samples as fine as the count unit needs; the greedy's estimates only steer, and
-    # the vertices (weighted in the same unit) do that at a fraction of the cost on a coarse mesh
-    surface = surface_samples(placed, segmentation, rig.camera, settings.count)
-    coarse_surface = vertex_samples(placed, segmentation) if len(surface) > len(placed.vertices) else surface
-    clock.lap("candidates")
-
-    views = (
-        list(settings.views_deg)
-        if settings.views_deg is not None
-        else auto_views(rig.turntable_limits_deg, settings.view_step_deg)
-    )
-    n_regions = segmentation.n_regions
-    samples: dict[int, ViewSamples] = {}
-    estimates: dict[int, np.ndarray] = {}
-    pool_cell = np.radians(max(settings.spacing_deg, settings.theta_c_deg / POOL_FRACTION))
-
-    def view_samples(v: int) -> ViewSamples:
-        if v not in samples:
-            samples[v] = _view_samples(
-                surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings
-            )
-        return samples[v]
-
-    def estimates_of(v: int) -> np.ndarray:
-        if v not in estimates:
-            vs = (
-                view_samples(v)
-                if coarse_surface is surface
-                else _view_samples(
-                    coarse_surface, n_regions, rig, sphere, caster, cands.coarse, views[v], settings
-                )
-            )
-            estimates[v] = count_estimates(vs, caster, theta_c, pool_cell, cands.coarse_tree)
-        return estimates[v]
-
-    refined: dict[tuple[int, int], tuple[int, np.ndarray]] = {}  # (view, coarse) → (dense index, counts)
-
-    def evaluate(v: int, q: int, need: np.ndarray, capped: bool) -> np.ndarray:
-        if (v, q) not in refined:
-            vs, cell = view_samples(v), cands.cell(q)
-            if len(cell) == 0:
-                return np.zeros(n_regions)
-            j, counts = best_light(
-                vs,
-                caster,
-                vs.light_position(cands.fine[cell]),
-                cands.fine[cell],
-                lambda c: score(c, need, capped),
-                theta_c=theta_c,
-                max_light_angle=np.radians(settings.max_view_angle_deg),
-                shadows=settings.shadows,
-            )
-            refined[v, q] = (int(cell[j]), counts)
-        return refined[v, q][1]
-
-    need = np.full(n_regions, float(settings.min_samples))
-    estimates_of(0)
+    planner = _Planner(placed, segmentation, rig, settings, caster, clock)
+    need = np.full(segmentation.n_regions, float(settings.min_samples))
+    planner.estimates_of(0)
     clock.lap("cones")
     capped = settings.criterion == "capped"
-
-    def run(capped_: bool) -> Selection:
-        refined.clear()  # a refinement chosen under one criterion's needs is not the other's
-        return select_lights(
-            estimates_of,
-            len(views),
-            lambda v, q, n: evaluate(v, q, n, capped_),
-            need,
-            capped=capped_,
-            max_lights=settings.max_lights,
-        )
-
     lights_by_criterion = {}
     if settings.compare_criteria:
         other = "plain" if capped else "capped"
-        lights_by_criterion[other] = len(run(not capped).choices)
+        lights_by_criterion[other] = len(planner.select(need, capped=not capped).choices)
         clock.lap("other criterion")
-    selection = run(capped)
+    selection = planner.select(need, capped=capped)
     lights_by_criterion[settings.criterion] = len(selection.choices)
     clock.lap("greedy")
 
-    def counted(v: int, d: np.ndarray) -> np.ndarray:
-        vs = view_samples(v)
-        local = exact_counts(
-            vs,
-            caster,
-            vs.light_position(d),
-            d,
-            theta_c=theta_c,
-            max_light_angle=np.radians(settings.max_view_angle_deg),
-            shadows=settings.shadows,
-        )[1]
-        return vs.index[local]
-
-    lights = _lights(selection, refined, cands, samples, views, sphere, rig, counted)
-    coverage = np.sum([light.expected for light in lights], axis=0) if lights else np.zeros(n_regions)
+    lights = planner.lights(selection)
+    coverage = np.sum([light.expected for light in lights], axis=0) if lights else np.zeros(len(need))
     satisfied = coverage >= settings.min_samples - 1e-9
-    uncovered = _reasons(satisfied, coverage, selection, views, settings, view_samples, estimates_of)
+    uncovered = planner.reasons(satisfied, coverage, selection)
     clock.lap("report")
     return PlanResult(
         settings,
-        sphere,
+        planner.sphere,
         lights,
         coverage,
         satisfied,
         uncovered,
         lights_by_criterion,
-        views,
-        cands.total,
-        len(cands.fine),
-        surface,
+        planner.views,
+        planner.cands.total,
+        len(planner.cands.fine),
+        planner.surface,
         clock.laps,
     )
+
+
+class _Planner:
+    """One planning run's state: the sphere, candidates, samples and the per-view caches."""
+
+    def __init__(
+        self,
+        placed: ColouredMesh,
+        segmentation: Segmentation,
+        rig: Rig,
+        settings: PlanSettings,
+        caster: RayCaster | None,
+        clock: _Clock,
+    ):
+        self.rig, self.settings = rig, settings
+        self.n_regions = segmentation.n_regions
+        self.theta_c = np.radians(settings.theta_c_deg)
+        self.max_light_angle = np.radians(settings.max_view_angle_deg)
+        self.sphere = light_sphere(rig.gantry, placed.vertices, settings.sphere_scale)
+        self.caster = caster or RayCaster(placed)
+        clock.lap("ray engine")
+        self.cands = _Candidates(
+            self.sphere, rig, settings.spacing_deg, settings.theta_c_deg * COARSE_FRACTION_OF_THETA_C
+        )
+        # exact counts use samples as fine as the count unit needs; the greedy's estimates only steer, and
+        # the vertices (weighted in the same unit) do that at a fraction of the cost on a coarse mesh
+        self.surface = surface_samples(placed, segmentation, rig.camera, settings.count)
+        self.coarse_surface = (
+            vertex_samples(placed, segmentation) if len(self.surface) > len(placed.vertices) else self.surface
+        )
+        clock.lap("candidates")
+        self.views = (
+            list(settings.views_deg)
+            if settings.views_deg is not None
+            else auto_views(rig.turntable_limits_deg, settings.view_step_deg)
+        )
+        self.pool_cell = np.radians(max(settings.spacing_deg, settings.theta_c_deg / POOL_FRACTION))
+        self._samples: dict[int, ViewSamples] = {}
+        self._estimates: dict[int, np.ndarray] = {}
+        self._refined: dict[tuple[int, int], tuple[int, np.ndarray]] = {}  # (view, coarse) → (dense, counts)
+
+    def view_samples(self, v: int) -> ViewSamples:
+        """The fine samples of view v (exact counts)."""
+        if v not in self._samples:
+            self._samples[v] = self._samples_of(self.surface, v)
+        return self._samples[v]
+
+    def _samples_of(self, surface: SurfaceSamples, v: int) -> ViewSamples:
+        return _view_samples(
+            surface,
+            self.n_regions,
+            self.rig,
+            self.sphere,
+            self.caster,
+            self.cands.coarse,
+            self.views[v],
+            self.settings,
+        )
+
+    def estimates_of(self, v: int) -> np.ndarray:
+        """(Q, R) estimated counts of view v's coarse candidates."""
+        if v not in self._estimates:
+            vs = (
+                self.view_samples(v)
+                if self.coarse_surface is self.surface
+                else self._samples_of(self.coarse_surface, v)
+            )
+            self._estimates[v] = count_estimates(
+                vs, self.caster, self.theta_c, self.pool_cell, self.cands.coarse_tree
+            )
+        return self._estimates[v]
+
+    def evaluate(self, v: int, q: int, need: np.ndarray, capped: bool) -> np.ndarray:
+        """Exact counts of coarse candidate q of view v, refined to the best dense point of its cell."""
+        if (v, q) not in self._refined:
+            vs, cell = self.view_samples(v), self.cands.cell(q)
+            if len(cell) == 0:
+                return np.zeros(self.n_regions)
+            j, counts = best_light(
+                vs,
+                self.caster,
+                vs.light_position(self.cands.fine[cell]),
+                self.cands.fine[cell],
+                lambda c: score(c, need, capped),
+                theta_c=self.theta_c,
+                max_light_angle=self.max_light_angle,
+                shadows=self.settings.shadows,
+            )
+            self._refined[v, q] = (int(cell[j]), counts)
+        return self._refined[v, q][1]
+
+    def select(self, need: np.ndarray, *, capped: bool) -> Selection:
+        self._refined.clear()  # a refinement chosen under one criterion's needs is not the other's
+        return select_lights(
+            self.estimates_of,
+            len(self.views),
+            lambda v, q, n: self.evaluate(v, q, n, capped),
+            need,
+            capped=capped,
+            max_lights=self.settings.max_lights,
+        )
+
+    def counted(self, v: int, light_dir: np.ndarray) -> np.ndarray:
+        """Indices (into ``surface``) of the samples a light counts."""
+        vs = self.view_samples(v)
+        local = exact_counts(
+            vs,
+            self.caster,
+            vs.light_position(light_dir),
+            light_dir,
+            theta_c=self.theta_c,
+            max_light_angle=self.max_light_angle,
+            shadows=self.settings.shadows,
+        )[1]
+        return vs.index[local]
+
+    def lights(self, selection: Selection) -> list[PlannedLight]:
+        """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
+        order = sorted(
+            range(len(selection.choices)),
+            key=lambda i: (selection.views_used.index(selection.choices[i].view), i),
+        )
+        lights = []
+        for i in order:
+            c = selection.choices[i]
+            d = self.cands.fine[self._refined[c.view, c.candidate][0]]
+            az, el = azimuth_elevation(d)
+            world_from_tt = rotation_z(np.radians(self.views[c.view]))[:3, :3]
+            lights.append(
+                PlannedLight(
+                    step=i,
+                    turntable_deg=float(self.views[c.view]),
+                    light_world=self.sphere.centre + self.sphere.radius * d,
+                    azimuth_deg=float(np.degrees(az)),
+                    elevation_deg=float(np.degrees(el)),
+                    light_turntable=self.view_samples(c.view).light_position(d),
+                    camera_turntable=world_from_tt.T @ self.rig.camera.centre,
+                    expected=c.counts,
+                    counted=self.counted(c.view, d),
+                )
+            )
+        return lights
+
+    def reasons(self, satisfied: np.ndarray, coverage: np.ndarray, selection: Selection) -> dict[int, str]:
+        """Why each unsatisfied region is short, in the operator's words (this needs every view's evidence)."""
+        short = np.flatnonzero(~satisfied)
+        if len(short) == 0:
+            return {}
+        views = range(len(self.views))
+        seen = np.sum([self.view_samples(v).region_weight() for v in views], axis=0)
+        reach = np.sum([self.estimates_of(v).max(axis=0) for v in views], axis=0)
+        m, reasons = self.settings.min_samples, {}
+        for r in short:
+            if seen[r] <= 0:
+                reasons[int(r)] = "not visible from any view (or only at grazing angles)"
+            elif reach[r] <= 0:
+                reasons[int(r)] = "highlight unreachable: no reachable light position puts a highlight on it"
+            elif selection.hit_light_limit:
+                limit = self.settings.max_lights
+                reasons[int(r)] = f"only {coverage[r]:.0f} of {m:g} samples within --max-lights {limit}"
+            else:
+                reasons[int(r)] = (
+                    f"only {coverage[r]:.0f} of {m:g} samples: its remaining highlights are "
+                    "shadowed or at grazing light"
+                )
+        return reasons
 
 
 def _view_samples(
@@ -288,62 +370,6 @@ def _view_samples(
         camera.centre,
         caster,
     )
-
-
-def _lights(
-    selection: Selection, refined, cands: _Candidates, samples, views, sphere: LightSphere, rig: Rig, counted
-) -> list[PlannedLight]:
-    """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
-    order = sorted(
-        range(len(selection.choices)),
-        key=lambda i: (selection.views_used.index(selection.choices[i].view), i),
-    )
-    lights = []
-    for i in order:
-        c = selection.choices[i]
-        d = cands.fine[refined[c.view, c.candidate][0]]
-        az, el = azimuth_elevation(d)
-        world_from_tt = rotation_z(np.radians(views[c.view]))[:3, :3]
-        lights.append(
-            PlannedLight(
-                step=i,
-                turntable_deg=float(views[c.view]),
-                light_world=sphere.centre + sphere.radius * d,
-                azimuth_deg=float(np.degrees(az)),
-                elevation_deg=float(np.degrees(el)),
-                light_turntable=samples[c.view].light_position(d),
-                camera_turntable=world_from_tt.T @ rig.camera.centre,
-                expected=c.counts,
-                counted=counted(c.view, d),
-            )
-        )
-    return lights
-
-
-def _reasons(satisfied, coverage, selection, views, settings, view_samples, estimates_of) -> dict[int, str]:
-    """Why each unsatisfied region is short, in the operator's words (this needs every view's evidence)."""
-    short = np.flatnonzero(~satisfied)
-    if len(short) == 0:
-        return {}
-    seen = np.sum([view_samples(v).region_weight() for v in range(len(views))], axis=0)
-    reach = np.sum([estimates_of(v).max(axis=0) for v in range(len(views))], axis=0)
-    reasons = {}
-    for r in short:
-        if seen[r] <= 0:
-            reasons[int(r)] = "not visible from any view (or only at grazing angles)"
-        elif reach[r] <= 0:
-            reasons[int(r)] = "highlight unreachable: no reachable light position puts a highlight on it"
-        elif selection.hit_light_limit:
-            reasons[int(r)] = (
-                f"only {coverage[r]:.0f} of {settings.min_samples:g} samples within "
-                f"--max-lights {settings.max_lights}"
-            )
-        else:
-            reasons[int(r)] = (
-                f"only {coverage[r]:.0f} of {settings.min_samples:g} samples: its remaining "
-                "highlights are shadowed or at grazing light"
-            )
-    return reasons
 
 
 class _Clock:
