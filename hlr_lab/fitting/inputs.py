@@ -1,0 +1,89 @@
+"""Checking and holding the per-pixel samples of one region (the boundary of the numerical core)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from hlr_lab.errors import HlrLabError, InputError
+
+MIN_DIFFUSE = 20  # diffuse-only pixels needed for Rd (3 values) with outlier rejection
+MIN_HIGHLIGHT = 20  # highlight pixels needed for Rs (3 values) and n
+
+
+class InsufficientSamples(HlrLabError):
+    """Too few diffuse-only or highlight pixels to fit; ``kind``, ``count`` and ``needed`` say which."""
+
+    def __init__(self, kind: str, count: int, needed: int, theta_c_deg: float):
+        self.kind, self.count, self.needed, self.theta_c_deg = kind, count, needed, theta_c_deg
+        where = "β ≤ θc" if kind == "highlight" else "β > θc"
+        super().__init__(
+            f"only {count} {kind} pixels ({where}, θc = {theta_c_deg:.3g}°) but {needed} are needed; "
+            "plan more lights for this region or change θc"
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Samples:
+    """One region's pixels: intensity (N, 3), irradiance (N, 1) or (N, 3), cos_alpha (N,), cos_beta (N,)."""
+
+    intensity: np.ndarray
+    irradiance: np.ndarray
+    cos_alpha: np.ndarray
+    cos_beta: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.cos_alpha)
+
+    @cached_property
+    def channels(self) -> np.ndarray:
+        """(3, N) intensity, one contiguous row per channel (the fitting passes read channel by channel)."""
+        return np.ascontiguousarray(self.intensity.T)
+
+    @cached_property
+    def log_cos_beta(self) -> np.ndarray:
+        return np.log(self.cos_beta)
+
+    def subset(self, which: np.ndarray) -> Samples:
+        return Samples(
+            self.intensity[which], self.irradiance[which], self.cos_alpha[which], self.cos_beta[which]
+        )
+
+
+def check_samples(intensity, irradiance, cos_alpha, cos_beta) -> Samples:
+    """Convert and validate; one InputError naming the argument and how many values are wrong."""
+    i = _array("intensity", intensity)
+    if i.ndim != 2 or i.shape[1] != 3:
+        raise InputError(f"must have shape (N, 3), got {i.shape}", field="intensity")
+    n = len(i)
+    ca, cb = _array("cos_alpha", cos_alpha), _array("cos_beta", cos_beta)
+    for name, a in (("cos_alpha", ca), ("cos_beta", cb)):
+        if a.shape != (n,):
+            raise InputError(f"must have shape ({n},) like intensity, got {a.shape}", field=name)
+    irr = _array("irradiance", irradiance)
+    if irr.shape == (n,):
+        irr = irr[:, None]
+    elif irr.shape != (n, 3):
+        raise InputError(f"must have shape ({n},) or ({n}, 3), got {irr.shape}", field="irradiance")
+    _count_bad("irradiance", ~(irr > 0).all(axis=1), "≤ 0 (unlit pixels do not belong in a fit)")
+    _count_bad("cos_alpha", ~((ca > 0) & (ca <= 1 + 1e-9)), "outside (0, 1] (the light must be in front)")
+    _count_bad("cos_beta", ~((cb > 0) & (cb <= 1 + 1e-9)), "outside (0, 1]")
+    return Samples(i, irr, np.minimum(ca, 1.0), np.minimum(cb, 1.0))
+
+
+def _array(name: str, value) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"is not numeric ({exc})", field=name) from exc
+    bad = int(np.size(a) - np.isfinite(a).sum())
+    if bad:
+        raise InputError(f"{bad} values are NaN or infinite", field=name)
+    return a
+
+
+def _count_bad(name: str, bad: np.ndarray, what: str) -> None:
+    if bad.any():
+        raise InputError(f"{int(bad.sum())} of {len(bad)} values are {what}", field=name)
