@@ -1,6 +1,6 @@
 """The default estimator: robust weighted least squares on the full model (1), all pixels at once.
 
-1. Start: Rd from the median of I/(L cos α) over diffuse-only pixels; n and Rs from a line fit of
+1. Start: with Rd from the median of I/(L cos α) over the diffuse-only pixels, n from a line fit of
    log(Is/L) against log cos β over the highlight pixels.
 2. Variable projection on a stratified subsample: for fixed n the model is linear in (Rd, Rs) per
    channel, so n is a 1-D search over a profile (grid, then Brent).
@@ -36,7 +36,7 @@ _NOISE_BINS = 12
 
 def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], seed: int = 0) -> Estimate:
     sub, sub_weight, sub_highlight = _subsample(s, highlight, seed)
-    rd0, n0, rs0 = _start(sub, sub_highlight, n_range)
+    n0 = _start_n(sub, sub_highlight, n_range)
     n1, rd1, rs1 = _profile_n(sub, sub_weight, n0, n_range)
     noise = _noise_model(sub, rd1, rs1, n1)
     start = np.concatenate([rd1, rs1, [n1]])
@@ -58,21 +58,19 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
     )
 
 
-def _start(s: Samples, highlight: np.ndarray, n_range) -> tuple[np.ndarray, float, np.ndarray]:
+def _start_n(s: Samples, highlight: np.ndarray, n_range) -> float:
     d = ~highlight
     rd0 = np.median(s.intensity[d] / (s.irradiance[d] * s.cos_alpha[d, None]), axis=0)
     h = s.subset(highlight)
     z = ((h.intensity - h.irradiance * h.cos_alpha[:, None] * rd0) / h.irradiance).mean(axis=1)
     ok = z > 0.05 * max(z.max(), 1e-12)
-    n0 = 20.0
     if ok.sum() >= 5 and np.ptp(h.log_cos_beta[ok]) > 0:
         # log z = log Rs + n log cos β, weighted by z² (the noise on log z is σ/z)
         a = np.column_stack([np.ones(ok.sum()), h.log_cos_beta[ok]]) * z[ok, None]
-        coef = np.linalg.lstsq(a, np.log(z[ok]) * z[ok], rcond=None)[0]
-        if np.isfinite(coef[1]):
-            n0 = float(np.clip(coef[1], *n_range))
-    rs0 = np.full(3, max(float(np.median(z[ok])) if ok.any() else 0.0, 1e-6))
-    return rd0, n0, rs0
+        slope = np.linalg.lstsq(a, np.log(z[ok]) * z[ok], rcond=None)[0][1]
+        if np.isfinite(slope):
+            return float(np.clip(slope, *n_range))
+    return 20.0  # the n search spans a factor 12 either side of its start
 
 
 def _subsample(s: Samples, highlight: np.ndarray, seed: int) -> tuple[Samples, np.ndarray, np.ndarray]:

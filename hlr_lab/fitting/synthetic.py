@@ -70,12 +70,12 @@ def synthetic_region(
     p, nrm = np.concatenate(points)[:pixels], np.concatenate(normals)[:pixels]
     v = _unit(camera - p)
     if light == "directional":
-        l, irr = np.broadcast_to(light_dir, p.shape), np.ones(len(p))
+        to_light, irr = np.broadcast_to(light_dir, p.shape), np.ones(len(p))
     else:
         d = light_pos - p
-        l, irr = _unit(d), 0.0625 / np.einsum("ij,ij->i", d, d)  # Φ = 0.0625 reads 1 at 0.25 m
-    h = _unit(l + v)
-    ca, cb = np.einsum("ij,ij->i", nrm, l), np.clip(np.einsum("ij,ij->i", nrm, h), 1e-9, 1.0)
+        to_light, irr = _unit(d), 0.0625 / np.einsum("ij,ij->i", d, d)  # Φ = 0.0625 reads 1 at 0.25 m
+    h = _unit(to_light + v)
+    ca, cb = np.einsum("ij,ij->i", nrm, to_light), np.clip(np.einsum("ij,ij->i", nrm, h), 1e-9, 1.0)
     clean = irr[:, None] * (ca[:, None] * truth.rd + cb[:, None] ** truth.n * truth.rs)
     top = 2**bits - 1
     dn = clean / full_scale * top
