@@ -1,13 +1,13 @@
-"""Benchmarks that print figures (not timed unit tests): ``hlr-lab bench plan``.
+"""Benchmarks that print figures (not timed unit tests): ``hlr-lab bench plan`` and ``hlr-lab bench fit``.
 
-Each case runs in a fresh process so that its peak memory is its own.
+Cases that measure memory run in a fresh process so that their peak is their own.
 """
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
-import resource
 import threading
 import time
 from dataclasses import dataclass
@@ -16,6 +16,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from hlr_lab.errors import HlrLabError
+from hlr_lab.fitting import fit_region
+from hlr_lab.fitting.synthetic import PAPER_42, Truth, synthetic_region
 from hlr_lab.mesh import ColouredMesh, load_mesh
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
@@ -117,15 +120,122 @@ def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vert
     )
 
 
-def run_plan_case(*args) -> PlanFigures:
-    """Run one case in a fresh process (spawned: no memory inherited from this one)."""
+def in_fresh_process(fn, *args):
+    """Run ``fn(*args)`` in a fresh process (spawned: no memory inherited from this one)."""
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(1) as pool:
-        return pool.apply(_plan_case, args)
+        return pool.apply(fn, args)
 
 
-def max_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+def run_plan_case(*args) -> PlanFigures:
+    return in_fresh_process(_plan_case, *args)
+
+
+FIT_NOISE_DN = (0.5, 1.0, 2.0, 4.0)
+FIT_EXPONENTS = (5.0, 20.0, 59.0, 200.0, 500.0)
+FIT_PIXELS = 40_000
+
+
+@dataclass
+class FitErrors:
+    noise_dn: float
+    n: float
+    method: str
+    rd_err: float  # max relative error over the channels
+    rs_err: float
+    n_err: float
+    theta_c_deg: float
+    seconds: float
+    failure: str = ""
+
+
+def fit_error_grid(
+    noise_levels=FIT_NOISE_DN, exponents=FIT_EXPONENTS, pixels: int = FIT_PIXELS
+) -> list[FitErrors]:
+    """Both estimators, θc chosen automatically, on the paper's 4.2 set-up (cylinder, directional light,
+    8-bit) with the paper's Rd and Rs and each exponent n, at each read-noise level."""
+    rows = []
+    for noise in noise_levels:
+        for n in exponents:
+            truth = Truth(PAPER_42.rd, PAPER_42.rs, n)
+            region = synthetic_region(
+                truth, pixels=pixels, bits=8, read_noise_dn=noise, seed=int(n * 10 + noise * 100)
+            )
+            for method in ("robust", "paper"):
+                t = time.perf_counter()
+                try:
+                    f = fit_region(
+                        region.intensity,
+                        region.irradiance,
+                        region.cos_alpha,
+                        region.cos_beta,
+                        theta_c_deg="auto",
+                        method=method,
+                    )
+                except HlrLabError as exc:
+                    rows.append(FitErrors(noise, n, method, np.nan, np.nan, np.nan, np.nan, 0.0, str(exc)))
+                    continue
+                rows.append(
+                    FitErrors(
+                        noise,
+                        n,
+                        method,
+                        _rel(f.rd, truth.rd),
+                        _rel(f.rs, truth.rs),
+                        _rel(f.n, n),
+                        f.theta_c_deg,
+                        time.perf_counter() - t,
+                    )
+                )
+    return rows
+
+
+def _rel(a, b) -> float:
+    return float(np.max(np.abs(np.asarray(a) / np.asarray(b) - 1)))
+
+
+@dataclass
+class Throughput:
+    samples: int
+    seconds: float
+    inputs_bytes: int
+    peak_extra_bytes: int  # resident memory the fit added on top of its inputs, at its peak
+
+    @property
+    def per_second(self) -> float:
+        return self.samples / self.seconds
+
+    @property
+    def bytes_per_sample(self) -> float:
+        return (self.inputs_bytes + self.peak_extra_bytes) / self.samples
+
+
+def _throughput_case(samples: int, method: str) -> Throughput:
+    truth = Truth(np.array([0.6, 0.3, 0.2]), np.array([0.3, 0.3, 0.35]), 80.0)
+    r = synthetic_region(
+        truth,
+        shape="sphere",
+        light="point",
+        pixels=samples,
+        bits=12,
+        read_noise_dn=2.0,
+        electrons_per_dn=4.0,
+        full_scale=1.6,
+        seed=3,
+    )
+    inputs = sum(a.nbytes for a in (r.intensity, r.irradiance, r.cos_alpha, r.cos_beta))
+    gc.collect()
+    rss = _PeakRss()
+    before = rss._rss()
+    with rss:
+        t = time.perf_counter()
+        fit_region(r.intensity, r.irradiance, r.cos_alpha, r.cos_beta, theta_c_deg=20.0, method=method)
+        elapsed = time.perf_counter() - t
+    return Throughput(samples, elapsed, inputs, rss.peak - before)
+
+
+def run_throughput_case(samples: int, method: str = "robust") -> Throughput:
+    return in_fresh_process(_throughput_case, samples, method)
 
 
 def mesh_label(mesh_path: str | None) -> str:

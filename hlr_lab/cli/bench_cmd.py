@@ -5,8 +5,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+import numpy as np
 
-from hlr_lab.bench import PAPER_SETTINGS, mesh_label, nearest_neighbour_spacing_deg, run_plan_case
+from hlr_lab.bench import (
+    FIT_PIXELS,
+    PAPER_SETTINGS,
+    fit_error_grid,
+    mesh_label,
+    nearest_neighbour_spacing_deg,
+    run_plan_case,
+    run_throughput_case,
+)
 from hlr_lab.cli.common import console, out
 from hlr_lab.sphere import directions_with_spacing
 
@@ -68,5 +77,71 @@ def bench_plan(mesh_path, up, scale, min_vertices) -> None:
             f"  memory: RSS {f.rss_before_mb:.0f} MB before planning, peak RSS {f.rss_peak_plan_mb:.0f} MB "
             "while planning",
             soft_wrap=True,
+            markup=False,
+        )
+
+
+@bench.command("fit")
+@click.option(
+    "--sizes",
+    default="1000000,3000000,10000000",
+    show_default=True,
+    help="Sample counts for the throughput and memory figures (comma-separated).",
+)
+@click.option("--no-grid", is_flag=True, help="Skip the error grid (only throughput and memory).")
+def bench_fit(sizes, no_grid) -> None:
+    """Estimator errors over noise levels and exponents, time per fit, throughput and memory.
+
+    \b
+    Example:
+      hlr-lab bench fit
+      hlr-lab bench fit --no-grid --sizes 10000000
+    """
+    if not no_grid:
+        out.print(
+            f"error grid: paper 4.2 set-up (cylinder, directional light, 8-bit, Rd, Rs of the paper), "
+            f"{FIT_PIXELS:,} pixels, θc auto; max relative error over RGB",
+            markup=False,
+        )
+        out.print(
+            f"{'σ DN':>5} {'n':>5}  {'method':7} {'Rd err':>8} {'Rs err':>8} {'n err':>8} {'θc°':>6} {'time s':>7}",
+            markup=False,
+        )
+        with console.status("fitting the grid…"):
+            rows = fit_error_grid()
+        for r in rows:
+            if r.failure:
+                out.print(f"{r.noise_dn:5.1f} {r.n:5.0f}  {r.method:7} failed: {r.failure}", markup=False)
+                continue
+            out.print(
+                f"{r.noise_dn:5.1f} {r.n:5.0f}  {r.method:7} {100 * r.rd_err:7.2f}% {100 * r.rs_err:7.2f}% "
+                f"{100 * r.n_err:7.2f}% {r.theta_c_deg:6.1f} {r.seconds:7.3f}",
+                markup=False,
+            )
+        for method in ("robust", "paper"):
+            mine = [r for r in rows if r.method == method and not r.failure]
+            if mine:
+                out.print(
+                    f"{method}: median errors Rd {100 * np.median([r.rd_err for r in mine]):.2f}%, "
+                    f"Rs {100 * np.median([r.rs_err for r in mine]):.2f}%, "
+                    f"n {100 * np.median([r.n_err for r in mine]):.2f}%; "
+                    f"worst Rd {100 * max(r.rd_err for r in mine):.2f}%, Rs {100 * max(r.rs_err for r in mine):.2f}%, "
+                    f"n {100 * max(r.n_err for r in mine):.2f}%; "
+                    f"{sum(1 for r in rows if r.method == method and r.failure)} failed; "
+                    f"median time per fit {np.median([r.seconds for r in mine]) * 1000:.0f} ms",
+                    markup=False,
+                )
+    out.print(
+        "throughput and memory (robust, θc 20°, one region, sphere, point light, photon + read noise; "
+        "fresh process per size)",
+        markup=False,
+    )
+    for n in (int(x) for x in sizes.split(",") if x.strip()):
+        with console.status(f"fitting {n:,} samples…"):
+            t = run_throughput_case(n)
+        out.print(
+            f"{n:>12,} samples: {t.seconds:6.2f} s, {t.per_second / 1e6:5.2f} M samples/s, inputs "
+            f"{t.inputs_bytes / n:.0f} B/sample + working {t.peak_extra_bytes / n:.0f} B/sample = "
+            f"{t.bytes_per_sample:.0f} B/sample",
             markup=False,
         )

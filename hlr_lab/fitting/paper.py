@@ -7,7 +7,9 @@ Is/(L cosⁿβ) over the highlight pixels.
 The change: (6) on consecutive pixels sorted by β collapses to n ≈ 1 on quantised, noisy data — two
 neighbours differ in β by a hair and their intensity ratio is 1 ± noise, which cosⁿβᵢ/cosⁿβᵢ₊₁ ≈ 1
 matches for any small n. We aggregate first: the highlight pixels are split into equal-count bins by β,
-and (6) compares the ratios of consecutive bins' mean Is/L with those of their mean cosⁿβ.
+and (6) compares the ratios of consecutive bins' mean Is/L with those of their mean cosⁿβ. Bins whose
+mean Is is within three of its own standard errors of zero are left out: the ratio of two noise-level
+means says nothing about n, yet dominates the sum once θc is wider than the lobe.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ _REJECT_SIGMAS = 3.0  # "values that deviate strongly" (paper: inter-reflection 
 _PIXELS_PER_BIN = 100
 _BINS = (5, 40)
 _COS_PER_BIN = 256
+_SIGNAL_SE = 3.0
 _GRID = 400  # log-spaced n: 1.9 % steps over 1…2000, then Brent within a step
 
 
@@ -58,6 +61,8 @@ def fit_paper(s: Samples, highlight: np.ndarray, n_range: tuple[float, float]) -
     order = np.argsort(-h.cos_beta, kind="stable")  # β ascending
     bins = np.array_split(order, int(np.clip(len(order) // _PIXELS_PER_BIN, *_BINS)))
     grey = specular.mean(axis=1)
+    signal = [b for b in bins if grey[b].mean() > _SIGNAL_SE * grey[b].std(ddof=1) / np.sqrt(len(b))]
+    bins = signal if len(signal) >= 3 else bins[:3]
     criterion = _RatioCriterion(
         np.array([grey[b].mean() for b in bins]), [h.log_cos_beta[b] for b in bins], n_range
     )

@@ -30,7 +30,9 @@ _CHUNK = 1 << 14  # 128 KB arrays stay in cache: 1.6× faster than 2 MB chunks (
 _SUBSAMPLE = 100_000
 _MAX_PASSES = 4
 _MAX_HALVINGS = 6
-_ONE_PASS_SE = 10.0  # a Newton step this small (in standard errors) needs no checking pass
+_ONE_PASS_SE = 10.0  # a Newton step this small (in standard errors) needs no checking pass …
+_ONE_PASS_RELATIVE = 1e-3  # … nor one this small relative to the parameters: Newton's error after a step
+# is second order in the start's error, so a start within 0.1 % lands within ~1e-6
 _NOISE_BINS = 12
 
 
@@ -174,9 +176,9 @@ def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range):
     """Newton on the Huber cost Σ ρ(r/σ) from a close start.
 
     Hessian Σ ψ'(t) J Jᵀ/σ² (ψ' = 1 inside k, 0 beyond: quadratic convergence, unlike IRLS weights),
-    gradient Σ ψ(t) J/σ. A step from within ``_ONE_PASS_SE`` standard errors lands well inside one, so it
-    is taken without another pass; a larger one is checked by the next pass (and halved if it raised the
-    cost). Standard errors: the sandwich H⁻¹ (Σ ψ(t)² J Jᵀ/σ²) H⁻¹, right whatever the share of outliers.
+    gradient Σ ψ(t) J/σ. A small step (``_ONE_PASS_SE`` standard errors, or ``_ONE_PASS_RELATIVE`` of the
+    parameters) is taken without another pass; a larger one is checked by the next pass (and halved if it
+    raised the cost). Standard errors: the sandwich H⁻¹ (Σ ψ(t)² J Jᵀ/σ²) H⁻¹, right whatever the share of outliers.
 
     Returns p, the covariance, and the plain residual RMS.
     """
@@ -188,7 +190,9 @@ def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range):
         se = np.sqrt(np.clip(np.diag(h_inv @ meat @ h_inv), 1e-300, None))
         trial = p + step
         trial[6] = float(np.clip(trial[6], *n_range))
-        if np.all(np.abs(step) <= _ONE_PASS_SE * se):
+        if np.all(np.abs(step) <= _ONE_PASS_SE * se) or np.all(
+            np.abs(step) <= _ONE_PASS_RELATIVE * np.abs(p)
+        ):
             p = trial
             break
         for _halving in range(_MAX_HALVINGS):

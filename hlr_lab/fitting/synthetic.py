@@ -50,32 +50,58 @@ def synthetic_region(
     seed: int = 0,
 ) -> SyntheticRegion:
     """``full_scale`` is the intensity that reads the sensor's top code; ``electrons_per_dn`` turns on
-    photon noise (None: none)."""
+    photon noise (None: none). Generated in batches, so ten million pixels need little more than the
+    output's own memory."""
     rng = np.random.default_rng(seed)
-    camera = np.array([0.0, -0.6, 0.0]) if shape == "cylinder" else np.array([0.0, -0.6, 0.18])
-    light_dir = _unit(np.array([0.35, -1.0, 0.0 if shape == "cylinder" else 0.45]))
-    light_pos = 0.25 * light_dir
-    points, normals = [], []
-    total = 0
+    geometry = _Geometry(shape, light)
+    parts, total, clipped = [], 0, 0
     while total < pixels:
-        p, nrm = _surface(shape, rng, 4 * pixels)
-        to_cam = _unit(camera - p)
-        to_light = light_dir if light == "directional" else _unit(light_pos - p)
-        front = (np.einsum("ij,ij->i", nrm, to_cam) > 0.05) & (
-            np.einsum("ij,ij->i", nrm, np.broadcast_to(to_light, p.shape)) > 0.05
+        batch = _batch(
+            truth,
+            geometry,
+            rng,
+            min(pixels - total, _BATCH),
+            bits,
+            read_noise_dn,
+            electrons_per_dn,
+            full_scale,
         )
-        points.append(p[front])
-        normals.append(nrm[front])
-        total += int(front.sum())
-    p, nrm = np.concatenate(points)[:pixels], np.concatenate(normals)[:pixels]
-    v = _unit(camera - p)
-    if light == "directional":
-        to_light, irr = np.broadcast_to(light_dir, p.shape), np.ones(len(p))
+        parts.append(batch[:4])
+        clipped += batch[4]
+        total += len(batch[3])
+    columns = [np.concatenate(c) for c in zip(*parts, strict=True)]
+    return SyntheticRegion(*(c[:pixels] for c in columns), truth=truth, clipped=clipped)
+
+
+_BATCH = 1 << 20
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    shape: Shape
+    light: str
+
+    @property
+    def camera(self) -> np.ndarray:
+        return np.array([0.0, -0.6, 0.0]) if self.shape == "cylinder" else np.array([0.0, -0.6, 0.18])
+
+    @property
+    def light_dir(self) -> np.ndarray:
+        return _unit(np.array([0.35, -1.0, 0.0 if self.shape == "cylinder" else 0.45]))
+
+
+def _batch(truth, g: _Geometry, rng, want, bits, read_noise_dn, electrons_per_dn, full_scale):
+    p, nrm = _surface(g.shape, rng, 3 * want)
+    v = _unit(g.camera - p)
+    if g.light == "directional":
+        to_light, irr = np.broadcast_to(g.light_dir, p.shape), np.ones(len(p))
     else:
-        d = light_pos - p
+        d = 0.25 * g.light_dir - p
         to_light, irr = _unit(d), 0.0625 / np.einsum("ij,ij->i", d, d)  # Φ = 0.0625 reads 1 at 0.25 m
-    h = _unit(to_light + v)
-    ca, cb = np.einsum("ij,ij->i", nrm, to_light), np.clip(np.einsum("ij,ij->i", nrm, h), 1e-9, 1.0)
+    ca = np.einsum("ij,ij->i", nrm, to_light)
+    front = (np.einsum("ij,ij->i", nrm, v) > 0.05) & (ca > 0.05)
+    nrm, v, to_light, irr, ca = nrm[front], v[front], to_light[front], irr[front], ca[front]
+    cb = np.clip(np.einsum("ij,ij->i", nrm, _unit(to_light + v)), 1e-9, 1.0)
     clean = irr[:, None] * (ca[:, None] * truth.rd + cb[:, None] ** truth.n * truth.rs)
     top = 2**bits - 1
     dn = clean / full_scale * top
@@ -84,7 +110,7 @@ def synthetic_region(
     dn = np.round(dn + rng.normal(0.0, read_noise_dn, dn.shape))
     ok = (dn < top).all(axis=1)
     measured = np.clip(dn[ok], 0, None) / top * full_scale
-    return SyntheticRegion(measured, irr[ok], ca[ok], cb[ok], truth, int((~ok).sum()))
+    return measured, irr[ok], ca[ok], cb[ok], int((~ok).sum())
 
 
 def _surface(shape: Shape, rng: np.random.Generator, k: int) -> tuple[np.ndarray, np.ndarray]:
