@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.formats.io import atomic_write_bytes, atomic_write_text
 from hlr_lab.formats.plan import build_plan, read_plan, write_plan
 from hlr_lab.formats.regions import read_regions, write_regions
 from hlr_lab.planning.geometry import placement
@@ -125,7 +125,7 @@ def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
     p = tmp_path / "plan.json"
     atomic_write_text(p, "old")
     with pytest.raises(TypeError):
-        atomic_write_text(p, b"bytes are not text")  # fails inside the write
+        atomic_write_bytes(p, "text is not bytes")  # fails inside the write, after the temporary exists
     assert p.read_text() == "old"
     assert [f.name for f in tmp_path.iterdir()] == ["plan.json"]  # no temporary left behind
 

@@ -9,6 +9,7 @@ import click
 from hlr_lab import __version__
 from hlr_lab.cli.bench_cmd import bench
 from hlr_lab.cli.common import console
+from hlr_lab.cli.export_cmd import export
 from hlr_lab.cli.plan_cmd import plan
 from hlr_lab.cli.segment_cmd import segment
 from hlr_lab.errors import HlrLabError
@@ -26,7 +27,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
     \b
     Segment the mesh into same-colour regions, plan light positions that put highlights on as many
-    regions as possible at once, then (later steps) acquire, fit and export Phong materials.
+    regions as possible at once, and export fitted Phong materials for other tools.
 
     \b
     Example, on the built-in simulated rig and procedural object:
@@ -37,6 +38,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 cli.add_command(segment)
 cli.add_command(plan)
+cli.add_command(export)
 cli.add_command(bench)
 
 

@@ -20,12 +20,19 @@ Model = TypeVar("Model", bound=pydantic.BaseModel)
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write to a temporary file beside ``path``, fsync, then rename over it: a crash leaves the old
     file or the new one, never a mix."""
+    if not isinstance(text, str):
+        raise TypeError(f"text expected, got {type(text).__name__}")
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """:func:`atomic_write_text` for bytes."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

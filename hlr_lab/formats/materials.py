@@ -1,0 +1,155 @@
+"""``materials.json`` (DESIGN §4): one Blinn-Phong material per region, with uncertainties.
+
+```json
+{"format": "hlr-lab.materials", "version": 1, "model": "blinn-phong",
+ "equation": "I = L (rd cos α + rs cos^n β), β between the normal and the half vector",
+ "mesh": "bunny8.ply", "sha256": "…",
+ "regions": [{"id": 0, "color": [205, 60, 40], "vertices": 4210,
+              "rd": [0.62, 0.18, 0.12], "rd_se": […], "rs": [0.2, 0.2, 0.2], "rs_se": […], "n": 80.0, "n_se": 1.2,
+              "specular": "measured", "theta_c_deg": 20.0, "pixels": {"diffuse": 36096, "highlight": 4976},
+              "residual_rms": 0.004, "estimator": "robust"}]}
+```
+A region whose highlight could not be measured has ``"specular": "unmeasured"``, a ``reason``, and no
+``rs``/``n`` at all: never invented numbers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from hlr_lab.errors import InputError
+from hlr_lab.fitting import RegionFit
+from hlr_lab.formats.io import check_header, read_json, validate, write_json
+from hlr_lab.formats.regions import Colour8
+from hlr_lab.segment import Region
+
+MATERIALS_FORMAT = "hlr-lab.materials"
+EQUATION = "I = L (rd cos α + rs cos^n β), β between the normal and the half vector"
+RGB = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_length=3)]
+
+
+class PixelCounts(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    diffuse: int = Field(ge=0)
+    highlight: int = Field(ge=0)
+
+
+class MaterialEntry(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    id: int = Field(ge=0)
+    color: Colour8
+    vertices: int = Field(ge=0)
+    rd: RGB
+    rd_se: RGB
+    rs: RGB | None = None
+    rs_se: RGB | None = None
+    n: float | None = Field(default=None, gt=0)
+    n_se: float | None = Field(default=None, ge=0)
+    specular: Literal["measured", "unmeasured"]
+    reason: str | None = None
+    theta_c_deg: float = Field(gt=0, lt=90)
+    pixels: PixelCounts
+    residual_rms: float = Field(ge=0)
+    estimator: Literal["robust", "paper"]
+
+    @model_validator(mode="after")
+    def _specular_consistent(self):
+        measured = self.specular == "measured"
+        given = [f for f in ("rs", "rs_se", "n", "n_se") if getattr(self, f) is not None]
+        if measured and len(given) < 4:
+            raise ValueError("a measured specular needs rs, rs_se, n and n_se")
+        if not measured and (given or not self.reason):
+            raise ValueError("an unmeasured specular has a reason and no rs or n")
+        return self
+
+
+class MaterialsFile(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    format: Literal["hlr-lab.materials"]
+    version: Literal[1]
+    model: Literal["blinn-phong"]
+    equation: str = EQUATION
+    mesh: str | None = None
+    sha256: str | None = None
+    regions: list[MaterialEntry]
+
+
+def measured_entry(region: Region, fit: RegionFit) -> MaterialEntry:
+    return MaterialEntry(
+        id=region.id,
+        color=list(region.colour),
+        vertices=region.vertices,
+        rd=_v(fit.rd),
+        rd_se=_v(fit.rd_se),
+        rs=_v(fit.rs),
+        rs_se=_v(fit.rs_se),
+        n=float(fit.n),
+        n_se=float(fit.n_se),
+        specular="measured",
+        theta_c_deg=fit.theta_c_deg,
+        pixels=PixelCounts(diffuse=fit.n_diffuse, highlight=fit.n_highlight),
+        residual_rms=fit.residual_rms,
+        estimator=fit.method,
+    )
+
+
+def unmeasured_entry(
+    region: Region,
+    rd,
+    rd_se,
+    *,
+    reason: str,
+    theta_c_deg: float,
+    pixels: PixelCounts,
+    residual_rms: float,
+    estimator: str,
+) -> MaterialEntry:
+    return MaterialEntry(
+        id=region.id,
+        color=list(region.colour),
+        vertices=region.vertices,
+        rd=_v(rd),
+        rd_se=_v(rd_se),
+        specular="unmeasured",
+        reason=reason,
+        theta_c_deg=theta_c_deg,
+        pixels=pixels,
+        residual_rms=residual_rms,
+        estimator=estimator,
+    )
+
+
+def materials_file(
+    entries: list[MaterialEntry], *, mesh: str | None = None, sha256: str | None = None
+) -> MaterialsFile:
+    return MaterialsFile(
+        format=MATERIALS_FORMAT,
+        version=1,
+        model="blinn-phong",
+        mesh=mesh,
+        sha256=sha256,
+        regions=sorted(entries, key=lambda e: e.id),
+    )
+
+
+def write_materials(path: str | Path, materials: MaterialsFile) -> None:
+    write_json(path, materials)
+
+
+def read_materials(path: str | Path) -> MaterialsFile:
+    """Read and validate; an unknown format, version or model, or a malformed field, is one InputError."""
+    path = Path(path)
+    data = read_json(path)
+    check_header(data, path, MATERIALS_FORMAT, {1})
+    f = validate(MaterialsFile, data, path)
+    ids = [r.id for r in f.regions]
+    if len(set(ids)) != len(ids):
+        raise InputError("a region id appears twice", path=path, field="regions")
+    return f
+
+
+def _v(a) -> list[float]:
+    return [float(x) for x in a]
