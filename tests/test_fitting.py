@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hlr_lab.errors import InputError
-from hlr_lab.fitting import InsufficientSamples, fit_region
+from hlr_lab.fitting import DegenerateSamples, InsufficientSamples, fit_region
 from hlr_lab.fitting.model import lobe_angle, predict
 from hlr_lab.fitting.synthetic import PAPER_42, Truth, synthetic_region
 
@@ -167,3 +167,11 @@ def test_bad_method_and_theta(paper_42):
         fit(paper_42, method="magic")
     with pytest.raises(InputError, match="theta_c_deg"):
         fit(paper_42, theta_c_deg=120)
+
+
+def test_highlights_at_a_single_angle_cannot_give_n(paper_42):
+    cos_beta = paper_42.cos_beta.copy()
+    cos_beta[cos_beta >= np.cos(np.radians(20))] = 0.97
+    for method in ("robust", "paper"):
+        with pytest.raises(DegenerateSamples, match="cannot be told"):
+            fit_region(paper_42.intensity, paper_42.irradiance, paper_42.cos_alpha, cos_beta, method=method)

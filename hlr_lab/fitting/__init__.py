@@ -17,12 +17,20 @@ from typing import Literal
 import numpy as np
 
 from hlr_lab.errors import InputError
-from hlr_lab.fitting.inputs import MIN_DIFFUSE, MIN_HIGHLIGHT, InsufficientSamples, Samples, check_samples
+from hlr_lab.fitting.inputs import (
+    MIN_BETA_SPAN_DEG,
+    MIN_DIFFUSE,
+    MIN_HIGHLIGHT,
+    DegenerateSamples,
+    InsufficientSamples,
+    Samples,
+    check_samples,
+)
 from hlr_lab.fitting.model import lobe_angle
 from hlr_lab.fitting.paper import Estimate, fit_paper
 from hlr_lab.fitting.robust import fit_robust
 
-__all__ = ["InsufficientSamples", "RegionFit", "fit_region"]
+__all__ = ["DegenerateSamples", "InsufficientSamples", "RegionFit", "fit_region"]
 
 N_RANGE = (1.0, 2000.0)  # plausible Blinn-Phong exponents
 AUTO_START_DEG = 45.0  # "start wide"
@@ -61,8 +69,9 @@ def fit_region(
 ) -> RegionFit:
     """Fit (Rd, Rs, n) of eq. (1) to one region's pixels; see the module docstring for the arguments.
 
-    Raises InputError for malformed input and InsufficientSamples when fewer than MIN_DIFFUSE diffuse-only
-    or MIN_HIGHLIGHT highlight pixels remain; never returns NaN parameters.
+    Raises InputError for malformed input, InsufficientSamples when fewer than MIN_DIFFUSE diffuse-only
+    or MIN_HIGHLIGHT highlight pixels remain, DegenerateSamples when the highlight pixels span too little
+    of β to tell n; never returns NaN parameters.
     """
     if method not in ("paper", "robust"):
         raise InputError(f"unknown method {method!r}; use 'paper' or 'robust'", field="method")
@@ -80,7 +89,10 @@ def fit_region(
         est = _run(s, estimator, theta)
     params = np.concatenate([est.rd, est.rs, [est.n], est.rd_se, est.rs_se, [est.n_se]])
     if not np.isfinite(params).all():
-        raise InsufficientSamples("highlight", est.n_highlight, MIN_HIGHLIGHT, theta)
+        raise DegenerateSamples(
+            f"the fit did not reach finite values ({est.n_highlight} highlight, "
+            f"{est.n_diffuse} diffuse pixels); the pixels do not constrain the model"
+        )
     return RegionFit(
         est.rd,
         est.rs,
@@ -104,6 +116,13 @@ def _run(s: Samples, estimator, theta_c_deg: float) -> Estimate:
         raise InsufficientSamples("diffuse-only", len(s) - n_h, MIN_DIFFUSE, theta_c_deg)
     if n_h < MIN_HIGHLIGHT:
         raise InsufficientSamples("highlight", n_h, MIN_HIGHLIGHT, theta_c_deg)
+    beta = np.degrees(np.arccos(np.percentile(s.cos_beta[highlight], [5, 95])))
+    if beta[0] - beta[1] < MIN_BETA_SPAN_DEG:
+        raise DegenerateSamples(
+            f"the {n_h} highlight pixels all lie within {beta[0] - beta[1]:.2f}° of β = "
+            f"{beta[1]:.1f}°, so the lobe's sharpness n cannot be told from them; they must span "
+            f"at least {MIN_BETA_SPAN_DEG}° (photograph the region under more light positions)"
+        )
     return estimator(s, highlight, N_RANGE)
 
 

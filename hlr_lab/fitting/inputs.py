@@ -11,6 +11,7 @@ from hlr_lab.errors import HlrLabError, InputError
 
 MIN_DIFFUSE = 20  # diffuse-only pixels needed for Rd (3 values) with outlier rejection
 MIN_HIGHLIGHT = 20  # highlight pixels needed for Rs (3 values) and n
+MIN_BETA_SPAN_DEG = 1.0  # n is the lobe's fall-off: the highlight pixels must span some range of β
 
 
 class InsufficientSamples(HlrLabError):
@@ -23,6 +24,10 @@ class InsufficientSamples(HlrLabError):
             f"only {count} {kind} pixels ({where}, θc = {theta_c_deg:.3g}°) but {needed} are needed; "
             "plan more lights for this region or change θc"
         )
+
+
+class DegenerateSamples(HlrLabError):
+    """The pixels cannot determine a parameter (e.g. every highlight pixel at the same β)."""
 
 
 @dataclass(frozen=True, eq=False)
