@@ -119,7 +119,9 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
     assert "Traceback" in err
 
 
-@pytest.mark.parametrize("command", [["segment"], ["plan"], ["bench", "plan"]])
+@pytest.mark.parametrize(
+    "command", [["segment"], ["plan"], ["export"], ["bench", "plan"], ["bench", "fit"], ["bench", "sim"]]
+)
 def test_every_command_has_help_with_an_example(capsys, command):
     code, out, _ = run(capsys, *command, "--help")
     assert code == 0
@@ -153,3 +155,16 @@ def test_plan_benchmark_prints_figures(capsys):
     assert "plan time" in out
     assert "peak RSS" in out
     assert "measured max nearest-neighbour" in err
+
+
+def test_sim_benchmark_prints_figures(capsys):
+    code, out, err = run(capsys, "bench", "sim", "-n", "20")
+    assert code == 0, err
+    assert "ping" in out and "median" in out
+
+
+@pytest.mark.slow
+def test_fit_benchmark_prints_figures(capsys):
+    code, out, err = run(capsys, "bench", "fit", "--no-grid", "--sizes", "200000")
+    assert code == 0, err
+    assert "M samples/s" in out and "B/sample" in out

@@ -145,3 +145,23 @@ def bench_fit(sizes, no_grid) -> None:
             f"{t.bytes_per_sample:.0f} B/sample",
             markup=False,
         )
+
+
+@bench.command("sim")
+@click.option("-n", "transactions", type=click.IntRange(10, 100_000), default=1000, show_default=True)
+def bench_sim(transactions) -> None:
+    """Round trips to the simulated Dynamixel bus with the real dynamixel-sdk over its pseudo-terminal.
+
+    \b
+    Example:
+      hlr-lab bench sim -n 2000
+    """
+    from sim.bench import servo_round_trips  # the simulator is reached only from the command line
+
+    with console.status("timing servo transactions…"):
+        figures = servo_round_trips(transactions)
+    out.print(
+        f"servo transactions over a pty, dynamixel-sdk, {transactions} each (target ≤ 1 ms):", markup=False
+    )
+    for name, f in figures.items():
+        out.print(f"  {name:26s} median {f['median_ms']:.3f} ms, p95 {f['p95_ms']:.3f} ms", markup=False)

@@ -1,0 +1,272 @@
+"""One simulated X-series servo: its control table with the device's access rules, and its motion.
+
+Motion follows the trapezoidal profile of Profile Velocity / Profile Acceleration (0 = as fast as the
+velocity limit / no ramp), evaluated lazily from a clock, so no thread ticks in the background. Time is
+the bus's clock: real time × the speed factor.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from sim.dynamixel.control_table import (
+    ACCELERATION_UNIT_TICKS_PER_S2,
+    BY_ADDRESS,
+    BY_NAME,
+    EEPROM_END,
+    FIELDS,
+    OPERATING_MODES,
+    TABLE_SIZE,
+    VELOCITY_UNIT_TICKS_PER_S,
+    Field,
+)
+from sim.dynamixel.protocol import Error
+
+# Hardware Error Status bits
+OVERHEATING = 0x04
+OVERLOAD = 0x20
+
+
+@dataclass
+class _Profile:
+    start: float
+    goal: float
+    t0: float
+    v_max: float  # ticks/s
+    accel: float  # ticks/s², inf for no ramp
+
+    def timing(self) -> tuple[float, float, float]:
+        """(ramp time, peak speed, total time)."""
+        d = abs(self.goal - self.start)
+        if d == 0:
+            return 0.0, 0.0, 0.0
+        if math.isinf(self.accel):
+            return 0.0, self.v_max, d / self.v_max
+        ramp = self.v_max / self.accel
+        if d < self.v_max * ramp:  # triangular: never reaches v_max
+            ramp = math.sqrt(d / self.accel)
+            return ramp, self.accel * ramp, 2 * ramp
+        return ramp, self.v_max, 2 * ramp + (d - self.v_max * ramp) / self.v_max
+
+    def state(self, t: float) -> tuple[float, float]:
+        """(position, velocity) at time t, in ticks and ticks/s."""
+        ramp, peak, total = self.timing()
+        s = max(0.0, t - self.t0)
+        sign = 1.0 if self.goal >= self.start else -1.0
+        if s >= total:
+            return self.goal, 0.0
+        a = self.accel
+        if s < ramp:
+            return self.start + sign * 0.5 * a * s * s, sign * a * s
+        cruise = total - 2 * ramp
+        ramp_dist = 0.5 * peak * ramp if ramp > 0 else 0.0
+        if s < ramp + cruise:
+            return self.start + sign * (ramp_dist + peak * (s - ramp)), sign * peak
+        r = total - s
+        return self.goal - sign * 0.5 * a * r * r, sign * a * r
+
+    def done(self, t: float) -> bool:
+        return t - self.t0 >= self.timing()[2]
+
+
+class SimServo:
+    def __init__(
+        self,
+        servo_id: int,
+        clock: Callable[[], float],
+        *,
+        model_number: int = 1020,
+        firmware: int = 48,
+        position: int = 2048,
+    ):
+        self.clock = clock
+        self.table = bytearray(TABLE_SIZE)
+        self._defaults = {f.name: f.default for f in FIELDS}
+        self._defaults.update(model_number=model_number, firmware_version=firmware, id=servo_id)
+        for f in FIELDS:
+            self._put(f, self._defaults[f.name])
+        self._put(BY_NAME["goal_position"], position)
+        self._profile = _Profile(position, position, clock(), 1.0, math.inf)
+        self._registered: tuple[int, bytes] | None = None
+        self.stuck = False  # an injected fault: the axis does not follow its profile
+        self.temperature_c = 30.0  # at rest; torque adds a little heat
+        self.input_voltage_dv = 120  # 12.0 V
+
+    # -- table access -------------------------------------------------------------------------
+    @property
+    def id(self) -> int:
+        return self.get("id")
+
+    def get(self, name: str) -> int:
+        f = BY_NAME[name]
+        return int.from_bytes(self.table[f.address : f.end], "little", signed=f.signed)
+
+    def _put(self, f: Field, value: int) -> None:
+        self.table[f.address : f.end] = int(value).to_bytes(f.size, "little", signed=f.signed or value < 0)
+
+    @property
+    def alert(self) -> int:
+        return Error.ALERT if self.get("hardware_error_status") else 0
+
+    def read(self, address: int, length: int) -> tuple[int, bytes]:
+        if length < 1 or address < 0 or address + length > TABLE_SIZE:
+            return Error.ACCESS | self.alert, b""
+        self._refresh()
+        return self.alert, bytes(self.table[address : address + length])
+
+    def write(self, address: int, data: bytes, *, apply: bool = True) -> int:
+        """Check a write against the device's rules; apply it unless ``apply`` is False (reg write)."""
+        fields, error = self._fields_covering(address, len(data))
+        if error:
+            return error | self.alert
+        values = []
+        for f in fields:
+            raw = data[f.address - address : f.end - address]
+            value = int.from_bytes(raw, "little", signed=f.signed)
+            if not f.writable:
+                return Error.ACCESS | self.alert
+            if f.address < EEPROM_END and self.get("torque_enable"):
+                return Error.ACCESS | self.alert  # EEPROM is locked while torque is on
+            if not f.low <= value <= f.high or (f.name == "operating_mode" and value not in OPERATING_MODES):
+                return Error.DATA_RANGE | self.alert
+            if (
+                f.name == "goal_position"
+                and self.get("operating_mode") == 3
+                and not (self.get("min_position_limit") <= value <= self.get("max_position_limit"))
+            ):
+                return Error.DATA_LIMIT | self.alert
+            if f.name == "torque_enable" and value == 1 and self.get("hardware_error_status"):
+                return Error.RESULT_FAIL | self.alert  # after a shutdown only a reboot restores torque
+            values.append((f, value))
+        if apply:
+            for f, value in values:
+                self._apply(f, value)
+        return self.alert
+
+    def _fields_covering(self, address: int, length: int) -> tuple[list[Field], int]:
+        if length < 1 or address + length > TABLE_SIZE:
+            return [], Error.ACCESS
+        fields, a = [], address
+        while a < address + length:
+            f = BY_ADDRESS.get(a)
+            if f is None:
+                return [], Error.ACCESS  # not the start of a field: undefined or mid-field
+            if f.end > address + length:
+                return [], Error.DATA_LENGTH
+            fields.append(f)
+            a = f.end
+        return fields, Error.NONE
+
+    def _apply(self, f: Field, value: int) -> None:
+        if f.name == "goal_position":
+            self._start_motion(value)
+        if f.name == "torque_enable" and value == 0:
+            self._freeze()
+        self._put(f, value)
+
+    # -- motion -------------------------------------------------------------------------------
+    def _start_motion(self, goal: int) -> None:
+        now = self.clock()
+        here, _ = self._profile.state(now)
+        if not self.get("torque_enable"):
+            return  # the goal is stored; nothing moves without torque
+        v = self.get("profile_velocity") or self.get("velocity_limit") or 1
+        a = self.get("profile_acceleration")
+        self._profile = _Profile(
+            here,
+            goal,
+            now,
+            v * VELOCITY_UNIT_TICKS_PER_S,
+            a * ACCELERATION_UNIT_TICKS_PER_S2 if a else math.inf,
+        )
+
+    def _freeze(self) -> None:
+        here, _ = self._profile.state(self.clock())
+        self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
+
+    def _refresh(self) -> None:
+        now = self.clock()
+        if self.stuck:
+            self._profile.t0 = now  # the profile never advances
+            pos, vel, moving = self._profile.start, 0.0, True
+        else:
+            pos, vel = self._profile.state(now)
+            moving = not self._profile.done(now)
+        present = round(pos) + self.get("homing_offset")
+        self._put(BY_NAME["present_position"], present)
+        self._put(BY_NAME["present_velocity"], round(vel / VELOCITY_UNIT_TICKS_PER_S))
+        self._put(BY_NAME["position_trajectory"], round(pos))
+        self._put(BY_NAME["moving"], int(moving))
+        in_position = abs(self.get("goal_position") - present) <= self.get("moving_threshold")
+        trapezoid = 0x30 if self.get("profile_velocity") and self.get("profile_acceleration") else 0
+        self._put(
+            BY_NAME["moving_status"], int(in_position and not moving) | (0x02 if moving else 0) | trapezoid
+        )
+        self._put(
+            BY_NAME["present_current"],
+            400 if self.stuck else (120 if moving else 5) * self.get("torque_enable"),
+        )
+        self._put(BY_NAME["realtime_tick"], int(now * 1000) % 32768)
+        self._put(BY_NAME["present_temperature"], round(self.temperature_c) + 3 * self.get("torque_enable"))
+        self._put(BY_NAME["present_input_voltage"], self.input_voltage_dv)
+
+    def present_position(self) -> int:
+        self._refresh()
+        return self.get("present_position")
+
+    # -- instructions beyond read/write ----------------------------------------------------------
+    def reg_write(self, address: int, data: bytes) -> int:
+        error = self.write(address, data, apply=False)
+        if error & 0x7F == 0:
+            self._registered = (address, bytes(data))
+            self._put(BY_NAME["registered_instruction"], 1)
+        return error
+
+    def action(self) -> int:
+        if self._registered is None:
+            return Error.INSTRUCTION | self.alert
+        address, data = self._registered
+        self._registered = None
+        self._put(BY_NAME["registered_instruction"], 0)
+        return self.write(address, data)
+
+    def reboot(self) -> None:
+        """Torque off, RAM back to defaults, hardware errors cleared; EEPROM and position kept."""
+        here = self.present_position()
+        for f in FIELDS:
+            if f.address >= EEPROM_END and f.writable:
+                self._put(f, self._defaults[f.name])
+        self._put(BY_NAME["hardware_error_status"], 0)
+        self._put(BY_NAME["goal_position"], here)
+        self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
+        self._registered = None
+        self._put(BY_NAME["registered_instruction"], 0)
+
+    def factory_reset(self, option: int) -> int:
+        keep = {0x01: ("id",), 0x02: ("id", "baud_rate")}.get(option, ())
+        if option not in (0x01, 0x02, 0xFF):
+            return Error.DATA_RANGE | self.alert
+        if self.get("torque_enable"):
+            return Error.ACCESS | self.alert
+        for f in FIELDS:
+            if f.writable and f.name not in keep:
+                self._put(f, self._defaults[f.name] if f.name != "id" else 1)
+        return self.alert
+
+    def clear_multi_turn(self) -> int:
+        if self.get("moving"):
+            return Error.RESULT_FAIL | self.alert
+        here = self.present_position() % 4096
+        self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
+        return self.alert
+
+    def hardware_fault(self, bits: int = OVERLOAD) -> None:
+        """An injected fault (overload, overheating…): alert bit on, torque dropped until a reboot."""
+        self._freeze()
+        self._put(BY_NAME["hardware_error_status"], self.get("hardware_error_status") | bits)
+        self._put(BY_NAME["torque_enable"], 0)
+
+    def model_and_firmware(self) -> bytes:
+        return self.get("model_number").to_bytes(2, "little") + bytes([self.get("firmware_version")])
