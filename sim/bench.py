@@ -7,8 +7,11 @@ import time
 from collections.abc import Callable
 
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler, PortHandler
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
 from sim.dynamixel.bus import SimBus
+from sim.turntable import register_map as rm
+from sim.turntable.server import TurntableServer
 
 
 def _timed(fn: Callable[[], int], n: int) -> dict[str, float]:
@@ -42,3 +45,33 @@ def servo_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
             }
         finally:
             port.closePort()
+
+
+def modbus_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
+    """Reading the stage's status block (6 × int32) and writing a command, with pymodbus over TCP and RTU."""
+    figures = {}
+    with TurntableServer.simulated() as server:
+        host, port = server.serve_tcp()
+        clients = {
+            "TCP": ModbusTcpClient(host, port=port, timeout=1, retries=0),
+            "RTU 115200 Bd": ModbusSerialClient(server.serve_rtu(), baudrate=115_200, timeout=1, retries=0),
+        }
+        for name, client in clients.items():
+            client.connect()
+            try:
+                figures[f"read status block, {name}"] = _timed(
+                    lambda c=client: _ok(
+                        c.read_holding_registers(rm.STATUS, count=12, device_id=rm.STAGE_UNIT)
+                    ),
+                    n,
+                )
+                figures[f"write command, {name}"] = _timed(
+                    lambda c=client: _ok(c.write_registers(rm.COMMAND, [0, 0], device_id=rm.STAGE_UNIT)), n
+                )
+            finally:
+                client.close()
+    return figures
+
+
+def _ok(response) -> int:
+    return COMM_SUCCESS if not response.isError() else -1

@@ -150,18 +150,24 @@ def bench_fit(sizes, no_grid) -> None:
 @bench.command("sim")
 @click.option("-n", "transactions", type=click.IntRange(10, 100_000), default=1000, show_default=True)
 def bench_sim(transactions) -> None:
-    """Round trips to the simulated Dynamixel bus with the real dynamixel-sdk over its pseudo-terminal.
+    """Round trips to the simulated devices: the Dynamixel bus with the real dynamixel-sdk over its
+    pseudo-terminal, and the Modbus stage with pymodbus over TCP and RTU.
 
     \b
     Example:
       hlr-lab bench sim -n 2000
     """
-    from sim.bench import servo_round_trips  # the simulator is reached only from the command line
+    from sim.bench import modbus_round_trips, servo_round_trips  # the simulator: only from the command line
 
     with console.status("timing servo transactions…"):
-        figures = servo_round_trips(transactions)
-    out.print(
-        f"servo transactions over a pty, dynamixel-sdk, {transactions} each (target ≤ 1 ms):", markup=False
+        servo = servo_round_trips(transactions)
+    with console.status("timing Modbus transactions…"):
+        modbus = modbus_round_trips(transactions)
+    sections = (
+        (f"servo transactions over a pty, dynamixel-sdk, {transactions} each (target ≤ 1 ms):", servo),
+        (f"Modbus transactions, pymodbus, {transactions} each (target ≤ 3 ms):", modbus),
     )
-    for name, f in figures.items():
-        out.print(f"  {name:26s} median {f['median_ms']:.3f} ms, p95 {f['p95_ms']:.3f} ms", markup=False)
+    for title, figures in sections:
+        out.print(title, markup=False)
+        for name, f in figures.items():
+            out.print(f"  {name:30s} median {f['median_ms']:.3f} ms, p95 {f['p95_ms']:.3f} ms", markup=False)
