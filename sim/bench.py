@@ -75,3 +75,57 @@ def modbus_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
 
 def _ok(response) -> int:
     return COMM_SUCCESS if not response.isError() else -1
+
+
+def render_figures(frames: int = 1000, sizes=((640, 480), (1280, 960)), spp: int = 16) -> dict[str, float]:
+    """Render time per frame (after the JIT's first frame) at each size, and resident memory before and after
+    ``frames`` re-renders with a moving light and turntable (the scene is never reloaded)."""
+    import numpy as np
+    import trimesh
+
+    from sim.render.camera import CameraSpec
+    from sim.render.renderer import Renderer
+    from sim.render.scene import Material, SceneSpec, pose_matrix
+
+    body = trimesh.creation.icosphere(subdivisions=6, radius=0.06)
+    spec = SceneSpec(
+        np.asarray(body.vertices),
+        np.asarray(body.faces),
+        np.zeros(len(body.faces), np.int64),
+        [Material((0.5, 0.4, 0.3), (0.3, 0.3, 0.3), 40.0)],
+        pose_matrix((0, 0, 0.07)),
+    )
+    figures = {}
+    for width, height in sizes:
+        f = 2400 * width / 1280
+        k = np.array([[f, 0, width / 2 + 1.5], [0, f, height / 2 - 2.0], [0, 0, 1]])
+        look = np.array([0.0, 0.0, 0.07]) - np.array([0.0, -0.62, 0.30])
+        z = look / np.linalg.norm(look)
+        x = np.cross(z, [0, 0, 1.0])
+        x /= np.linalg.norm(x)
+        rot = np.stack([x, np.cross(z, x), z])
+        cam = CameraSpec(k, np.array([-0.04, 0.015]), rot, -rot @ np.array([0.0, -0.62, 0.30]), width, height)
+        renderer = Renderer(spec, cam, spp=spp)
+        renderer.render(0.0, [0.2, -0.2, 0.3])  # JIT
+        n = 10
+        t = time.perf_counter()
+        for i in range(n):  # a new light position every frame, as between poses of one view
+            renderer.render(0.0, [0.2, -0.2 + 0.01 * i, 0.3])
+        figures[f"render {width}x{height} {spp} spp, new light, s/frame"] = (time.perf_counter() - t) / n
+        t = time.perf_counter()
+        for i in range(n):  # the turntable too: vertex upload and acceleration-structure rebuild
+            renderer.render(float(i + 1), [0.2, -0.2 + 0.01 * i, 0.3])
+        figures[f"render {width}x{height} {spp} spp, new view, s/frame"] = (time.perf_counter() - t) / n
+    before = _rss_mb()
+    for i in range(frames):
+        renderer.render(float(i % 360), [0.3 * np.cos(i / 50), 0.3 * np.sin(i / 50), 0.25], seed=i)
+    figures[f"RSS before {frames} re-renders, MB"] = before
+    figures[f"RSS after {frames} re-renders, MB"] = _rss_mb()
+    return figures
+
+
+def _rss_mb() -> float:
+    import os
+
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20

@@ -149,15 +149,22 @@ def bench_fit(sizes, no_grid) -> None:
 
 @bench.command("sim")
 @click.option("-n", "transactions", type=click.IntRange(10, 100_000), default=1000, show_default=True)
-def bench_sim(transactions) -> None:
-    """Round trips to the simulated devices: the Dynamixel bus with the real dynamixel-sdk over its
-    pseudo-terminal, and the Modbus stage with pymodbus over TCP and RTU.
+@click.option(
+    "--frames",
+    type=click.IntRange(0, 100_000),
+    default=1000,
+    show_default=True,
+    help="Re-renders for the memory figure (0: skip the renderer).",
+)
+def bench_sim(transactions, frames) -> None:
+    """The simulated rig: round trips to the Dynamixel bus (real dynamixel-sdk over its pseudo-terminal)
+    and the Modbus stage (pymodbus over TCP and RTU); render time per frame and memory over re-renders.
 
     \b
     Example:
       hlr-lab bench sim -n 2000
     """
-    from sim.bench import modbus_round_trips, servo_round_trips  # the simulator: only from the command line
+    from sim.bench import modbus_round_trips, render_figures, servo_round_trips  # the simulator: CLI only
 
     with console.status("timing servo transactions…"):
         servo = servo_round_trips(transactions)
@@ -171,3 +178,12 @@ def bench_sim(transactions) -> None:
         out.print(title, markup=False)
         for name, f in figures.items():
             out.print(f"  {name:30s} median {f['median_ms']:.3f} ms, p95 {f['p95_ms']:.3f} ms", markup=False)
+    if frames:
+        with console.status(f"rendering (then {frames} re-renders)…"):
+            render = render_figures(frames)
+        out.print(
+            "renderer (Mitsuba llvm_ad_rgb, direct integrator; target ≤ 0.3 s per 1280×960 frame, flat memory):",
+            markup=False,
+        )
+        for name, value in render.items():
+            out.print(f"  {name:40s} {value:8.3f}", markup=False)

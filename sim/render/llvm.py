@@ -1,0 +1,51 @@
+"""Finding libLLVM for Dr.Jit's CPU backend before Mitsuba is imported."""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+
+MIN_VERSION = (
+    16  # LLVM 15 cannot select Mitsuba 3.9's fminimum kernels (measured: "LLVM ERROR: Cannot select")
+)
+_SEARCH = (
+    "/usr/lib/x86_64-linux-gnu",
+    "/usr/lib/aarch64-linux-gnu",
+    "/usr/lib",
+    "/usr/local/lib",
+    "/usr/lib/llvm-*/lib",
+)
+
+
+class RendererUnavailable(RuntimeError):
+    """Mitsuba cannot run here; the message says which package to install."""
+
+
+def find_libllvm() -> str:
+    """The newest libLLVM ≥ 16 on this machine (``DRJIT_LIBLLVM_PATH`` wins when set)."""
+    if path := os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return path
+    found = []
+    for folder in _SEARCH:
+        for path in glob.glob(os.path.join(folder, "libLLVM*.so*")):
+            m = re.search(r"LLVM(?:-|\.so\.)(\d+)", os.path.basename(path))
+            if m and int(m.group(1)) >= MIN_VERSION:
+                found.append((int(m.group(1)), path))
+    if not found:
+        raise RendererUnavailable(
+            f"the simulated camera renders with Mitsuba 3, whose CPU backend needs libLLVM {MIN_VERSION} or newer; "
+            "install it (Debian/Ubuntu: sudo apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH"
+        )
+    return max(found)[1]
+
+
+def load_mitsuba(variant: str = "llvm_ad_rgb"):
+    """Import Mitsuba with a usable libLLVM and set ``variant``; returns the module."""
+    os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()
+    try:
+        import mitsuba as mi
+    except ImportError as exc:
+        raise RendererUnavailable("Mitsuba is not installed: pip install 'hlr-lab[sim]'") from exc
+    mi.set_variant(variant)
+    return mi

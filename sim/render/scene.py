@@ -1,0 +1,149 @@
+"""The ground truth of the simulated world: a mesh split into regions with true (rd, rs, n), a light.
+
+Only the simulator reads it. From a scene file (TOML, beside its mesh)::
+
+    [object]
+    mesh = "bunny8.ply"          # relative to this file; vertex colours or a texture
+    texture = "tex.png"          # optional
+    pose = { translation = [0, 0, 0], rotation_deg = [0, 0, 0] }   # mesh frame on the turntable
+    [[region]]
+    color = [205, 60, 40]        # 8-bit sRGB as stored; faces take the nearest listed colour
+    rd = [0.62, 0.18, 0.12]      # linear reflectances; rd is NOT derived from the colour
+    rs = [0.20, 0.20, 0.20]
+    n = 80.0
+    [light]
+    type = "point"               # or "directional"
+    power = 1.0                  # Φ
+
+or programmatically (:class:`SceneSpec`), e.g. by the composition root from a plan's mesh and regions.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class Material:
+    rd: tuple[float, float, float]
+    rs: tuple[float, float, float]
+    n: float
+
+
+@dataclass(frozen=True, eq=False)
+class SceneSpec:
+    """vertices (V, 3) and faces (F, 3) of the mesh in its own frame; face_region (F,) index into
+    ``materials``; mesh_to_turntable (4, 4); the light's type and power Φ."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_region: np.ndarray
+    materials: list[Material]
+    mesh_to_turntable: np.ndarray
+    light: str = "point"
+    power: float = 1.0
+
+    def vertex_normals(self) -> np.ndarray:
+        v, f = self.vertices, self.faces
+        cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        acc = np.zeros_like(v)
+        for corner in range(3):
+            np.add.at(acc, f[:, corner], cross)
+        return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+
+
+def pose_matrix(translation=(0.0, 0.0, 0.0), rotation_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """4×4 from a translation and x, y, z rotations (degrees, applied in that order)."""
+    rx, ry, rz = np.radians(rotation_deg)
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    r = (
+        np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        @ np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        @ np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    )
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = r, translation
+    return m
+
+
+def load_scene(path: str | Path) -> SceneSpec:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise SceneError(f"{path}: cannot read the scene ({exc})") from exc
+    obj, regions, light = data.get("object", {}), data.get("region", []), data.get("light", {})
+    if "mesh" not in obj:
+        raise SceneError(f"{path}: object.mesh is missing")
+    if not regions:
+        raise SceneError(f"{path}: at least one [[region]] is needed")
+    mesh = trimesh.load(path.parent / obj["mesh"], process=False, force="mesh")
+    faces = np.asarray(mesh.faces, np.int64)
+    if len(faces) == 0:
+        raise SceneError(f"{path}: object.mesh has no faces")
+    face_colour = _face_colours(mesh, faces, path.parent / obj["texture"] if "texture" in obj else None)
+    palette = np.array([r["color"] for r in regions], np.float64)
+    region = np.argmin(((face_colour[:, None, :] - palette[None]) ** 2).sum(axis=2), axis=1)
+    materials = []
+    for i, r in enumerate(regions):
+        try:
+            materials.append(Material(tuple(r["rd"]), tuple(r["rs"]), float(r["n"])))
+        except (KeyError, TypeError) as exc:
+            raise SceneError(f"{path}: region[{i}] needs rd, rs and n ({exc})") from exc
+    pose = obj.get("pose", {})
+    return SceneSpec(
+        np.asarray(mesh.vertices, np.float64),
+        faces,
+        region,
+        materials,
+        pose_matrix(pose.get("translation", (0, 0, 0)), pose.get("rotation_deg", (0, 0, 0))),
+        light.get("type", "point"),
+        float(light.get("power", 1.0)),
+    )
+
+
+def _face_colours(mesh: trimesh.Trimesh, faces: np.ndarray, texture: Path | None) -> np.ndarray:
+    visual = mesh.visual
+    if texture is not None or getattr(visual, "kind", None) == "texture":
+        image = (
+            np.asarray(Image.open(texture).convert("RGB"))
+            if texture
+            else np.asarray(visual.material.image.convert("RGB"))
+        )
+        uv = np.asarray(visual.uv)[faces].mean(axis=1)
+        h, w = image.shape[:2]
+        col = np.clip((np.mod(uv[:, 0], 1) * w).astype(int), 0, w - 1)
+        row = np.clip(((1 - np.mod(uv[:, 1], 1)) * h).astype(int), 0, h - 1)
+        return image[row, col].astype(np.float64)
+    if getattr(visual, "kind", None) == "face":
+        return np.asarray(visual.face_colors)[:, :3].astype(np.float64)
+    if getattr(visual, "kind", None) == "vertex":
+        return np.asarray(visual.vertex_colors)[:, :3][faces].mean(axis=1).astype(np.float64)
+    return np.zeros((len(faces), 3))
+
+
+def paper_cylinder() -> SceneSpec:
+    """The paper's 4.2 object: a single-colour cylinder (r 4 cm, h 12 cm), Rd = [230, 223, 205]/255,
+    Rs = [27, 18, 28]/255, n = 59, under a distant (directional) light."""
+    cyl = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=256)
+    faces = np.asarray(cyl.faces, np.int64)
+    material = Material(tuple(np.array([230, 223, 205]) / 255), tuple(np.array([27, 18, 28]) / 255), 59.0)
+    return SceneSpec(
+        np.asarray(cyl.vertices, np.float64),
+        faces,
+        np.zeros(len(faces), np.int64),
+        [material],
+        pose_matrix((0.0, 0.0, 0.06)),
+        "directional",
+        1.0,
+    )

@@ -1,0 +1,159 @@
+"""The simulated camera: Mitsuba frames against eq. (1) evaluated independently, and the sensor model.
+
+The independent side is hlr-lab's own geometry (Embree G-buffer, OpenCV camera model) — a different ray
+engine and camera code from the renderer's.
+"""
+
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+import trimesh
+
+from hlr_lab.camera import Camera
+from hlr_lab.mesh import ColouredMesh
+from hlr_lab.raycast import RayCaster
+from hlr_lab.rig import sim_rig
+from sim.render.llvm import RendererUnavailable, find_libllvm
+from sim.render.sensor import SensorModel
+
+try:
+    find_libllvm()
+    import mitsuba  # noqa: F401
+except (RendererUnavailable, ImportError) as exc:  # pragma: no cover - CI installs both
+    pytest.skip(f"no renderer here: {exc}", allow_module_level=True)
+
+from sim.render.camera import CameraSpec
+from sim.render.renderer import Renderer
+from sim.render.scene import Material, SceneSpec
+
+RD, RS, N = np.array([0.55, 0.4, 0.3]), np.array([0.3, 0.3, 0.35]), 30.0
+
+
+def half_size_camera():
+    """The sim rig's camera at 640×480: off-centre principal point and barrel distortion kept."""
+    c = sim_rig().camera
+    k = c.matrix.copy()
+    k[:2] /= 2
+    return Camera(k, c.distortion, c.rotation, c.translation, 640, 480)
+
+
+def scene_of(meshes: list[tuple[trimesh.Trimesh, Material]], power=1.0) -> SceneSpec:
+    both = trimesh.util.concatenate([m for m, _ in meshes])
+    region = np.concatenate([np.full(len(m.faces), i) for i, (m, _) in enumerate(meshes)])
+    return SceneSpec(
+        np.asarray(both.vertices),
+        np.asarray(both.faces, np.int64),
+        region,
+        [m for _, m in meshes],
+        np.eye(4),
+        "point",
+        power,
+    )
+
+
+def eq1(g, light, power, rd, rs, n, cam_centre):
+    """Eq. (1) per pixel from a G-buffer: L = Φ/d², cos α = N·l, cos β = N·H."""
+    x, normal = g.point, g.normal
+    to_light = light - x
+    d2 = np.einsum("...i,...i", to_light, to_light)
+    unit_light = to_light / np.sqrt(d2)[..., None]
+    v = cam_centre - x
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    h = (unit_light + v) / np.linalg.norm(unit_light + v, axis=-1, keepdims=True)
+    cos_a = np.einsum("...i,...i", normal, unit_light)
+    cos_b = np.clip(np.einsum("...i,...i", normal, h), 0, None)
+    front = (cos_a > 0) & (np.einsum("...i,...i", normal, v) > 0)
+    value = power / d2[..., None] * (rd * np.clip(cos_a, 0, None)[..., None] + rs * (cos_b**n)[..., None])
+    return np.where(front[..., None], value, 0.0)
+
+
+def test_sphere_frame_matches_eq1():
+    cam = half_size_camera()
+    sphere = trimesh.creation.icosphere(subdivisions=6, radius=0.05)
+    sphere.apply_translation([0.01, 0.0, 0.07])
+    spec = scene_of([(sphere, Material(tuple(RD), tuple(RS), N))], power=0.2)
+    renderer = Renderer(
+        spec, CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480), spp=64
+    )
+    light = np.array([0.18, -0.25, 0.3])
+    image = renderer.render(0.0, light)
+    g = RayCaster(ColouredMesh(np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int64))).gbuffer(cam)
+    expected = eq1(g, light, 0.2, RD, RS, N, cam.centre)
+    interior = ndi.binary_erosion(g.hit, iterations=3)  # silhouette pixels are partly background
+    assert interior.sum() > 20_000
+    err = image[interior] - expected[interior]
+    psnr = 10 * np.log10(expected[interior].max() ** 2 / np.mean(err**2))
+    assert psnr >= 50, f"PSNR {psnr:.1f} dB"
+    assert np.abs(image[~ndi.binary_dilation(g.hit, iterations=3)]).max() == 0  # nothing outside the object
+
+
+def test_shadows_fall_where_a_ray_test_says():
+    cam = half_size_camera()
+    plate = trimesh.creation.box(extents=[0.4, 0.4, 0.01])
+    plate.apply_translation([0, 0, -0.005])
+    block = trimesh.creation.box(extents=[0.04, 0.04, 0.04])
+    block.apply_translation([0.0, 0.0, 0.09])
+    grey = Material((0.6, 0.6, 0.6), (0.0, 0.0, 0.0), 10.0)
+    renderer = Renderer(
+        scene_of([(plate, grey), (block, grey)]),
+        CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480),
+        spp=16,
+    )
+    light = np.array([0.05, 0.02, 0.35])
+    image = renderer.render(0.0, light).mean(axis=2)
+    both = trimesh.util.concatenate([plate, block])
+    caster = RayCaster(ColouredMesh(np.asarray(both.vertices), np.asarray(both.faces, np.int64)))
+    g = caster.gbuffer(cam)
+    on_plate = g.hit & (g.face < len(plate.faces)) & (np.abs(g.point[..., 2]) < 1e-6)
+    pts, normals = g.point[on_plate], g.normal[on_plate]
+    shadowed = caster.shadowed(pts, normals, light)
+    assert 500 < shadowed.sum() < len(shadowed) - 500
+    values = image[on_plate]
+    shadow_img = np.zeros(on_plate.shape, bool)
+    shadow_img[on_plate] = shadowed
+    # pixels within 3 px of the shadow's border or the plate's edge are partly one thing and partly the other
+    # (pixel area, and the bilinear remap that applies the lens distortion)
+    border = ndi.binary_dilation(shadow_img, iterations=3) & ~ndi.binary_erosion(shadow_img, iterations=3)
+    clear = (ndi.binary_erosion(on_plate, iterations=3) & ~border)[on_plate]
+    assert np.all(values[shadowed & clear] == 0)
+    assert np.all(values[~shadowed & clear] > 0)
+
+
+def test_rerendering_moves_light_turntable_and_lamp():
+    cam = half_size_camera()
+    body = trimesh.creation.box(extents=[0.08, 0.04, 0.06])
+    body.apply_translation([0.02, 0, 0.03])
+    renderer = Renderer(
+        scene_of([(body, Material((0.5, 0.5, 0.5), (0.2, 0.2, 0.2), 20.0))]),
+        CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480),
+        spp=4,
+    )
+    a = renderer.render(0.0, [0.2, -0.2, 0.3])
+    b = renderer.render(0.0, [-0.2, -0.2, 0.3])
+    c = renderer.render(45.0, [0.2, -0.2, 0.3])
+    dark = renderer.render(45.0, [0.2, -0.2, 0.3], lamp_on=False)
+    again = renderer.render(0.0, [0.2, -0.2, 0.3])
+    assert not np.allclose(a, b)
+    assert not np.allclose(a, c)
+    assert dark.max() == 0
+    np.testing.assert_allclose(again, a, atol=1e-6)  # same state, same seed: the same frame
+
+
+def test_sensor_model_noise_and_clipping():
+    sensor = SensorModel(bits=10, sensitivity=1000.0, electrons_per_dn=5.0, read_noise_dn=2.0)
+    flat = np.full((200, 200, 3), 0.4)
+    a = sensor.expose(flat, 0.5, np.random.default_rng(1))
+    b = sensor.expose(flat, 0.5, np.random.default_rng(1))
+    assert np.array_equal(a, b)
+    assert a.dtype == np.uint16
+    mean = 0.4 * 0.5 * 1000
+    assert a.mean() == pytest.approx(mean, rel=0.01)
+    expected_sd = np.sqrt(mean / 5.0 + 2.0**2 + 1 / 12)  # photon + read + quantisation
+    assert a.std() == pytest.approx(expected_sd, rel=0.05)
+    bright = sensor.expose(np.full((10, 10, 3), 10.0), 1.0, np.random.default_rng(2))
+    assert bright.max() == 1023
+    assert (bright == 1023).all()
+    gamma = SensorModel(bits=8, sensitivity=255.0, electrons_per_dn=None, read_noise_dn=0.0, response="gamma")
+    assert gamma.expose(np.full((1, 1, 3), 0.25), 1.0, np.random.default_rng(0))[0, 0, 0] == round(
+        255 * 0.25 ** (1 / 2.2)
+    )
