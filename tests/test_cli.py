@@ -120,7 +120,16 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "command", [["segment"], ["plan"], ["export"], ["bench", "plan"], ["bench", "fit"], ["bench", "sim"]]
+    "command",
+    [
+        ["segment"],
+        ["plan"],
+        ["export"],
+        ["bench", "plan"],
+        ["bench", "fit"],
+        ["bench", "sim"],
+        ["sim", "serve"],
+    ],
 )
 def test_every_command_has_help_with_an_example(capsys, command):
     code, out, _ = run(capsys, *command, "--help")

@@ -12,6 +12,7 @@ from hlr_lab.cli.common import console
 from hlr_lab.cli.export_cmd import export
 from hlr_lab.cli.plan_cmd import plan
 from hlr_lab.cli.segment_cmd import segment
+from hlr_lab.cli.sim_cmd import sim
 from hlr_lab.errors import HlrLabError
 
 EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
@@ -40,6 +41,7 @@ cli.add_command(segment)
 cli.add_command(plan)
 cli.add_command(export)
 cli.add_command(bench)
+cli.add_command(sim)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,57 @@
+"""The simulated rig's devices, started together: the gantry's servo bus and the turntable/lamp server.
+
+Endpoints are what real drivers open — a pseudo-terminal path and a TCP ``host:port`` — so the same
+driver code runs against this and against the hardware. Everything stops on ``close`` (threads joined,
+file descriptors and sockets closed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sim.dynamixel.bus import SimBus
+from sim.turntable import register_map as rm
+from sim.turntable.server import TurntableServer
+
+GANTRY_IDS = (1, 2)  # azimuth, elevation
+
+
+@dataclass(frozen=True)
+class Endpoints:
+    dynamixel: str
+    modbus: str
+    servo_ids: tuple[int, ...]
+    stage_unit: int = rm.STAGE_UNIT
+    lamp_unit: int = rm.RELAY_UNIT
+    lamp_coil: int = rm.LAMP_COIL
+
+    def as_dict(self) -> dict:
+        return {
+            "dynamixel": self.dynamixel,
+            "modbus": self.modbus,
+            "servo_ids": list(self.servo_ids),
+            "stage_unit": self.stage_unit,
+            "lamp": {"unit": self.lamp_unit, "coil": self.lamp_coil},
+        }
+
+
+class SimRig:
+    def __init__(self, *, speed_factor: float = 1.0, servo_ids: tuple[int, ...] = GANTRY_IDS):
+        self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor)
+        self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
+        try:
+            host, port = self.turntable.serve_tcp()
+            self.endpoints = Endpoints(self.bus.serve_pty(), f"{host}:{port}", tuple(servo_ids))
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        self.bus.close()
+        self.turntable.close()
+
+    def __enter__(self) -> SimRig:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
