@@ -100,3 +100,13 @@ def validate(model: type[Model], data: object, path: str | Path) -> Model:
         field = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err["loc"]).lstrip(".")
         more = f" (and {exc.error_count() - 1} more problems)" if exc.error_count() > 1 else ""
         raise InputError(f"{err['msg']}{more}", path=path, field=field or None) from exc
+
+
+def read_format(
+    path: str | Path, fmt: str, model: type[Model], versions: frozenset[int] = frozenset({1})
+) -> Model:
+    """Read a JSON file of one of the project's formats: the header first (format, version), then the body."""
+    path = Path(path)
+    data = read_json(path)
+    check_header(data, path, fmt, set(versions))
+    return validate(model, data, path)

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from hlr_lab.errors import InputError
 from hlr_lab.fitting import RegionFit
-from hlr_lab.formats.io import check_header, read_json, validate, write_json
+from hlr_lab.formats.io import read_format, write_json
 from hlr_lab.formats.regions import Colour8
 from hlr_lab.segment import Region
 
@@ -142,9 +142,7 @@ def write_materials(path: str | Path, materials: MaterialsFile) -> None:
 def read_materials(path: str | Path) -> MaterialsFile:
     """Read and validate; an unknown format, version or model, or a malformed field, is one InputError."""
     path = Path(path)
-    data = read_json(path)
-    check_header(data, path, MATERIALS_FORMAT, {1})
-    f = validate(MaterialsFile, data, path)
+    f = read_format(path, MATERIALS_FORMAT, MaterialsFile)
     ids = [r.id for r in f.regions]
     if len(set(ids)) != len(ids):
         raise InputError("a region id appears twice", path=path, field="regions")

@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from hlr_lab import __version__
-from hlr_lab.formats.io import check_header, read_json, validate, write_json
+from hlr_lab.formats.io import read_format, write_json
 from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.planning.planner import PlanResult
 from hlr_lab.segment import Segmentation
@@ -179,9 +179,7 @@ def write_plan(path: str | Path, plan: PlanFile) -> None:
 def read_plan(path: str | Path) -> PlanFile:
     """Read and validate a plan; an unknown format or version, or a malformed field, is one InputError."""
     path = Path(path)
-    data = read_json(path)
-    check_header(data, path, PLAN_FORMAT, {1})
-    return validate(PlanFile, data, path)
+    return read_format(path, PLAN_FORMAT, PlanFile)
 
 
 def _r(v, digits: int = 6) -> list[float]:

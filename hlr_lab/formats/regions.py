@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import check_header, read_json, validate, write_json
+from hlr_lab.formats.io import read_format, write_json
 from hlr_lab.mesh import ColouredMesh, file_sha256
 from hlr_lab.segment import Region, Segmentation
 
@@ -109,9 +109,7 @@ def write_regions(
 def read_regions(path: str | Path, mesh: ColouredMesh) -> Segmentation:
     """Read a regions file made for ``mesh``; refuses one made for another mesh (sha256, counts)."""
     path = Path(path)
-    data = read_json(path)
-    check_header(data, path, REGIONS_FORMAT, {1})
-    f = validate(RegionsFile, data, path)
+    f = read_format(path, REGIONS_FORMAT, RegionsFile)
     if mesh.sha256 and f.sha256 != mesh.sha256:
         raise InputError(
             f"made for another mesh ({f.mesh}, sha256 {f.sha256[:12]}…) than the one given "
