@@ -157,3 +157,43 @@ def test_sensor_model_noise_and_clipping():
     assert gamma.expose(np.full((1, 1, 3), 0.25), 1.0, np.random.default_rng(0))[0, 0, 0] == round(
         255 * 0.25 ** (1 / 2.2)
     )
+
+
+def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
+    from sim.render.scene import load_scene
+
+    box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
+    colours = np.where(box.vertices[:, 2:3] > 0, [[200, 40, 30]], [[30, 60, 200]]).astype(np.uint8)
+    trimesh.Trimesh(box.vertices, box.faces, vertex_colors=colours, process=False).export(
+        tmp_path / "box.ply"
+    )
+    (tmp_path / "scene.toml").write_text(
+        '[object]\nmesh = "box.ply"\npose = { translation = [0, 0, 0.05], rotation_deg = [0, 0, 90] }\n'
+        "[[region]]\ncolor = [205, 40, 35]\nrd = [0.6, 0.1, 0.1]\nrs = [0.2, 0.2, 0.2]\nn = 50\n"
+        "[[region]]\ncolor = [25, 60, 210]\nrd = [0.1, 0.2, 0.6]\nrs = [0.1, 0.1, 0.1]\nn = 10\n"
+        '[light]\ntype = "point"\npower = 2.0\n'
+    )
+    spec = load_scene(tmp_path / "scene.toml")
+    top = box.vertices[box.faces][:, :, 2].mean(axis=1) > 0.049  # faces of the top side (+z): all corners red
+    bottom = box.vertices[box.faces][:, :, 2].mean(axis=1) < -0.049
+    assert (spec.face_region[top] == 0).all() and (spec.face_region[bottom] == 1).all()
+    assert spec.materials[0].n == 50 and spec.power == 2.0
+    np.testing.assert_allclose(spec.mesh_to_turntable[:3, 3], [0, 0, 0.05])
+    np.testing.assert_allclose(spec.mesh_to_turntable[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+
+
+def test_paper_cylinder_under_a_directional_light():
+    from sim.render.scene import paper_cylinder
+
+    cam = half_size_camera()
+    renderer = Renderer(
+        paper_cylinder(),
+        CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480),
+        spp=4,
+    )
+    lit = renderer.render(0.0, [-0.3, 1.0, -0.2])  # the light travels toward +y, from the camera's side
+    assert lit.max() > 0.5
+    # a white-ish diffuse surface under irradiance Φ = 1 reads about Rd·cos α: never above Rd + Rs
+    assert lit.max() <= (230 + 27) / 255 + 1e-3
+    # lit from behind, the camera sees the dark side, but for the sliver its perspective shows past 90°
+    assert renderer.render(0.0, [0.0, -1.0, 0.0]).max() < 0.1 * lit.max()

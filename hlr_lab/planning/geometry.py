@@ -11,7 +11,7 @@ from hlr_lab.camera import Camera
 from hlr_lab.errors import InputError, PlanningError
 from hlr_lab.mesh import ColouredMesh
 from hlr_lab.rig import Gantry
-from hlr_lab.sphere import azimuth_elevation, rotation_z
+from hlr_lab.sphere import azimuth_elevation
 
 _UP_AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -99,11 +99,6 @@ def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: floa
     return LightSphere(centre, radius, source, gantry)
 
 
-def world_from_mesh(mesh_to_turntable: np.ndarray, turntable_deg: float) -> np.ndarray:
-    """4×4 mesh frame → world frame with the turntable at ``turntable_deg``."""
-    return rotation_z(np.radians(turntable_deg)) @ mesh_to_turntable
-
-
 @dataclass(frozen=True, eq=False)
 class Highlights:
     """Where the highlights of N surface points land on S (all in one frame).
@@ -137,11 +132,3 @@ def mirror_highlights(
     hit = rel + t[:, None] * mirror
     footprint = hit / radius
     return Highlights(points, normals, mirror, t, footprint, np.einsum("ij,ij->i", mirror, footprint))
-
-
-def in_cone(h: Highlights, light: np.ndarray, theta_c: float) -> np.ndarray:
-    """(N,) bool: the light position (3,) lies in each point's cone of half-angle ``theta_c`` (radians)
-    about its mirror direction (paper §3.2 step 3)."""
-    to_light = light - h.point
-    cos = np.einsum("ij,ij->i", to_light, h.mirror) / np.linalg.norm(to_light, axis=1)
-    return cos >= np.cos(theta_c)
