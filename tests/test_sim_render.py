@@ -176,8 +176,10 @@ def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
     spec = load_scene(tmp_path / "scene.toml")
     top = box.vertices[box.faces][:, :, 2].mean(axis=1) > 0.049  # faces of the top side (+z): all corners red
     bottom = box.vertices[box.faces][:, :, 2].mean(axis=1) < -0.049
-    assert (spec.face_region[top] == 0).all() and (spec.face_region[bottom] == 1).all()
-    assert spec.materials[0].n == 50 and spec.power == 2.0
+    assert (spec.face_region[top] == 0).all()
+    assert (spec.face_region[bottom] == 1).all()
+    assert spec.materials[0].n == 50
+    assert spec.power == 2.0
     np.testing.assert_allclose(spec.mesh_to_turntable[:3, 3], [0, 0, 0.05])
     np.testing.assert_allclose(spec.mesh_to_turntable[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
 

@@ -136,10 +136,18 @@ def paper_cylinder() -> SceneSpec:
     """The paper's 4.2 object: a single-colour cylinder (r 4 cm, h 12 cm), Rd = [230, 223, 205]/255,
     Rs = [27, 18, 28]/255, n = 59, under a distant (directional) light."""
     cyl = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=256)
-    faces = np.asarray(cyl.faces, np.int64)
+    # the side and the caps get their own vertices: shared rim vertices would average their normals and
+    # round the sharp edges of the real object
+    cap = np.abs(np.asarray(cyl.face_normals)[:, 2]) > 0.99
+    parts = []
+    for faces in (np.asarray(cyl.faces)[~cap], np.asarray(cyl.faces)[cap]):
+        used, local = np.unique(faces, return_inverse=True)
+        parts.append((np.asarray(cyl.vertices)[used], local.reshape(-1, 3)))
+    vertices = np.concatenate([v for v, _ in parts])
+    faces = np.concatenate([parts[0][1], parts[1][1] + len(parts[0][0])]).astype(np.int64)
     material = Material(tuple(np.array([230, 223, 205]) / 255), tuple(np.array([27, 18, 28]) / 255), 59.0)
     return SceneSpec(
-        np.asarray(cyl.vertices, np.float64),
+        vertices,
         faces,
         np.zeros(len(faces), np.int64),
         [material],
