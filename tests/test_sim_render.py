@@ -199,3 +199,20 @@ def test_paper_cylinder_under_a_directional_light():
     assert lit.max() <= (230 + 27) / 255 + 1e-3
     # lit from behind, the camera sees the dark side, but for the sliver its perspective shows past 90°
     assert renderer.render(0.0, [0.0, -1.0, 0.0]).max() < 0.1 * lit.max()
+
+
+def test_path_tracing_adds_inter_reflection_in_a_corner():
+    cam = half_size_camera()
+    floor = trimesh.creation.box(extents=[0.2, 0.2, 0.01])
+    floor.apply_translation([0, 0.05, -0.005])
+    wall = trimesh.creation.box(extents=[0.2, 0.01, 0.15])
+    wall.apply_translation([0, 0.1, 0.075])
+    white = Material((0.8, 0.8, 0.8), (0.0, 0.0, 0.0), 10.0)
+    spec = scene_of([(floor, white), (wall, white)])
+    camera = CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480)
+    light = [0.0, -0.1, 0.25]
+    direct = Renderer(spec, camera, spp=64).render(0.0, light)
+    path = Renderer(spec, camera, spp=64, integrator="path", max_depth=3).render(0.0, light)
+    lit = direct.mean(axis=2) > 0
+    gain = path.mean(axis=2)[lit].mean() / direct.mean(axis=2)[lit].mean()
+    assert 1.03 < gain < 2.0  # the wall lights the floor and back: more light, not a different picture

@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from pymodbus.client import ModbusTcpClient
@@ -55,3 +56,69 @@ def test_sim_serve_prints_endpoints_and_stops_on_sigint():
             proc.wait()
         proc.stdout.close()
         proc.stderr.close()
+
+
+def test_the_camera_photographs_where_the_axes_are():
+    import numpy as np
+    import pytest
+    import trimesh
+
+    from sim.render.llvm import RendererUnavailable, find_libllvm
+
+    try:
+        find_libllvm()
+    except RendererUnavailable as exc:  # pragma: no cover - CI installs libLLVM
+        pytest.skip(str(exc))
+    from dynamixel_sdk import GroupSyncWrite
+
+    from sim.camera import GantryGeometry, SimCamera
+    from sim.render.camera import CameraSpec
+    from sim.render.renderer import Renderer
+    from sim.render.scene import Material, SceneSpec, pose_matrix
+    from sim.render.sensor import SensorModel
+    from tests.test_sim_render import half_size_camera
+
+    cam = half_size_camera()
+    body = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
+    spec = SceneSpec(
+        np.asarray(body.vertices),
+        np.asarray(body.faces),
+        np.zeros(len(body.faces), np.int64),
+        [Material((0.6, 0.5, 0.4), (0.3, 0.3, 0.3), 40.0)],
+        pose_matrix((0, 0, 0.07)),
+    )
+    renderer = Renderer(
+        spec, CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480), spp=4
+    )
+    with SimRig(speed_factor=5.0) as rig:
+        camera = SimCamera(renderer, SensorModel(bits=12, sensitivity=2000.0), rig.bus, rig.turntable)
+        port = PortHandler(rig.endpoints.dynamixel)
+        port.openPort()
+        ph = PacketHandler(2.0)
+        for sid in rig.endpoints.servo_ids:
+            ph.write1ByteTxRx(port, sid, 64, 1)
+        g = GantryGeometry()
+        goal = (g.zero_ticks[0] - 512, g.zero_ticks[1] + 512)  # azimuth −45°, elevation +45°
+        writer = GroupSyncWrite(port, ph, 116, 4)
+        for sid, ticks in zip(rig.endpoints.servo_ids, goal, strict=True):
+            writer.addParam(sid, list(int(ticks).to_bytes(4, "little")))
+        writer.txPacket()
+        _, moving = camera.capture(0.01)  # the arm is still on its way: the frame shows where it is
+        assert moving["servo_ticks"] != list(goal)
+        deadline = time.monotonic() + 5
+        while camera.pose()["servo_ticks"] != list(goal):
+            assert time.monotonic() < deadline
+        rig.turntable.stage.lamp = True
+        frame, meta = camera.capture(0.01)
+        np.testing.assert_allclose(meta["light_position_m"], g.light_position(*goal))
+        expected = np.array(g.centre) + 0.3 * np.array(
+            [np.cos(np.pi / 4) ** 2, -(np.cos(np.pi / 4) ** 2), np.sin(np.pi / 4)]
+        )
+        np.testing.assert_allclose(meta["light_position_m"], expected, atol=1e-12)
+        assert frame.dtype == np.uint16
+        assert frame.max() > 100
+        rig.turntable.stage.lamp = False
+        dark, _ = camera.capture(0.01)
+        bright = frame.max(axis=2) > 100
+        assert dark[bright].mean() < 5  # lamp off: read noise only where the lamp lit the object
+        port.closePort()

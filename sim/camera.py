@@ -1,0 +1,79 @@
+"""The simulated camera as a device: it photographs the world where the simulated axes actually are.
+
+The light position comes from the servos' *present* positions and the turntable angle from the stage's
+present (encoder) position — not from what was commanded — so kinematic and timing bugs in the
+drivers show up in the frames, as they would on the real rig. The lamp is the relay's coil.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.dynamixel.bus import SimBus
+from sim.render.renderer import Renderer
+from sim.render.sensor import SensorModel
+from sim.turntable.server import TurntableServer
+
+
+@dataclass(frozen=True)
+class GantryGeometry:
+    """The physical truth of the light gantry: arm about ``centre``, servo ticks → angles."""
+
+    centre: tuple[float, float, float] = (0.0, 0.0, 0.07)
+    arm_radius: float = 0.30
+    azimuth_servo: int = 1
+    elevation_servo: int = 2
+    zero_ticks: tuple[int, int] = (2048, 1024)  # ticks at azimuth 0° and elevation 0°
+    ticks_per_rev: int = 4096
+
+    def light_position(self, azimuth_ticks: int, elevation_ticks: int) -> np.ndarray:
+        az = 2 * np.pi * (azimuth_ticks - self.zero_ticks[0]) / self.ticks_per_rev
+        el = 2 * np.pi * (elevation_ticks - self.zero_ticks[1]) / self.ticks_per_rev
+        return np.asarray(self.centre) + self.arm_radius * np.array(
+            [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
+        )
+
+
+@dataclass(frozen=True)
+class StageGeometry:
+    steps_per_degree: float = 100.0
+
+
+@dataclass
+class SimCamera:
+    renderer: Renderer
+    sensor: SensorModel
+    bus: SimBus
+    turntable: TurntableServer
+    gantry: GantryGeometry = GantryGeometry()
+    stage: StageGeometry = StageGeometry()
+    seed: int = 0
+    frames: int = field(default=0, init=False)
+
+    def pose(self) -> dict:
+        """Where the axes are now: light position (m), turntable angle (degrees), lamp."""
+        g = self.gantry
+        az = self.bus.servo(g.azimuth_servo).present_position()
+        el = self.bus.servo(g.elevation_servo).present_position()
+        stage = self.turntable.stage
+        return {
+            "light_position_m": g.light_position(az, el).tolist(),
+            "servo_ticks": [az, el],
+            "turntable_deg": float(stage.position() / self.stage.steps_per_degree),
+            "lamp": bool(stage.lamp),
+        }
+
+    def capture(self, exposure_s: float) -> tuple[np.ndarray, dict]:
+        """One raw frame (H, W, 3) uint16 and what the simulator knows about it."""
+        pose = self.pose()
+        radiance = self.renderer.render(
+            pose["turntable_deg"],
+            pose["light_position_m"],
+            lamp_on=pose["lamp"],
+            seed=self.seed + self.frames,
+        )
+        rng = np.random.default_rng([self.seed, self.frames])
+        self.frames += 1
+        return self.sensor.expose(radiance, exposure_s, rng), {**pose, "exposure_s": exposure_s}
