@@ -296,3 +296,13 @@ def test_sdk_over_a_socket_url():
         assert ph.write4ByteTxRx(port, 1, 112, 77) == (COMM_SUCCESS, 0)
         assert ph.read4ByteTxRx(port, 1, 112) == (77, COMM_SUCCESS, 0)
         port.closePort()
+
+
+def test_injected_delay_is_seen_as_a_timeout(sdk):
+    bus, port, ph = sdk
+    bus.fault(1).delay_s = 0.08  # longer than the SDK's 34 ms reply timeout (2 × latency timer + 2 ms)
+    assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT
+    bus.fault(1).delay_s = 0.0
+    time.sleep(0.1)
+    port.clearPort()  # the late reply arrived after the timeout: a driver must flush it
+    assert ph.ping(port, 1)[1] == COMM_SUCCESS

@@ -216,3 +216,25 @@ def test_path_tracing_adds_inter_reflection_in_a_corner():
     lit = direct.mean(axis=2) > 0
     gain = path.mean(axis=2)[lit].mean() / direct.mean(axis=2)[lit].mean()
     assert 1.03 < gain < 2.0  # the wall lights the floor and back: more light, not a different picture
+
+
+def test_textured_scene_file(tmp_path):
+    from PIL import Image
+
+    from sim.render.scene import load_scene
+
+    (tmp_path / "quad.obj").write_text(
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0.1 0.5\nvt 0.2 0.5\nvt 0.8 0.5\nvt 0.9 0.5\n"
+        "f 1/1 2/2 4/1\nf 2/4 3/3 4/4\n"
+    )
+    tex = np.zeros((4, 4, 3), np.uint8)
+    tex[:, :2] = [250, 10, 10]
+    tex[:, 2:] = [10, 10, 250]
+    Image.fromarray(tex).save(tmp_path / "tex.png")
+    (tmp_path / "scene.toml").write_text(
+        '[object]\nmesh = "quad.obj"\ntexture = "tex.png"\n'
+        "[[region]]\ncolor = [255, 0, 0]\nrd = [0.5, 0.1, 0.1]\nrs = [0, 0, 0]\nn = 1\n"
+        "[[region]]\ncolor = [0, 0, 255]\nrd = [0.1, 0.1, 0.5]\nrs = [0, 0, 0]\nn = 1\n"
+    )
+    spec = load_scene(tmp_path / "scene.toml")
+    assert spec.face_region.tolist() == [0, 1]  # each face takes the texel colour at its UV centroid

@@ -68,7 +68,12 @@ class Renderer:
                 "direction": [0.0, 0.0, -1.0],
                 "irradiance": {"type": "rgb", "value": [strength] * 3},
             }
-        integ = {"type": "direct"} if integrator == "direct" else {"type": "path", "max_depth": max_depth}
+        # BSDF-sampled rays cannot hit a point or directional light (delta emitters): light sampling only
+        integ = (
+            {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}
+            if integrator == "direct"
+            else {"type": "path", "max_depth": max_depth}
+        )
         self.scene = mi.load_dict(
             {
                 "type": "scene",
