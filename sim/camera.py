@@ -8,13 +8,16 @@ drivers show up in the frames, as they would on the real rig. The lamp is the re
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.dynamixel.bus import SimBus
-from sim.render.renderer import Renderer
 from sim.render.sensor import SensorModel
 from sim.turntable.server import TurntableServer
+
+if TYPE_CHECKING:  # the renderer imports Mitsuba: only when a camera is really made
+    from sim.render.renderer import Renderer
 
 
 @dataclass(frozen=True)

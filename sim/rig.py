@@ -9,11 +9,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sim.camera import GantryGeometry, SimCamera, StageGeometry
 from sim.dynamixel.bus import SimBus
+from sim.render.camera import CameraSpec
+from sim.render.scene import SceneSpec
+from sim.render.sensor import SensorModel
 from sim.turntable import register_map as rm
 from sim.turntable.server import TurntableServer
 
 GANTRY_IDS = (1, 2)  # azimuth, elevation
+GANTRY, STAGE = GantryGeometry(), StageGeometry()
 
 
 @dataclass(frozen=True)
@@ -36,12 +41,42 @@ class Endpoints:
 
 
 class SimRig:
-    def __init__(self, *, speed_factor: float = 1.0, servo_ids: tuple[int, ...] = GANTRY_IDS):
+    """The simulated devices, and (given a scene and a camera) the camera that photographs them.
+
+    The camera is created last and lazily imports the renderer, so a rig without a scene needs no Mitsuba.
+    """
+
+    def __init__(
+        self,
+        *,
+        speed_factor: float = 1.0,
+        servo_ids: tuple[int, ...] = GANTRY_IDS,
+        scene: SceneSpec | None = None,
+        camera: CameraSpec | None = None,
+        sensor: SensorModel | None = None,
+        gantry: GantryGeometry = GANTRY,
+        stage: StageGeometry = STAGE,
+        spp: int = 16,
+        seed: int = 0,
+    ):
         self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor)
         self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
+        self.camera: SimCamera | None = None
         try:
             host, port = self.turntable.serve_tcp()
             self.endpoints = Endpoints(self.bus.serve_pty(), f"{host}:{port}", tuple(servo_ids))
+            if scene is not None and camera is not None:
+                from sim.render.renderer import Renderer
+
+                self.camera = SimCamera(
+                    Renderer(scene, camera, spp=spp),
+                    sensor or SensorModel(),
+                    self.bus,
+                    self.turntable,
+                    gantry,
+                    stage,
+                    seed,
+                )
         except BaseException:
             self.close()
             raise

@@ -71,9 +71,8 @@ def test_the_camera_photographs_where_the_axes_are():
         pytest.skip(str(exc))
     from dynamixel_sdk import GroupSyncWrite
 
-    from sim.camera import GantryGeometry, SimCamera
+    from sim.camera import GantryGeometry
     from sim.render.camera import CameraSpec
-    from sim.render.renderer import Renderer
     from sim.render.scene import Material, SceneSpec, pose_matrix
     from sim.render.sensor import SensorModel
     from tests.test_sim_render import half_size_camera
@@ -87,11 +86,10 @@ def test_the_camera_photographs_where_the_axes_are():
         [Material((0.6, 0.5, 0.4), (0.3, 0.3, 0.3), 40.0)],
         pose_matrix((0, 0, 0.07)),
     )
-    renderer = Renderer(
-        spec, CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480), spp=4
-    )
-    with SimRig(speed_factor=5.0) as rig:
-        camera = SimCamera(renderer, SensorModel(bits=12, sensitivity=2000.0), rig.bus, rig.turntable)
+    camera_spec = CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480)
+    sensor = SensorModel(bits=12, sensitivity=2000.0)
+    with SimRig(speed_factor=5.0, scene=spec, camera=camera_spec, sensor=sensor, spp=4) as rig:
+        camera = rig.camera
         port = PortHandler(rig.endpoints.dynamixel)
         port.openPort()
         ph = PacketHandler(2.0)
