@@ -6,12 +6,11 @@
    channel, so n is a 1-D search over a profile (grid, then Brent).
 3. Noise model from the residuals: var = a + b·μ (read noise + photon noise, μ the model value),
    estimated robustly per bin of μ.
-4. Gauss–Newton on all pixels for (Rd[3], Rs[3], n) with Huber weights (k = 1.345) on the
-   standardised residuals, re-weighted every pass (IRLS), halving a step that raises the cost, until a
-   step is below a tenth of the standard errors: inter-reflections and the odd bad pixel lose their
-   pull instead of biasing Rd, and no division by cosⁿβ ever amplifies noise.
-5. Standard errors from the weighted Gauss–Newton normal matrix at the solution, scaled by the
-   residual variance.
+4. Newton on all pixels for (Rd[3], Rs[3], n) on the Huber cost (k = 1.345) of the residuals
+   standardised by that noise model (held at the starting fit): inter-reflections and the odd bad pixel
+   lose their pull instead of biasing Rd, and no division by cosⁿβ ever amplifies noise. From the
+   subsample's start one pass usually suffices (see ``_gauss_newton``).
+5. Standard errors from the sandwich covariance H⁻¹ (Σ ψ² J Jᵀ/σ²) H⁻¹.
 
 Every full pass runs in chunks (memory beyond the inputs stays constant) and does its 3×3 blocks per
 channel with BLAS; the starting values and the n search use the subsample only.

@@ -7,7 +7,8 @@ Two levels, so that planning stays fast on million-vertex meshes yet every count
   footprint size, and each pool is tested as one cone (its weighted mean point and axis) against the
   candidates a KD-tree finds near its footprint. Close to the exact count, but only an estimate.
 * :func:`exact_counts` — for one light: the exact cone test per sample, grazing light, and a shadow
-  ray per sample (Embree). The planner only ever reports exact counts.
+  ray per sample (Embree); :func:`best_light` does the same for a few nearby lights at once, casting
+  shadow rays only for those that can still win. The planner only ever reports exact counts.
 """
 
 from __future__ import annotations
