@@ -68,6 +68,8 @@ def test_the_camera_photographs_where_the_axes_are():
     try:
         find_libllvm()
     except RendererUnavailable as exc:  # pragma: no cover - CI installs libLLVM
+        if os.environ.get("CI"):
+            raise
         pytest.skip(str(exc))
     from dynamixel_sdk import GroupSyncWrite
 
