@@ -71,11 +71,13 @@ class SimCamera:
     def capture(self, exposure_s: float) -> tuple[np.ndarray, dict]:
         """One raw frame (H, W, 3) uint16 and what the simulator knows about it."""
         pose = self.pose()
+        light = np.asarray(pose["light_position_m"])
+        if (
+            self.renderer.spec.light == "directional"
+        ):  # a distant lamp: light travels from it toward the object
+            light = np.asarray(self.gantry.centre) - light
         radiance = self.renderer.render(
-            pose["turntable_deg"],
-            pose["light_position_m"],
-            lamp_on=pose["lamp"],
-            seed=self.seed + self.frames,
+            pose["turntable_deg"], light, lamp_on=pose["lamp"], seed=self.seed + self.frames
         )
         rng = np.random.default_rng([self.seed, self.frames])
         self.frames += 1

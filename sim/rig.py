@@ -1,6 +1,7 @@
-"""The simulated rig's devices, started together: the gantry's servo bus and the turntable/lamp server.
+"""The simulated rig's devices, started together: the gantry's servo bus, the turntable/lamp server and
+(given a scene and a camera) the camera.
 
-Endpoints are what real drivers open — a pseudo-terminal path and a TCP ``host:port`` — so the same
+Endpoints are what real drivers open — a pseudo-terminal path, TCP ``host:port`` addresses — so the same
 driver code runs against this and against the hardware. Everything stops on ``close`` (threads joined,
 file descriptors and sockets closed).
 """
@@ -26,24 +27,28 @@ class Endpoints:
     dynamixel: str
     modbus: str
     servo_ids: tuple[int, ...]
+    camera: str | None = None  # host:port of the camera endpoint (sim.camera_server), when there is one
     stage_unit: int = rm.STAGE_UNIT
     lamp_unit: int = rm.RELAY_UNIT
     lamp_coil: int = rm.LAMP_COIL
 
     def as_dict(self) -> dict:
-        return {
+        d = {
             "dynamixel": self.dynamixel,
             "modbus": self.modbus,
             "servo_ids": list(self.servo_ids),
             "stage_unit": self.stage_unit,
             "lamp": {"unit": self.lamp_unit, "coil": self.lamp_coil},
         }
+        if self.camera:
+            d["camera"] = self.camera
+        return d
 
 
 class SimRig:
     """The simulated devices, and (given a scene and a camera) the camera that photographs them.
 
-    The camera is created last and lazily imports the renderer, so a rig without a scene needs no Mitsuba.
+    The camera is made last and imports the renderer only then, so a rig without a scene needs no Mitsuba.
     """
 
     def __init__(
@@ -62,10 +67,12 @@ class SimRig:
         self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor)
         self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
         self.camera: SimCamera | None = None
+        self._camera_server = None
         try:
             host, port = self.turntable.serve_tcp()
-            self.endpoints = Endpoints(self.bus.serve_pty(), f"{host}:{port}", tuple(servo_ids))
+            camera_endpoint = None
             if scene is not None and camera is not None:
+                from sim.camera_server import CameraServer
                 from sim.render.renderer import Renderer
 
                 self.camera = SimCamera(
@@ -77,11 +84,18 @@ class SimRig:
                     stage,
                     seed,
                 )
+                self._camera_server = CameraServer(self.camera)
+                camera_endpoint = self._camera_server.serve_tcp()
+            self.endpoints = Endpoints(
+                self.bus.serve_pty(), f"{host}:{port}", tuple(servo_ids), camera_endpoint
+            )
         except BaseException:
             self.close()
             raise
 
     def close(self) -> None:
+        if self._camera_server:
+            self._camera_server.close()
         self.bus.close()
         self.turntable.close()
 

@@ -122,3 +122,48 @@ def test_the_camera_photographs_where_the_axes_are():
         bright = frame.max(axis=2) > 100
         assert dark[bright].mean() < 5  # lamp off: read noise only where the lamp lit the object
         port.closePort()
+
+
+def test_sim_serve_with_a_scene_serves_a_camera():
+    import socket
+
+    import numpy as np
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hlr_lab.cli.main", "sim", "serve", "--scene", "builtin:cylinder"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        endpoints = json.loads(proc.stdout.readline())
+        host, port = endpoints["modbus"].split(":")
+        client = ModbusTcpClient(host, port=int(port), timeout=2, retries=0)
+        assert client.connect()
+        assert not client.write_coil(rm.LAMP_COIL, True, device_id=rm.RELAY_UNIT).isError()
+        client.close()
+        cam_host, cam_port = endpoints["camera"].split(":")
+        with (
+            socket.create_connection((cam_host, int(cam_port)), timeout=60) as conn,
+            conn.makefile("rb") as reply,
+        ):
+            conn.sendall(b'{"exposure_s": 0.5}\n')
+            header = json.loads(reply.readline())
+            frame = np.frombuffer(reply.read(header["width"] * header["height"] * 3 * 2), dtype="<u2")
+            assert header["meta"]["lamp"] is True
+            assert header["meta"]["exposure_s"] == 0.5
+            assert frame.size == 1280 * 960 * 3
+            # the lamp stands straight above (servos at their start positions): the cylinder's top reads
+            # Rd · exposure · sensitivity = 230/255 · 0.5 s · 4095 DN ≈ 1847 DN, plus noise
+            top = frame.reshape(960, 1280, 3).max()
+            assert 0.95 * 1847 < top < 1.2 * 1847
+            conn.sendall(b'{"exposure": 1}\n')
+            assert "error" in json.loads(reply.readline())
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()

@@ -9,14 +9,22 @@ import threading
 import click
 
 from hlr_lab.cli.common import console
+from hlr_lab.errors import InputError
+from hlr_lab.rig import sim_rig
 
 
 @click.group()
 def sim() -> None:
-    """The simulated rig (servo bus on a pseudo-terminal, Modbus turntable and lamp relay on TCP)."""
+    """The simulated rig (servo bus on a pseudo-terminal, Modbus turntable and lamp relay, camera)."""
 
 
 @sim.command("serve")
+@click.option(
+    "--scene",
+    "scene_spec",
+    metavar="FILE|builtin:cylinder",
+    help="Also serve a camera photographing this scene file (see sim/render/scene.py).",
+)
 @click.option(
     "--speed-factor",
     type=click.FloatRange(min=0.01),
@@ -24,22 +32,37 @@ def sim() -> None:
     show_default=True,
     help="Simulated time runs this much faster than real time.",
 )
-def serve(speed_factor) -> int:
-    """Run the simulated servo bus and turntable until interrupted; print their endpoints as one JSON line.
+def serve(scene_spec, speed_factor) -> int:
+    """Run the simulated devices until interrupted; print their endpoints as one JSON line.
 
-    Any Dynamixel or Modbus tool can talk to them.
+    Any Dynamixel or Modbus tool can talk to the servo bus and the turntable. With --scene, a camera
+    endpoint renders the scene where the simulated axes are (protocol in sim/camera_server.py).
 
     \b
-    Example:
+    Examples:
       hlr-lab sim serve
       {"dynamixel": "/dev/pts/7", "modbus": "127.0.0.1:40123", "servo_ids": [1, 2], ...}
+      hlr-lab sim serve --scene builtin:cylinder
     """
-    from sim.rig import SimRig  # the simulator is reached only from the command line
+    # the simulator is reached only from the command line (the composition root)
+    from sim.render.camera import CameraSpec
+    from sim.render.scene import SceneError, builtin_scene, load_scene
+    from sim.rig import SimRig
 
+    scene = camera = None
+    if scene_spec:
+        try:
+            scene = builtin_scene(scene_spec) if scene_spec.startswith("builtin:") else load_scene(scene_spec)
+        except SceneError as exc:
+            raise InputError(str(exc), field="--scene") from exc
+        c = sim_rig().camera
+        camera = CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    with SimRig(speed_factor=speed_factor) as rig:
+    with console.status("starting the simulated rig…"):
+        rig = SimRig(speed_factor=speed_factor, scene=scene, camera=camera)
+    with rig:
         click.echo(json.dumps(rig.endpoints.as_dict()), nl=True)
         console.print("simulated rig running; Ctrl-C stops it")
         while not stop.wait(0.5):

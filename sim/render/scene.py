@@ -155,3 +155,16 @@ def paper_cylinder() -> SceneSpec:
         "directional",
         1.0,
     )
+
+
+BUILTIN_SCENES = {"cylinder": paper_cylinder}
+
+
+def builtin_scene(name: str) -> SceneSpec:
+    """A built-in scene by name (``builtin:cylinder`` or ``cylinder``)."""
+    key = name.removeprefix("builtin:")
+    if key not in BUILTIN_SCENES:
+        raise SceneError(
+            f"unknown built-in scene {name!r}; known: " + ", ".join(f"builtin:{k}" for k in BUILTIN_SCENES)
+        )
+    return BUILTIN_SCENES[key]()
