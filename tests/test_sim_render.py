@@ -242,3 +242,33 @@ def test_textured_scene_file(tmp_path):
     )
     spec = load_scene(tmp_path / "scene.toml")
     assert spec.face_region.tolist() == [0, 1]  # each face takes the texel colour at its UV centroid
+
+
+def test_missing_libllvm_says_what_to_install(monkeypatch, tmp_path):
+    import sim.render.llvm as llvm
+
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    (tmp_path / "libLLVM-15.so.1").touch()  # too old: LLVM 15 cannot compile Mitsuba 3.9's kernels
+    monkeypatch.setattr(llvm, "_SEARCH", (str(tmp_path),))
+    with pytest.raises(RendererUnavailable, match="apt-get install libllvm19"):
+        llvm.find_libllvm()
+    (tmp_path / "libLLVM.so.19.1").touch()
+    assert llvm.find_libllvm().endswith("libLLVM.so.19.1")
+
+
+def test_builtin_multi_region_scene_renders_each_material():
+    from sim.render.scene import builtin_scene
+
+    spec = builtin_scene("builtin:lumpy")
+    assert sorted(set(spec.face_region.tolist())) == [0, 1, 2, 3]
+    assert spec.vertices[:, 2].min() + spec.mesh_to_turntable[2, 3] == pytest.approx(
+        0.0
+    )  # resting on the plate
+    cam = half_size_camera()
+    renderer = Renderer(
+        spec, CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480), spp=4
+    )
+    image = renderer.render(0.0, [0.1, -0.25, 0.3])
+    assert image.max() > 0
+    with pytest.raises(Exception, match="unknown built-in scene"):
+        builtin_scene("builtin:teapot")

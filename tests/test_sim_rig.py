@@ -14,7 +14,12 @@ from sim.rig import SimRig
 from sim.turntable import register_map as rm
 
 
+def open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
 def test_endpoints_answer_real_clients_and_stop_cleanly():
+    fds = open_fds()
     with SimRig(speed_factor=10.0) as rig:
         e = rig.endpoints
         port = PortHandler(e.dynamixel)
@@ -29,7 +34,8 @@ def test_endpoints_answer_real_clients_and_stop_cleanly():
         assert not client.write_coil(e.lamp_coil, True, device_id=e.lamp_unit).isError()
         assert rig.turntable.stage.lamp
         client.close()
-    # the autouse fixture fails this test if any thread is left running
+    # no pty, socket or pipe is left open; the autouse fixture fails the test if a thread is left running
+    assert open_fds() <= fds
 
 
 def test_sim_serve_prints_endpoints_and_stops_on_sigint():

@@ -22,8 +22,9 @@ def sim() -> None:
 @click.option(
     "--scene",
     "scene_spec",
-    metavar="FILE|builtin:cylinder",
-    help="Also serve a camera photographing this scene file (see sim/render/scene.py).",
+    metavar="FILE|builtin:NAME",
+    help="Also serve a camera photographing this scene: a scene file (format in sim/render/scene.py), "
+    "builtin:cylinder (the paper's 4.2) or builtin:lumpy (four materials).",
 )
 @click.option(
     "--speed-factor",

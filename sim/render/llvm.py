@@ -40,12 +40,23 @@ def find_libllvm() -> str:
     return max(found)[1]
 
 
-def load_mitsuba(variant: str = "llvm_ad_rgb"):
-    """Import Mitsuba with a usable libLLVM and set ``variant``; returns the module."""
-    os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()
+def load_mitsuba(variant: str | None = None):
+    """Import Mitsuba and set ``variant`` (default: ``cuda_ad_rgb`` when Dr.Jit sees a CUDA device, else
+    ``llvm_ad_rgb``); returns the module. The libLLVM path is set before Dr.Jit is first imported, which is
+    when it decides which library to load."""
+    missing = None
     try:
+        os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()
+    except RendererUnavailable as exc:
+        missing = exc  # fatal only if the LLVM backend is the one we need
+    try:
+        import drjit as dr
         import mitsuba as mi
     except ImportError as exc:
         raise RendererUnavailable("Mitsuba is not installed: pip install 'hlr-lab[sim]'") from exc
+    if variant is None:
+        variant = "cuda_ad_rgb" if dr.has_backend(dr.JitBackend.CUDA) else "llvm_ad_rgb"
+    if variant.startswith("llvm") and missing is not None:
+        raise missing
     mi.set_variant(variant)
     return mi

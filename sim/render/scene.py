@@ -157,7 +157,29 @@ def paper_cylinder() -> SceneSpec:
     )
 
 
-BUILTIN_SCENES = {"cylinder": paper_cylinder}
+def lumpy_regions() -> SceneSpec:
+    """A multi-region demo object: a lumpy body about 12 cm across in four materials — matte red, glossy
+    green, sharp-highlight blue, and a broad-lobed cream top and bottom — lit by a point light. The
+    simulator's own geometry (it shares no code with what it checks)."""
+    body = trimesh.creation.icosphere(subdivisions=5)
+    d = np.asarray(body.vertices)
+    r = 1 + 0.07 * np.sin(3 * d[:, 0] + 0.5) * np.cos(2 * d[:, 1]) + 0.04 * d[:, 2] ** 2
+    vertices = 0.06 * d * r[:, None] * np.array([1.0, 0.9, 0.8])
+    faces = np.asarray(body.faces, np.int64)
+    centre = d[faces].mean(axis=1)
+    axis = np.argmax(np.abs(centre), axis=1)  # x → red, y → green (+y) / blue (−y), z → cream
+    region = np.where(axis == 0, 0, np.where(axis == 2, 3, np.where(centre[:, 1] > 0, 1, 2)))
+    materials = [
+        Material((0.62, 0.18, 0.12), (0.05, 0.05, 0.05), 8.0),
+        Material((0.15, 0.45, 0.18), (0.25, 0.25, 0.25), 60.0),
+        Material((0.10, 0.16, 0.50), (0.40, 0.40, 0.40), 300.0),
+        Material((0.80, 0.74, 0.60), (0.15, 0.15, 0.15), 20.0),
+    ]
+    lift = -vertices[:, 2].min()
+    return SceneSpec(vertices, faces, region, materials, pose_matrix((0.0, 0.0, lift)), "point", 0.1)
+
+
+BUILTIN_SCENES = {"cylinder": paper_cylinder, "lumpy": lumpy_regions}
 
 
 def builtin_scene(name: str) -> SceneSpec:
