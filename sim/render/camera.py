@@ -86,6 +86,21 @@ class PinholeFilm:
             "sampler": {"type": "independent", "sample_count": int(spp)},
         }
 
+    def object_box(self, points: np.ndarray, margin: int = 2) -> tuple[int, int, int, int]:
+        """(x, y, width, height) on the film holding the projection of world ``points`` (N, 3), plus a
+        margin; the whole film if any point is behind the camera."""
+        pc = points @ self.cam.rotation.T + self.cam.translation
+        if (pc[:, 2] <= 0).any():
+            return 0, 0, self.width, self.height
+        u = self.f * pc[:, 0] / pc[:, 2] + self.cx
+        v = self.f * pc[:, 1] / pc[:, 2] + self.cy
+        x0, y0 = (max(0, int(np.floor(a.min())) - margin) for a in (u, v))
+        x1 = min(self.width, int(np.ceil(u.max())) + margin + 1)
+        y1 = min(self.height, int(np.ceil(v.max())) + margin + 1)
+        if x1 <= x0 or y1 <= y0:
+            return 0, 0, 1, 1  # entirely off the film: render one pixel of nothing
+        return x0, y0, x1 - x0, y1 - y0
+
     def to_camera_image(self, film: np.ndarray) -> np.ndarray:
         """(film H, film W, 3) → (H, W, 3) as the real (distorted) camera sees it."""
         if not self.distorted:

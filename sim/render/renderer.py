@@ -2,7 +2,8 @@
 
 Per frame only the turntable angle (vertex positions and normals of every region), the light position
 or direction and the lamp (on/off) change, through ``mi.traverse`` — Mitsuba users report time and memory
-growing when scenes are reloaded per frame.
+growing when scenes are reloaded per frame. Only the object's bounding box on the film is rendered: the
+scene holds nothing else, so every other pixel is exactly zero (measured: half the time per frame).
 """
 
 from __future__ import annotations
@@ -86,6 +87,7 @@ class Renderer:
         self._params = mi.traverse(self.scene)
         self._strength = strength
         self._angle = None
+        self._crop = (0, 0, self.film.width, self.film.height)
 
     def render(
         self, turntable_deg: float, light: np.ndarray, *, lamp_on: bool = True, seed: int = 0
@@ -99,6 +101,9 @@ class Renderer:
             for name, vertices, normals in self._parts:
                 p[f"{name}.vertex_positions"] = mi.Float((vertices @ rot.T).ravel())
                 p[f"{name}.vertex_normals"] = mi.Float((normals @ rot.T).ravel())
+            self._crop = self.film.object_box(np.concatenate([v for _, v, _ in self._parts]) @ rot.T)
+            p["sensor.film.crop_offset"] = mi.ScalarPoint2u(*self._crop[:2])
+            p["sensor.film.crop_size"] = mi.ScalarVector2u(*self._crop[2:])
             self._angle = turntable_deg
         light = [float(x) for x in light]
         if self.spec.light == "point":
@@ -108,7 +113,11 @@ class Renderer:
             p["light.to_world"] = mi.Transform4f().look_at(origin=[0, 0, 0], target=light, up=_up(light))
             p["light.irradiance.value"] = mi.Color3f([self._strength if lamp_on else 0.0] * 3)
         p.update()
-        film = np.asarray(mi.render(self.scene, seed=seed, spp=self.spp), dtype=np.float32)
+        crop = np.asarray(mi.render(self.scene, seed=seed, spp=self.spp), dtype=np.float32)
+        # the scene holds only the object: outside its box the film is exactly 0 (box filter, no emitter seen)
+        x, y, w, h = self._crop
+        film = np.zeros((self.film.height, self.film.width, 3), np.float32)
+        film[y : y + h, x : x + w] = crop
         return self.film.to_camera_image(film)
 
 
