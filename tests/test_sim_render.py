@@ -302,3 +302,36 @@ def test_rendering_only_the_objects_box_changes_nothing():
     interior = ndi.binary_erosion(full.max(axis=2) > 0, iterations=2)
     # at 16 spp a pixel on the specular peak moves by a few per cent of the peak with its jitter
     np.testing.assert_allclose(cropped[interior], full[interior], atol=0.05 * full.max())
+
+
+def test_textured_regions_follow_texels_across_faces(tmp_path):
+    from PIL import Image
+
+    from sim.render.scene import load_scene
+
+    # a 10 cm quad facing the camera (−y), two triangles; the texture's colour border at u = 0.5 crosses both
+    (tmp_path / "quad.obj").write_text(
+        "v -0.05 0 0.02\nv 0.05 0 0.02\nv 0.05 0 0.12\nv -0.05 0 0.12\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    tex = np.zeros((8, 8, 3), np.uint8)
+    tex[:, :4] = [250, 10, 10]
+    tex[:, 4:] = [10, 10, 250]
+    Image.fromarray(tex).save(tmp_path / "tex.png")
+    (tmp_path / "scene.toml").write_text(
+        '[object]\nmesh = "quad.obj"\ntexture = "tex.png"\n'
+        "[[region]]\ncolor = [255, 0, 0]\nrd = [0.8, 0.1, 0.1]\nrs = [0, 0, 0]\nn = 1\n"
+        "[[region]]\ncolor = [0, 0, 255]\nrd = [0.1, 0.1, 0.8]\nrs = [0, 0, 0]\nn = 1\n"
+    )
+    spec = load_scene(tmp_path / "scene.toml")
+    assert spec.region_texture is not None
+    cam = half_size_camera()
+    image = Renderer(
+        spec, CameraSpec(cam.matrix, cam.distortion, cam.rotation, cam.translation, 640, 480), spp=4
+    ).render(0.0, cam.centre)
+    pixels, _ = cam.project(
+        np.array([[-0.025, 0.0, 0.05], [0.025, 0.0, 0.05], [-0.025, 0, 0.1], [0.025, 0, 0.1]])
+    )
+    for (u, v), red in zip(np.round(pixels).astype(int), (True, False, True, False), strict=True):
+        r, _, b = image[v, u]
+        assert (r > 4 * b) if red else (b > 4 * r), (u, v, image[v, u])

@@ -24,11 +24,16 @@ class PhongBSDF(mi.BSDF):
         self.m_components = [flags]
         self.m_flags = flags
 
+    def material(self, si):
+        """(rd, rs, n) at the surface point (the same everywhere for one region)."""
+        return self.rd, self.rs, self.n
+
     def eval(self, ctx, si, wo, active=True):
         cos_view, cos_light = mi.Frame3f.cos_theta(si.wi), mi.Frame3f.cos_theta(wo)
         h = dr.normalize(si.wi + wo)
         cos_beta = dr.select(h.z > 0, h.z, 0.0)
-        value = (self.rd * cos_light + self.rs * dr.power(cos_beta, self.n)) * dr.inv_pi
+        rd, rs, n = self.material(si)
+        value = (rd * cos_light + rs * dr.power(cos_beta, n)) * dr.inv_pi
         return dr.select(active & (cos_view > 0) & (cos_light > 0), value, 0.0)
 
     def pdf(self, ctx, si, wo, active=True):
@@ -58,6 +63,37 @@ class PhongBSDF(mi.BSDF):
         return f"PhongBSDF[rd={self.rd}, rs={self.rs}, n={self.n}]"
 
 
+class RegionMapPhongBSDF(PhongBSDF):
+    """eq. (1) with the material chosen per texel: ``region_map`` is a texture of region indices (nearest
+    filtering, raw values) and ``rd``/``rs``/``n`` are tables with one entry per region — so a region
+    border may cross a face, exactly as the texture paints it."""
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        self.region_map = props["region_map"]
+        self.rd_table = mi.Float(props["rd_table"])
+        self.rs_table = mi.Float(props["rs_table"])
+        self.n_table = mi.Float(props["n_table"])
+        flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+        self.m_components = [flags]
+        self.m_flags = flags
+
+    def material(self, si):
+        index = mi.UInt32(dr.round(self.region_map.eval_1(si)))
+        return (
+            dr.gather(mi.Color3f, self.rd_table, index),
+            dr.gather(mi.Color3f, self.rs_table, index),
+            dr.gather(mi.Float, self.n_table, index),
+        )
+
+    def traverse(self, callback):
+        callback.put("n_table", self.n_table, mi.ParamFlags.NonDifferentiable)
+
+    def to_string(self):
+        return "RegionMapPhongBSDF"
+
+
+MAP_PLUGIN = "hlr_phong_map"
 _registered = False
 
 
@@ -65,4 +101,5 @@ def register() -> None:
     global _registered
     if not _registered:
         mi.register_bsdf(PLUGIN, lambda props: PhongBSDF(props))
+        mi.register_bsdf(MAP_PLUGIN, lambda props: RegionMapPhongBSDF(props))
         _registered = True

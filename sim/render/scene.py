@@ -43,7 +43,13 @@ class Material:
 @dataclass(frozen=True, eq=False)
 class SceneSpec:
     """vertices (V, 3) and faces (F, 3) of the mesh in its own frame; face_region (F,) index into
-    ``materials``; mesh_to_turntable (4, 4); the light's type and power Φ."""
+    ``materials``; mesh_to_turntable (4, 4); the light's type and power Φ.
+
+    A textured scene also has ``vertex_uv`` (V, 2) (OBJ convention, v up) and ``region_texture`` (H, W)
+    region indices per texel: the renderer then takes the material per texel, so region borders may cross
+    faces. ``normals`` (V, 3) overrides the area-weighted vertex normals (a textured mesh's vertices are
+    split at UV seams, but its normals must not be).
+    """
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -52,14 +58,30 @@ class SceneSpec:
     mesh_to_turntable: np.ndarray
     light: str = "point"
     power: float = 1.0
+    vertex_uv: np.ndarray | None = None
+    region_texture: np.ndarray | None = None
+    normals: np.ndarray | None = None
 
     def vertex_normals(self) -> np.ndarray:
-        v, f = self.vertices, self.faces
-        cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-        acc = np.zeros_like(v)
-        for corner in range(3):
-            np.add.at(acc, f[:, corner], cross)
-        return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+        return self.normals if self.normals is not None else _area_normals(self.vertices, self.faces)
+
+
+def _area_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    acc = np.zeros_like(v)
+    for corner in range(3):
+        np.add.at(acc, f[:, corner], cross)
+    return acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+
+
+def _welded_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Normals of vertices split at UV seams, computed as if the copies were one vertex."""
+    scale = max(float(np.ptp(v, axis=0).max()), 1e-12)
+    _, first, inverse = np.unique(
+        np.round(v / (scale * 1e-9)), axis=0, return_index=True, return_inverse=True
+    )
+    inverse = inverse.ravel()
+    return _area_normals(v[first], inverse[f])[inverse]
 
 
 def pose_matrix(translation=(0.0, 0.0, 0.0), rotation_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -91,9 +113,21 @@ def load_scene(path: str | Path) -> SceneSpec:
     faces = np.asarray(mesh.faces, np.int64)
     if len(faces) == 0:
         raise SceneError(f"{path}: object.mesh has no faces")
-    face_colour = _face_colours(mesh, faces, path.parent / obj["texture"] if "texture" in obj else None)
+    texture = path.parent / obj["texture"] if "texture" in obj else None
+    face_colour = _face_colours(mesh, faces, texture)
     palette = np.array([r["color"] for r in regions], np.float64)
-    region = np.argmin(((face_colour[:, None, :] - palette[None]) ** 2).sum(axis=2), axis=1)
+    region = _nearest(face_colour, palette)
+    textured = texture is not None or getattr(mesh.visual, "kind", None) == "texture"
+    uv = region_texture = normals = None
+    if textured:
+        image = (
+            np.asarray(Image.open(texture).convert("RGB"))
+            if texture
+            else np.asarray(mesh.visual.material.image.convert("RGB"))
+        )
+        region_texture = _nearest(image.reshape(-1, 3).astype(np.float64), palette).reshape(image.shape[:2])
+        uv = np.asarray(mesh.visual.uv, np.float64)
+        normals = _welded_normals(np.asarray(mesh.vertices, np.float64), faces)
     materials = []
     for i, r in enumerate(regions):
         try:
@@ -109,7 +143,15 @@ def load_scene(path: str | Path) -> SceneSpec:
         pose_matrix(pose.get("translation", (0, 0, 0)), pose.get("rotation_deg", (0, 0, 0))),
         light.get("type", "point"),
         float(light.get("power", 1.0)),
+        uv,
+        region_texture,
+        normals,
     )
+
+
+def _nearest(colours: np.ndarray, palette: np.ndarray) -> np.ndarray:
+    """(N,) index of the nearest palette colour for (N, 3) colours."""
+    return np.argmin(((colours[:, None, :] - palette[None]) ** 2).sum(axis=2), axis=1)
 
 
 def _face_colours(mesh: trimesh.Trimesh, faces: np.ndarray, texture: Path | None) -> np.ndarray:
