@@ -7,7 +7,7 @@ Only the simulator reads it. From a scene file (TOML, beside its mesh)::
     texture = "tex.png"          # optional
     pose = { translation = [0, 0, 0], rotation_deg = [0, 0, 0] }   # mesh frame on the turntable
     [[region]]
-    color = [205, 60, 40]        # 8-bit sRGB as stored; faces take the nearest listed colour
+    color = [205, 60, 40]        # 8-bit sRGB as stored; faces (texels, if textured) take the nearest listed colour
     rd = [0.62, 0.18, 0.12]      # linear reflectances; rd is NOT derived from the colour
     rs = [0.20, 0.20, 0.20]
     n = 80.0
