@@ -1,0 +1,337 @@
+"""The light gantry: two (or more) Dynamixel X-series servos in position mode, over dynamixel-sdk.
+
+* Ports are device paths or pyserial URLs (``socket://host:port``, ``loop://``): the SDK's PortHandler
+  opens ``serial.Serial(port=…)``, which cannot take URLs, so :class:`UrlPortHandler` uses
+  ``serial.serial_for_url``. On a real FTDI adapter set its latency timer to 1 ms
+  (``/sys/bus/usb-serial/devices/ttyUSB0/latency_timer``); the SDK waits 2 × 16 + 2 ms for a reply.
+* Connect: ping, check the model, refuse a servo in hardware alarm (or reboot it if allowed), then with
+  torque off write the EEPROM settings and read each back, then the profile, then torque on.
+* Goals outside the configured limits are refused before anything is sent. Both axes move with one sync
+  write; their state comes back with one sync read. Reads are retried a bounded number of times with
+  backoff; a move is never retried silently.
+* SDK result codes never leave this module: they become :mod:`drivers.errors` exceptions.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import serial
+from dynamixel_sdk import (
+    COMM_RX_CORRUPT,
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    GroupSyncWrite,
+    PacketHandler,
+    PortHandler,
+)
+
+from drivers.errors import (
+    ChecksumError,
+    DeviceError,
+    DeviceFault,
+    DeviceTimeout,
+    HardwareAlarm,
+    LimitError,
+    SettleTimeout,
+)
+
+log = logging.getLogger(__name__)
+
+X_SERIES_MODELS = {1020: "XM430-W350", 1030: "XM430-W210", 1060: "XL430-W250", 1120: "XM540-W270"}
+# control table (X-series e-manual)
+RETURN_DELAY, OPERATING_MODE, MAX_POSITION, MIN_POSITION = 9, 11, 48, 52
+TORQUE_ENABLE, HARDWARE_ERROR = 64, 70
+PROFILE_ACCELERATION, PROFILE_VELOCITY, GOAL_POSITION = 108, 112, 116
+MOVING, PRESENT_POSITION = 122, 132
+POSITION_MODE = 3
+ERROR_NAMES = {
+    1: "result fail",
+    2: "instruction error",
+    3: "CRC error",
+    4: "data range error",
+    5: "data length error",
+    6: "data limit error",
+    7: "access error",
+}
+HARDWARE_BITS = {
+    0x01: "input voltage",
+    0x04: "overheating",
+    0x08: "motor encoder",
+    0x10: "electrical shock",
+    0x20: "overload",
+}
+
+
+class UrlPortHandler(PortHandler):
+    """dynamixel-sdk's PortHandler, opening any pyserial URL or device path."""
+
+    def setupPort(self, cflag_baud):
+        if self.is_open:
+            self.closePort()
+        self.ser = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=0)
+        self.is_open = True
+        self.ser.reset_input_buffer()
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True
+
+
+@dataclass(frozen=True)
+class Axis:
+    servo_id: int
+    min_ticks: int
+    max_ticks: int
+    name: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.name or f"servo {self.servo_id}"
+
+
+@dataclass(frozen=True)
+class GantryConfig:
+    port: str
+    axes: tuple[Axis, ...]
+    baudrate: int = 1_000_000
+    profile_velocity: int = 100  # 0.229 rev/min per unit
+    profile_acceleration: int = 20  # 214.6 rev/min² per unit
+    tolerance_ticks: int = 2
+    settle_s: float = 0.05
+    retries: int = 3
+    backoff_s: float = 0.01
+    reboot_on_alarm: bool = False  # only when the operator allowed it
+
+
+@dataclass
+class DynamixelGantry:
+    config: GantryConfig
+    retried: int = field(default=0, init=False)  # reads that needed a retry, for the run summary
+
+    def __post_init__(self):
+        self.port = UrlPortHandler(self.config.port)
+        try:
+            opened = self.port.openPort()
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(
+                f"cannot open the port ({exc}); check the cable and the port in the rig file",
+                device=self.name,
+            ) from exc
+        if not opened:
+            raise DeviceError(
+                "cannot open the port; check the cable and the port in the rig file", device=self.name
+            )
+        self.ph = PacketHandler(2.0)
+        self._goal: tuple[int, ...] | None = None
+
+    @property
+    def name(self) -> str:
+        return f"gantry on {self.config.port}"
+
+    # -- connection -------------------------------------------------------------------------------
+    def connect(self) -> dict[int, str]:
+        """Ping, check, configure and energise every axis; returns {servo id: model name}."""
+        models = {}
+        for axis in self.config.axes:
+            # a servo in alarm answers even a ping with the alert bit; the check below says what to do
+            model = self._retry(
+                lambda a=axis: self._call(a, "ping", *self.ph.ping(self.port, a.servo_id), alert_ok=True)
+            )
+            if model not in X_SERIES_MODELS:
+                raise DeviceFault(
+                    f"model number {model} is not an X-series servo this driver knows",
+                    device=self._device(axis),
+                    code=0,
+                )
+            models[axis.servo_id] = X_SERIES_MODELS[model]
+            self._clear_alarm(axis)
+            self._write(axis, TORQUE_ENABLE, 0, 1)  # the EEPROM is locked while torque is on
+            for address, value, size in (
+                (OPERATING_MODE, POSITION_MODE, 1),
+                (RETURN_DELAY, 0, 1),
+                (MAX_POSITION, axis.max_ticks, 4),
+                (MIN_POSITION, axis.min_ticks, 4),
+                (PROFILE_ACCELERATION, self.config.profile_acceleration, 4),
+                (PROFILE_VELOCITY, self.config.profile_velocity, 4),
+            ):
+                self._write(axis, address, value, size)
+                if self._read(axis, address, size) != value:
+                    raise DeviceFault(
+                        f"wrote {value} at address {address} but read back something else",
+                        device=self._device(axis),
+                        code=0,
+                    )
+            self._write(axis, TORQUE_ENABLE, 1, 1)
+        return models
+
+    def _clear_alarm(self, axis: Axis) -> None:
+        status = self._read(axis, HARDWARE_ERROR, 1)
+        if not status:
+            return
+        what = ", ".join(n for bit, n in HARDWARE_BITS.items() if status & bit) or f"0x{status:02x}"
+        if not self.config.reboot_on_alarm:
+            raise HardwareAlarm(
+                f"hardware error ({what}); find the cause, then allow a reboot of the servo",
+                device=self._device(axis),
+                status=status,
+            )
+        log.warning("%s: hardware error (%s); rebooting as allowed", self._device(axis), what)
+        self._call(axis, "reboot", None, *self.ph.reboot(self.port, axis.servo_id), alert_ok=True)
+        time.sleep(0.1)
+
+    # -- motion -------------------------------------------------------------------------------------
+    def move_to(self, goal: tuple[int, ...]) -> None:
+        """Send every axis its goal (ticks) in one sync write; refuses any goal outside the limits first."""
+        if len(goal) != len(self.config.axes):
+            raise LimitError(f"{len(goal)} goals for {len(self.config.axes)} axes", device=self.name)
+        for axis, ticks in zip(self.config.axes, goal, strict=True):
+            if not axis.min_ticks <= ticks <= axis.max_ticks:
+                raise LimitError(
+                    f"goal {ticks} ticks is outside [{axis.min_ticks}, {axis.max_ticks}]; nothing was sent",
+                    device=self._device(axis),
+                )
+        writer = GroupSyncWrite(self.port, self.ph, GOAL_POSITION, 4)
+        for axis, ticks in zip(self.config.axes, goal, strict=True):
+            writer.addParam(axis.servo_id, list(int(ticks).to_bytes(4, "little", signed=True)))
+        result = writer.txPacket()
+        if result != COMM_SUCCESS:  # a sync write has no reply: only the transmission can fail here
+            raise DeviceError(
+                f"the goal could not be sent ({self.ph.getTxRxResult(result)})", device=self.name
+            )
+        self._goal = tuple(int(t) for t in goal)
+
+    def position(self) -> tuple[int, ...]:
+        return tuple(p for p, _ in self._state())
+
+    def wait_settled(self, timeout_s: float) -> tuple[int, ...]:
+        """Until every axis is within tolerance of its goal and not moving for ``settle_s``."""
+        if self._goal is None:
+            return self.position()
+        deadline, settled_since = time.monotonic() + timeout_s, None
+        while True:
+            state = self._state()
+            done = all(
+                abs(p - g) <= self.config.tolerance_ticks and not moving
+                for (p, moving), g in zip(state, self._goal, strict=True)
+            )
+            now = time.monotonic()
+            if done:
+                settled_since = settled_since or now
+                if now - settled_since >= self.config.settle_s:
+                    return tuple(p for p, _ in state)
+            else:
+                settled_since = None
+            if now > deadline:
+                late = [
+                    f"{a.label} at {p} (goal {g})"
+                    for a, (p, _), g in zip(self.config.axes, state, self._goal, strict=True)
+                    if abs(p - g) > self.config.tolerance_ticks
+                ]
+                raise SettleTimeout(
+                    f"not settled after {timeout_s:g} s: {', '.join(late) or 'still moving'}; "
+                    "check for an obstruction or a stuck axis",
+                    device=self.name,
+                )
+            time.sleep(0.002)
+
+    def stop(self) -> None:
+        """Hold every axis where it is now."""
+        here = self.position()
+        self.move_to(
+            tuple(min(max(p, a.min_ticks), a.max_ticks) for p, a in zip(here, self.config.axes, strict=True))
+        )
+
+    def close(self, *, torque_off: bool = True) -> None:
+        """Leave the servos safe (torque off unless the park policy keeps it) and release the port."""
+        try:
+            if torque_off:
+                for axis in self.config.axes:
+                    try:
+                        self._write(axis, TORQUE_ENABLE, 0, 1)
+                    except DeviceError as exc:
+                        log.error("could not switch torque off: %s", exc)
+        finally:
+            self.port.closePort()
+
+    # -- transport ----------------------------------------------------------------------------------
+    def _state(self) -> list[tuple[int, bool]]:
+        """(present position, moving) of every axis from one sync read of 122…135, retried on link faults."""
+        length = PRESENT_POSITION + 4 - MOVING
+        return self._retry(
+            lambda: self._sync_read(
+                MOVING,
+                length,
+                lambda d: (
+                    int.from_bytes(bytes(d[PRESENT_POSITION - MOVING :]), "little", signed=True),
+                    bool(d[0]),
+                ),
+            )
+        )
+
+    def _sync_read(self, address: int, length: int, decode):
+        ids = [a.servo_id for a in self.config.axes]
+        result = self.ph.syncReadTx(self.port, address, length, ids, len(ids), False)
+        if result != COMM_SUCCESS:
+            raise DeviceError(
+                f"sync read could not be sent ({self.ph.getTxRxResult(result)})", device=self.name
+            )
+        out = []
+        for axis in self.config.axes:
+            data, result, error = self.ph.readRx(self.port, axis.servo_id, length)
+            self._call(axis, "sync read", None, result, error)
+            out.append(decode(data))
+        return out
+
+    def _read(self, axis: Axis, address: int, size: int) -> int:
+        reader = {1: self.ph.read1ByteTxRx, 2: self.ph.read2ByteTxRx, 4: self.ph.read4ByteTxRx}[size]
+        value = self._retry(
+            lambda: self._call(axis, f"read {address}", *reader(self.port, axis.servo_id, address))
+        )
+        return value - (1 << 32) if size == 4 and value >= 1 << 31 else value
+
+    def _write(self, axis: Axis, address: int, value: int, size: int) -> None:
+        writer = {1: self.ph.write1ByteTxRx, 2: self.ph.write2ByteTxRx, 4: self.ph.write4ByteTxRx}[size]
+        raw = value & ((1 << (8 * size)) - 1)
+        self._call(axis, f"write {address}", None, *writer(self.port, axis.servo_id, address, raw))
+
+    def _call(self, axis: Axis, what: str, value, result: int, error: int = 0, *, alert_ok: bool = False):
+        """Turn an SDK result into a value or an exception."""
+        device = self._device(axis)
+        if result == COMM_RX_TIMEOUT:
+            raise DeviceTimeout(f"no reply to {what}", device=device)
+        if result == COMM_RX_CORRUPT:
+            raise ChecksumError(f"corrupted reply to {what}", device=device)
+        if result != COMM_SUCCESS:
+            raise DeviceError(f"{what} failed ({self.ph.getTxRxResult(result)})", device=device)
+        if error & 0x80 and not alert_ok and what != f"read {HARDWARE_ERROR}":
+            status = self._read(axis, HARDWARE_ERROR, 1)
+            names = ", ".join(n for bit, n in HARDWARE_BITS.items() if status & bit) or f"0x{status:02x}"
+            raise HardwareAlarm(
+                f"hardware error ({names}) during {what}; torque is off until a reboot",
+                device=device,
+                status=status,
+            )
+        if error & 0x7F:
+            code = error & 0x7F
+            raise DeviceFault(
+                f"{what} refused: {ERROR_NAMES.get(code, f'error {code}')}", device=device, code=code
+            )
+        return value
+
+    def _retry(self, operation):
+        """Repeat a read on a timeout or corrupted reply, with growing pauses; then give up."""
+        for attempt in range(self.config.retries + 1):
+            try:
+                return operation()
+            except (DeviceTimeout, ChecksumError) as exc:
+                if attempt == self.config.retries:
+                    raise
+                self.retried += 1
+                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries)
+                self.port.clearPort()  # a late reply must not be taken for the next one
+                time.sleep(self.config.backoff_s * 2**attempt)
+        raise AssertionError("unreachable")
+
+    def _device(self, axis: Axis) -> str:
+        return f"gantry {axis.label} (id {axis.servo_id}) on {self.config.port}"

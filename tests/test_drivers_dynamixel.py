@@ -1,0 +1,109 @@
+"""The gantry driver against the simulated bus: real dynamixel-sdk bytes over a pseudo-terminal."""
+
+import pytest
+
+from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
+from drivers.errors import DeviceError, DeviceFault, DeviceTimeout, HardwareAlarm, LimitError, SettleTimeout
+from drivers.protocols import Positioner
+from sim.dynamixel.bus import SimBus
+from sim.dynamixel.servo import OVERLOAD
+
+AXES = (Axis(1, 1024, 3072, "azimuth"), Axis(2, 1024, 2048, "elevation"))
+
+
+@pytest.fixture
+def bus():
+    with SimBus.with_servos([1, 2], speed_factor=40.0) as b:
+        yield b
+
+
+def gantry_on(bus, url=None, **kw) -> DynamixelGantry:
+    return DynamixelGantry(GantryConfig(url or bus.serve_pty(), AXES, retries=2, backoff_s=0.001, **kw))
+
+
+def test_connect_configures_and_verifies(bus):
+    bus.servo(1).table[64] = 1  # torque already on: the driver must switch it off before EEPROM writes
+    g = gantry_on(bus)
+    assert isinstance(g, Positioner)
+    assert g.connect() == {1: "XM430-W350", 2: "XM430-W350"}
+    for s, axis in zip(bus.servos, AXES, strict=True):
+        assert s.get("operating_mode") == 3
+        assert s.get("return_delay_time") == 0
+        assert (s.get("min_position_limit"), s.get("max_position_limit")) == (axis.min_ticks, axis.max_ticks)
+        assert s.get("torque_enable") == 1
+    g.close()
+    assert all(s.get("torque_enable") == 0 for s in bus.servos)  # safe on exit
+
+
+def test_move_and_settle_with_one_sync_write(bus):
+    g = gantry_on(bus)
+    g.connect()
+    g.move_to((2500, 1800))
+    assert g.wait_settled(timeout_s=5) == pytest.approx((2500, 1800), abs=2)
+    assert [(r.servo_id, r.goal) for r in bus.goals] == [(1, 2500), (2, 1800)]
+    g.close()
+
+
+def test_goals_outside_the_limits_are_never_sent(bus):
+    g = gantry_on(bus)
+    g.connect()
+    with pytest.raises(LimitError, match=r"elevation.*outside \[1024, 2048\]"):
+        g.move_to((2000, 3000))
+    assert bus.goals == []  # nothing reached the bus
+    g.close()
+
+
+def test_link_faults_are_retried_then_reported(bus):
+    g = gantry_on(bus)
+    g.connect()
+    bus.fault(2).drop_replies = 1
+    assert len(g.position()) == 2
+    bus.fault(1).corrupt_replies = 1
+    assert len(g.position()) == 2
+    assert g.retried == 2  # one retry each
+    bus.fault(1).drop_replies = 10
+    with pytest.raises(DeviceTimeout, match="azimuth"):
+        g.position()
+    g.close(torque_off=False)
+
+
+def test_hardware_alarm_at_connect_needs_permission_to_reboot(bus):
+    bus.servo(2).hardware_fault(OVERLOAD)
+    with pytest.raises(HardwareAlarm, match=r"overload.*allow a reboot") as err:
+        gantry_on(bus).connect()
+    assert err.value.status == OVERLOAD
+    g = gantry_on(bus, reboot_on_alarm=True)
+    g.connect()  # rebooted, then configured
+    assert bus.servo(2).get("hardware_error_status") == 0
+    g.close()
+
+
+def test_overload_and_stuck_axis_during_a_move(bus):
+    g = gantry_on(bus)
+    g.connect()
+    bus.servo(1).stuck = True
+    g.move_to((2600, 1500))
+    with pytest.raises(SettleTimeout, match=r"azimuth at 2048 \(goal 2600\)"):
+        g.wait_settled(timeout_s=0.3)
+    bus.servo(1).stuck = False
+    bus.servo(2).hardware_fault(OVERLOAD)
+    with pytest.raises(HardwareAlarm, match=r"elevation.*overload"):
+        g.wait_settled(timeout_s=1)
+    g.close()
+
+
+def test_device_refusals_become_faults(bus):
+    bad = (Axis(1, 0, 5000, "azimuth"), AXES[1])  # the servo's limit range ends at 4095
+    g = DynamixelGantry(GantryConfig(bus.serve_pty(), bad, retries=0))
+    with pytest.raises(DeviceFault, match="data range error") as err:
+        g.connect()
+    assert err.value.code == 4
+    g.close()
+
+
+def test_socket_url_and_unopenable_port(bus):
+    g = gantry_on(bus, url=bus.serve_tcp())
+    assert g.connect()
+    g.close()
+    with pytest.raises(DeviceError, match="cannot open the port"):
+        DynamixelGantry(GantryConfig("/dev/does-not-exist", AXES))
