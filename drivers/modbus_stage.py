@@ -1,0 +1,246 @@
+"""The turntable (a Modbus rotary stage, AZ-style direct data operation) and the lamp relay, over pymodbus.
+
+The register map comes from the rig file (:class:`StageMap`; the defaults are the simulated stage's, see
+``sim/turntable/register_map.py``). 32-bit values span two registers, high word first. The operation
+data goes in one FC16 write; START acts on its rising edge. Reads are retried with backoff (reconnecting
+after a dropped link); a move is never retried. pymodbus types never leave this module.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from drivers.errors import DeviceError, DeviceFault, DeviceTimeout, HardwareAlarm, LimitError, SettleTimeout
+
+log = logging.getLogger(__name__)
+EXCEPTIONS = {1: "illegal function", 2: "illegal address", 3: "illegal value", 4: "device failure", 6: "busy"}
+
+
+@dataclass(frozen=True)
+class StageMap:
+    unit: int = 1
+    op_type: int = 0
+    target: int = 2
+    speed: int = 4
+    acceleration: int = 6
+    deceleration: int = 8
+    current: int = 10
+    command: int = 20
+    status: int = 30  # status, alarm code, position, velocity follow, 2 registers each
+    start_bit: int = 0x08
+    home_bit: int = 0x10
+    stop_bit: int = 0x20
+    alarm_reset_bit: int = 0x80
+    ready_bit: int = 0x01
+    in_position_bit: int = 0x04
+    alarm_bit: int = 0x80
+    absolute: int = 1
+
+
+@dataclass(frozen=True)
+class StageConfig:
+    address: str  # "host:port" (TCP) or a serial device path (RTU)
+    min_steps: int
+    max_steps: int
+    map: StageMap = StageMap()
+    baudrate: int = 115_200
+    speed: int = 4000  # steps/s
+    acceleration: int = 8000  # steps/s²
+    current: int = 500  # per mille
+    tolerance_steps: int = 1
+    timeout_s: float = 1.0
+    retries: int = 3
+    backoff_s: float = 0.02
+    reset_alarm: bool = False  # only when the operator allowed it
+
+
+def _client(address: str, baudrate: int, timeout: float):
+    if address.startswith("/") or address.startswith("COM"):
+        return ModbusSerialClient(address, baudrate=baudrate, timeout=timeout, retries=0)
+    host, _, port = address.removeprefix("tcp://").rpartition(":")
+    return ModbusTcpClient(host, port=int(port), timeout=timeout, retries=0)
+
+
+@dataclass
+class ModbusStage:
+    config: StageConfig
+    retried: int = field(default=0, init=False)
+
+    def __post_init__(self):
+        self.client = _client(self.config.address, self.config.baudrate, self.config.timeout_s)
+        if not self.client.connect():
+            raise DeviceError(
+                "cannot connect; check the address in the rig file and that the drive is powered",
+                device=self.name,
+            )
+        self._goal: int | None = None
+
+    @property
+    def name(self) -> str:
+        return f"turntable on {self.config.address}"
+
+    def connect(self) -> None:
+        """Refuse a drive in alarm (or reset it if allowed), then load the operation data in one write."""
+        status, alarm = self._read_block(2)[:2]
+        if status & self.config.map.alarm_bit:
+            if not self.config.reset_alarm:
+                raise HardwareAlarm(
+                    f"the drive is in alarm (code 0x{alarm:02x}); find the cause, then allow an alarm reset",
+                    device=self.name,
+                    status=alarm,
+                )
+            self._command(self.config.map.alarm_reset_bit)
+        m = self.config.map
+        data = [
+            m.absolute,
+            0,
+            self.config.speed,
+            self.config.acceleration,
+            self.config.acceleration,
+            self.config.current,
+        ]
+        self._write(m.op_type, data)
+
+    def move_to(self, goal: tuple[int, ...]) -> None:
+        (steps,) = goal
+        if not self.config.min_steps <= steps <= self.config.max_steps:
+            raise LimitError(
+                f"goal {steps} steps is outside [{self.config.min_steps}, {self.config.max_steps}]; "
+                "nothing was sent",
+                device=self.name,
+            )
+        self._write(self.config.map.target, [int(steps)])
+        self._command(self.config.map.start_bit)
+        self._goal = int(steps)
+
+    def home(self, timeout_s: float) -> None:
+        self._command(self.config.map.home_bit)
+        self._goal = 0
+        self.wait_settled(timeout_s)
+
+    def position(self) -> tuple[int, ...]:
+        return (self._read_block(3)[2],)
+
+    def wait_settled(self, timeout_s: float) -> tuple[int, ...]:
+        deadline = time.monotonic() + timeout_s
+        m = self.config.map
+        while True:
+            status, alarm, position = self._read_block(3)
+            if status & m.alarm_bit:
+                raise HardwareAlarm(
+                    f"the drive raised alarm 0x{alarm:02x} while moving", device=self.name, status=alarm
+                )
+            if (
+                status & m.in_position_bit
+                and status & m.ready_bit
+                and (self._goal is None or abs(position - self._goal) <= self.config.tolerance_steps)
+            ):
+                return (position,)
+            if time.monotonic() > deadline:
+                raise SettleTimeout(
+                    f"not in position after {timeout_s:g} s (at {position}, goal {self._goal})",
+                    device=self.name,
+                )
+            time.sleep(0.002)
+
+    def stop(self) -> None:
+        self._command(self.config.map.stop_bit)
+
+    def close(self) -> None:
+        self.client.close()
+
+    # -- transport ------------------------------------------------------------------------------------
+    def _command(self, bit: int) -> None:
+        """Command bits act on their rising edge: clear, then set."""
+        self._write(self.config.map.command, [0])
+        self._write(self.config.map.command, [bit])
+
+    def _write(self, address: int, values: list[int]) -> None:
+        registers = [
+            r for v in values for r in self.client.convert_to_registers(int(v), self.client.DATATYPE.INT32)
+        ]
+        self._check(
+            self._io(lambda: self.client.write_registers(address, registers, device_id=self.config.map.unit)),
+            f"write at {address}",
+        )
+
+    def _read_block(self, n: int) -> list[int]:
+        """n int32 values from the status block (status, alarm, position, velocity), retried on link faults."""
+
+        def read():
+            rr = self._check(
+                self._io(
+                    lambda: self.client.read_holding_registers(
+                        self.config.map.status, count=2 * n, device_id=self.config.map.unit
+                    )
+                ),
+                "status read",
+            )
+            return [
+                self.client.convert_from_registers(
+                    rr.registers[2 * i : 2 * i + 2], self.client.DATATYPE.INT32
+                )
+                for i in range(n)
+            ]
+
+        for attempt in range(self.config.retries + 1):
+            try:
+                return read()
+            except DeviceTimeout as exc:
+                if attempt == self.config.retries:
+                    raise
+                self.retried += 1
+                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries)
+                time.sleep(self.config.backoff_s * 2**attempt)
+                if not self.client.connected:
+                    self.client.connect()
+        raise AssertionError("unreachable")
+
+    def _io(self, call):
+        try:
+            return call()
+        except (ConnectionException, ConnectionError) as exc:  # pymodbus does not wrap every socket error
+            self.client.close()
+            raise DeviceTimeout(f"the link dropped ({exc})", device=self.name) from exc
+        except ModbusIOException as exc:
+            raise DeviceTimeout(f"no reply ({exc})", device=self.name) from exc
+        except ModbusException as exc:
+            raise DeviceError(f"Modbus error ({exc})", device=self.name) from exc
+
+    def _check(self, response, what: str):
+        if response.isError():
+            code = getattr(response, "exception_code", 0)
+            raise DeviceFault(
+                f"{what} refused: exception {code} ({EXCEPTIONS.get(code, 'unknown')})",
+                device=self.name,
+                code=code,
+            )
+        return response
+
+
+@dataclass
+class ModbusRelay:
+    """The lamp: one coil of a Modbus relay module (it may share the stage's link)."""
+
+    client_owner: ModbusStage
+    unit: int = 2
+    coil: int = 0
+
+    def set(self, on: bool) -> None:
+        stage = self.client_owner
+        stage._check(
+            stage._io(lambda: stage.client.write_coil(self.coil, bool(on), device_id=self.unit)),
+            "lamp switch",
+        )
+
+    def get(self) -> bool:
+        stage = self.client_owner
+        rr = stage._check(
+            stage._io(lambda: stage.client.read_coils(self.coil, count=1, device_id=self.unit)), "lamp read"
+        )
+        return bool(rr.bits[0])
