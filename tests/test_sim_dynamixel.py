@@ -3,7 +3,6 @@
 import time
 
 import pytest
-import serial
 from dynamixel_sdk import (
     COMM_RX_CORRUPT,
     COMM_RX_TIMEOUT,
@@ -15,6 +14,7 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
+from drivers.dynamixel import UrlPortHandler
 from sim.dynamixel.bus import SimBus
 from sim.dynamixel.control_table import ACCELERATION_UNIT_TICKS_PER_S2, VELOCITY_UNIT_TICKS_PER_S
 from sim.dynamixel.protocol import Error, PacketReader, crc16, frame, instruction_packet, stuff, unstuff
@@ -271,19 +271,6 @@ def test_sdk_sees_injected_faults(sdk):
     bus.servo(2).hardware_fault(OVERLOAD)
     _, _, error = ph.read1ByteTxRx(port, 2, 70)
     assert error & Error.ALERT
-
-
-class UrlPortHandler(PortHandler):
-    """PortHandler opens serial.Serial(port=…), which cannot take pyserial URLs; this one can."""
-
-    def setupPort(self, cflag_baud):
-        if self.is_open:
-            self.closePort()
-        self.ser = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=0)
-        self.is_open = True
-        self.ser.reset_input_buffer()
-        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
-        return True
 
 
 def test_sdk_over_a_socket_url():

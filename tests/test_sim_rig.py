@@ -1,5 +1,6 @@
 """The simulated rig as drivers meet it: endpoints, real client libraries, a clean stop."""
 
+import contextlib
 import json
 import os
 import signal
@@ -38,16 +39,27 @@ def test_endpoints_answer_real_clients_and_stop_cleanly():
     assert open_fds() <= fds
 
 
-def test_sim_serve_prints_endpoints_and_stops_on_sigint():
-    env = dict(os.environ)
+@contextlib.contextmanager
+def sim_serve(*args):
+    """``hlr-lab sim serve`` in a child process; killed if the test leaves it running."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hlr_lab.cli.main", "sim", "serve"],
+        [sys.executable, "-m", "hlr_lab.cli.main", "sim", "serve", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=env,
     )
     try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def test_sim_serve_prints_endpoints_and_stops_on_sigint():
+    with sim_serve() as proc:
         endpoints = json.loads(proc.stdout.readline())
         assert set(endpoints) >= {"dynamixel", "modbus", "servo_ids"}
         port = PortHandler(endpoints["dynamixel"])
@@ -56,12 +68,6 @@ def test_sim_serve_prints_endpoints_and_stops_on_sigint():
         port.closePort()
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
 
 
 def test_the_camera_photographs_where_the_axes_are():
@@ -135,13 +141,7 @@ def test_sim_serve_with_a_scene_serves_a_camera():
 
     import numpy as np
 
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hlr_lab.cli.main", "sim", "serve", "--scene", "builtin:cylinder"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
+    with sim_serve("--scene", "builtin:cylinder") as proc:
         endpoints = json.loads(proc.stdout.readline())
         host, port = endpoints["modbus"].split(":")
         client = ModbusTcpClient(host, port=int(port), timeout=2, retries=0)
@@ -167,9 +167,3 @@ def test_sim_serve_with_a_scene_serves_a_camera():
             assert "error" in json.loads(reply.readline())
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()

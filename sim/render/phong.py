@@ -20,6 +20,9 @@ class PhongBSDF(mi.BSDF):
         self.rd = mi.Color3f(props["rd"])
         self.rs = mi.Color3f(props["rs"])
         self.n = mi.Float(props["n"])
+        self._set_flags()
+
+    def _set_flags(self) -> None:
         flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
         self.m_components = [flags]
         self.m_flags = flags
@@ -74,9 +77,7 @@ class RegionMapPhongBSDF(PhongBSDF):
         self.rd_table = mi.Float(props["rd_table"])
         self.rs_table = mi.Float(props["rs_table"])
         self.n_table = mi.Float(props["n_table"])
-        flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-        self.m_components = [flags]
-        self.m_flags = flags
+        self._set_flags()
 
     def material(self, si):
         index = mi.UInt32(dr.round(self.region_map.eval_1(si)))
