@@ -5,7 +5,7 @@ Read from ``rig.toml`` (DESIGN §4); the simulated rig ships as package data (``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Literal
@@ -15,12 +15,15 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from hlr_lab.camera import Camera
 from hlr_lab.formats.io import check_header, read_toml, validate
+from hlr_lab.kinematics import GantryKinematics, TurntableKinematics
 
 RIG_FORMAT = "hlr-lab.rig"
 SIM_RIG = "sim-rig.toml"
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Limits = Annotated[list[float], Field(min_length=2, max_length=2)]
+_PAIR = Field(min_length=2, max_length=2)
+Limits = Annotated[list[float], _PAIR]
+ServoId = Annotated[int, Field(ge=0, le=252)]  # Protocol 2.0 unicast IDs
 
 
 class _Strict(BaseModel):
@@ -51,6 +54,11 @@ class _GantrySection(_Strict):
     elevation_limits_deg: Limits
     camera_keepout_deg: float = Field(ge=0, lt=90)
     min_light_height_m: float = 0.0
+    # tick ↔ angle mapping (DESIGN §3, §4): servo readings at 0°, and whether ticks grow with the angle
+    servo_ids: Annotated[list[ServoId], _PAIR] = [1, 2]
+    zero_ticks: Annotated[list[int], _PAIR] = [2048, 1024]
+    directions: Annotated[list[Literal[-1, 1]], _PAIR] = [1, 1]
+    ticks_per_rev: int = Field(default=4096, gt=0)
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -60,11 +68,15 @@ class _GantrySection(_Strict):
                 raise ValueError(f"{name}: the lower limit {lo} must be below the upper {hi}")
         if not -90 <= self.elevation_limits_deg[0] < self.elevation_limits_deg[1] <= 90:
             raise ValueError("elevation_limits_deg must lie within [-90, 90]")
+        if self.servo_ids[0] == self.servo_ids[1]:
+            raise ValueError("servo_ids: azimuth and elevation need two different servo IDs")
         return self
 
 
 class _TurntableSection(_Strict):
     limits_deg: Limits
+    steps_per_degree: float = Field(default=100.0, gt=0)
+    zero_steps: int = 0  # stage position at 0°
 
 
 class _RigFile(_Strict):
@@ -84,6 +96,8 @@ class Gantry:
     elevation_limits: tuple[float, float]
     camera_keepout: float
     min_light_height: float
+    kinematics: GantryKinematics
+    servo_ids: tuple[int, int]  # azimuth, elevation
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,6 +107,7 @@ class Rig:
     exposure_bracket_s: tuple[float, ...]
     gantry: Gantry
     turntable_limits_deg: tuple[float, float]
+    turntable_kinematics: TurntableKinematics
     source: str
 
 
@@ -109,9 +124,7 @@ def sim_rig() -> Rig:
     ref = resources.files("hlr_lab.data") / SIM_RIG
     with resources.as_file(ref) as path:
         rig = load_rig(path)
-    return Rig(
-        rig.name, rig.camera, rig.exposure_bracket_s, rig.gantry, rig.turntable_limits_deg, "builtin:sim"
-    )
+    return replace(rig, source="builtin:sim")
 
 
 def _build(f: _RigFile, source: str) -> Rig:
@@ -132,5 +145,18 @@ def _build(f: _RigFile, source: str) -> Rig:
         tuple(np.radians(g.elevation_limits_deg)),
         float(np.radians(g.camera_keepout_deg)),
         g.min_light_height_m,
+        GantryKinematics(
+            np.array(g.centre_m), g.arm_radius_m, tuple(g.zero_ticks), tuple(g.directions), g.ticks_per_rev
+        ),
+        tuple(g.servo_ids),
     )
-    return Rig(f.rig.name, camera, tuple(c.exposure_bracket_s), gantry, tuple(f.turntable.limits_deg), source)
+    t = f.turntable
+    return Rig(
+        f.rig.name,
+        camera,
+        tuple(c.exposure_bracket_s),
+        gantry,
+        tuple(t.limits_deg),
+        TurntableKinematics(t.steps_per_degree, t.zero_steps),
+        source,
+    )

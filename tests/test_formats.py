@@ -145,6 +145,11 @@ def test_sim_rig_file_loads():
         ("[turntable]", "[turntable]\nspeed = 3", "turntable.speed"),
         ('format = "hlr-lab.rig"', 'format = "hlr-lab.plan"', "rig.format"),
         ("width = 1280", "width = 1280 1280", "not valid TOML"),
+        ("servo_ids = [1, 2]", "servo_ids = [3, 3]", "two different servo IDs"),
+        ("servo_ids = [1, 2]", "servo_ids = [1, 300]", "gantry.servo_ids"),
+        ("directions = [1, 1]", "directions = [0, 1]", "gantry.directions"),
+        ("ticks_per_rev = 4096", "ticks_per_rev = 0", "gantry.ticks_per_rev"),
+        ("steps_per_degree = 100.0", "steps_per_degree = -1", "turntable.steps_per_degree"),
     ],
 )
 def test_bad_rig_files_name_the_field(tmp_path, old, new, message):

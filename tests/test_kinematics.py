@@ -1,0 +1,60 @@
+"""Gantry and turntable kinematics: plan angles ↔ device ticks/steps, and agreement with the simulated rig."""
+
+import numpy as np
+import pytest
+
+from hlr_lab.kinematics import GantryKinematics, TurntableKinematics
+from sim.camera import GantryGeometry, StageGeometry
+
+HALF_TICK_DEG = 360.0 / 4096 / 2  # rounding to the nearest tick moves an angle by at most this
+
+
+@pytest.mark.parametrize("directions", [(1, 1), (-1, 1), (1, -1)])
+def test_angles_survive_the_round_trip_through_ticks(directions):
+    k = GantryKinematics(np.array([0.01, -0.02, 0.07]), 0.3, (2048, 1024), directions)
+    rng = np.random.default_rng(5)
+    for az, el in zip(rng.uniform(-180, 180, 200), rng.uniform(-10, 80, 200), strict=True):
+        ticks = k.ticks_for(az, el)
+        assert all(isinstance(t, int) for t in ticks)
+        back = k.angles_for(ticks)
+        assert abs(back[0] - az) <= HALF_TICK_DEG + 1e-9
+        assert abs(back[1] - el) <= HALF_TICK_DEG + 1e-9
+        # the lamp position names the same angles (azimuth wraps into (−180, 180])
+        np.testing.assert_allclose(k.angles_of(k.light_position(ticks)), back, atol=1e-9)
+
+
+def test_direction_flips_the_tick_sense():
+    forward = GantryKinematics(np.zeros(3), 0.3, (2048, 1024), (1, 1))
+    reverse = GantryKinematics(np.zeros(3), 0.3, (2048, 1024), (-1, 1))
+    assert forward.ticks_for(90.0, 0.0) == (3072, 1024)
+    assert reverse.ticks_for(90.0, 0.0) == (1024, 1024)
+    np.testing.assert_allclose(reverse.light_position((1024, 1024)), [0.0, 0.3, 0.0], atol=1e-12)
+
+
+def test_light_lies_on_the_arm_sphere():
+    k = GantryKinematics(np.array([0.0, 0.0, 0.07]), 0.3, (2048, 1024))
+    ticks = np.random.default_rng(1).integers(0, 4096, size=(50, 2))
+    r = [np.linalg.norm(k.light_position(tuple(t)) - k.centre) for t in ticks]
+    np.testing.assert_allclose(r, 0.3, rtol=1e-12)
+
+
+def test_sim_rig_file_matches_the_simulated_hardware(rig):
+    """The built-in rig file must describe the simulated gantry and stage exactly, or frames rendered by
+    the simulator would carry a different light than the one the fit is told about."""
+    truth = GantryGeometry()
+    assert rig.gantry.servo_ids == (truth.azimuth_servo, truth.elevation_servo)
+    np.testing.assert_allclose(rig.gantry.kinematics.centre, rig.gantry.centre)
+    ticks = np.random.default_rng(2).integers(0, 4096, size=(100, 2))
+    for t in ticks:
+        np.testing.assert_allclose(
+            rig.gantry.kinematics.light_position(tuple(t)), truth.light_position(*t), atol=1e-12
+        )
+    assert rig.turntable_kinematics.steps_per_degree == StageGeometry().steps_per_degree
+
+
+def test_turntable_round_trip():
+    k = TurntableKinematics(steps_per_degree=100.0, zero_steps=-250)
+    assert k.steps_for(0.0) == -250
+    assert k.steps_for(90.0) == 8750
+    for deg in np.random.default_rng(3).uniform(-180, 180, 100):
+        assert abs(k.degrees_for(k.steps_for(deg)) - deg) <= 0.5 / 100.0 + 1e-12
