@@ -8,10 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hlr_lab.formats.plan import build_plan, write_plan
 from hlr_lab.mesh import ColouredMesh
 from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.procedural import ProceduralObject, pebble
 from hlr_lab.rig import Rig, sim_rig
+from hlr_lab.segment import segment
 
 SHARED_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 
@@ -63,3 +66,32 @@ def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     """True when two labelings split the items identically (up to renaming the labels)."""
     pairs = set(zip(a.tolist(), b.tolist(), strict=True))
     return len(pairs) == len(set(a.tolist())) == len(set(b.tolist()))
+
+
+@pytest.fixture(scope="session")
+def plan_file(tmp_path_factory, rig):
+    """A small pebble plan on the simulated rig: (path, PlanResult, object, mesh→turntable)."""
+    obj = pebble(subdivisions=4)
+    seg = segment(obj.mesh)
+    m = placement(obj.mesh)
+    result = plan_lights(
+        obj.mesh.transformed(m),
+        seg,
+        rig,
+        PlanSettings(views_deg=[0.0, 90.0], spacing_deg=1.0, compare_criteria=False),
+    )
+    plan = build_plan(
+        result,
+        seg,
+        mesh_ref="builtin:pebble",
+        sha256=obj.mesh.sha256,
+        texture_ref=None,
+        mesh_to_turntable=m,
+        up="z",
+        scale=1.0,
+        exposures_s=rig.exposure_bracket_s,
+        rig_name=rig.name,
+    )
+    path = tmp_path_factory.mktemp("plan") / "plan.json"
+    write_plan(path, plan)
+    return path, result, obj, m

@@ -6,44 +6,14 @@ import pytest
 
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import atomic_write_bytes, atomic_write_text
-from hlr_lab.formats.plan import build_plan, read_plan, write_plan
+from hlr_lab.formats.plan import read_plan
 from hlr_lab.formats.regions import read_regions, write_regions
-from hlr_lab.planning.geometry import placement
-from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.procedural import pebble
 from hlr_lab.rig import load_rig
 from hlr_lab.segment import segment
 from hlr_lab.sphere import rotation_z
 
 SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
-
-
-@pytest.fixture(scope="module")
-def plan_file(tmp_path_factory, rig):
-    obj = pebble(subdivisions=4)
-    seg = segment(obj.mesh)
-    m = placement(obj.mesh)
-    result = plan_lights(
-        obj.mesh.transformed(m),
-        seg,
-        rig,
-        PlanSettings(views_deg=[0.0, 90.0], spacing_deg=1.0, compare_criteria=False),
-    )
-    plan = build_plan(
-        result,
-        seg,
-        mesh_ref="builtin:pebble",
-        sha256=obj.mesh.sha256,
-        texture_ref=None,
-        mesh_to_turntable=m,
-        up="z",
-        scale=1.0,
-        exposures_s=rig.exposure_bracket_s,
-        rig_name=rig.name,
-    )
-    path = tmp_path_factory.mktemp("plan") / "plan.json"
-    write_plan(path, plan)
-    return path, result, obj, m
 
 
 def test_plan_round_trip_and_skeleton(plan_file):

@@ -1,0 +1,85 @@
+"""A plan's poses as device targets: turntable steps and gantry servo ticks, checked against the rig.
+
+Acquisition validates the whole plan here before the first move (issue 5): a pose outside the rig's
+limits, or a light the plan placed on another rig's sphere, is refused with the pose and field named,
+and nothing has moved. The drivers check their own tick limits again before sending anything.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hlr_lab.errors import InputError
+from hlr_lab.formats.plan import PlanFile
+from hlr_lab.rig import Rig
+from hlr_lab.sphere import direction
+
+# The plan stores light positions rounded to 1 µm and angles to 1e-4°, whose arc on a 0.3 m arm is
+# 0.5 µm; a 1 mm disagreement between the two can only mean another centre or arm radius.
+SPHERE_TOLERANCE_M = 1e-3
+
+
+@dataclass(frozen=True)
+class PoseTarget:
+    pose_id: str
+    turntable_deg: float
+    turntable_steps: int
+    gantry_deg: tuple[float, float]  # azimuth, elevation
+    gantry_ticks: tuple[int, int]  # azimuth servo, elevation servo
+
+
+def motion_targets(plan: PlanFile, rig: Rig, plan_path: str | Path = "plan.json") -> list[PoseTarget]:
+    """Every pose of ``plan`` as device targets on ``rig``; one :class:`InputError` for the first bad pose.
+
+    The message counts the other bad poses too, so the operator knows whether one edit or a re-plan
+    is needed.
+    """
+    problems: list[tuple[str, str]] = []  # (field, message)
+    targets = []
+    for i, pose in enumerate(plan.poses):
+        pose_problems = _pose_problems(pose.turntable_deg, pose.light, rig)
+        problems += [(f"poses[{i}].{field}", message) for field, message in pose_problems]
+        if not pose_problems:
+            az, el = pose.light.azimuth_deg, pose.light.elevation_deg
+            targets.append(
+                PoseTarget(
+                    pose.id,
+                    pose.turntable_deg,
+                    rig.turntable_kinematics.steps_for(pose.turntable_deg),
+                    (az, el),
+                    rig.gantry.kinematics.ticks_for(az, el),
+                )
+            )
+    if problems:
+        field, message = problems[0]
+        more = f" ({len(problems) - 1} more problems in other poses)" if len(problems) > 1 else ""
+        raise InputError(f"{message}{more}; re-plan with this rig", path=plan_path, field=field)
+    return targets
+
+
+def _pose_problems(turntable_deg: float, light, rig: Rig) -> list[tuple[str, str]]:
+    g = rig.gantry
+    checks = [
+        ("turntable_deg", turntable_deg, rig.turntable_limits_deg),
+        ("light.azimuth_deg", light.azimuth_deg, tuple(np.degrees(g.azimuth_limits))),
+        ("light.elevation_deg", light.elevation_deg, tuple(np.degrees(g.elevation_limits))),
+    ]
+    problems = [
+        (field, f"{value:g}° is outside the rig's limits [{lo:g}, {hi:g}]")
+        for field, value, (lo, hi) in checks
+        if not lo <= value <= hi
+    ]
+    on_sphere = g.centre + g.arm_radius * direction(*np.radians([light.azimuth_deg, light.elevation_deg]))
+    miss = float(np.linalg.norm(on_sphere - np.asarray(light.position_m)))
+    if miss > SPHERE_TOLERANCE_M:
+        problems.append(
+            (
+                "light.position_m",
+                f"lies {miss * 1000:.1f} mm off this rig's gantry sphere at the pose's angles "
+                "(the plan was made for another gantry centre or arm radius)",
+            )
+        )
+    return problems
