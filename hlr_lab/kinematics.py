@@ -37,6 +37,27 @@ class GantryKinematics:
             (ticks[1] - self.zero_ticks[1]) / (self.directions[1] * per_deg),
         )
 
+    def tick_span(
+        self, azimuth_limits_deg: tuple[float, float], elevation_limits_deg: tuple[float, float]
+    ) -> tuple[tuple[int, int], tuple[int, int]]:
+        """Per axis, the (lowest, highest) servo ticks that the angle limits map to (may leave the servo's
+        range: the rig file's check uses this)."""
+        lo = self.ticks_for(azimuth_limits_deg[0], elevation_limits_deg[0])
+        hi = self.ticks_for(azimuth_limits_deg[1], elevation_limits_deg[1])
+        return (min(lo[0], hi[0]), max(lo[0], hi[0])), (min(lo[1], hi[1]), max(lo[1], hi[1]))
+
+    def servo_limits(
+        self, azimuth_limits_deg: tuple[float, float], elevation_limits_deg: tuple[float, float]
+    ) -> tuple[tuple[int, int], tuple[int, int]]:
+        """The tick limits the servos are configured with and every goal is checked against.
+
+        Position mode spans one turn, 0 … ticks_per_rev − 1, so a full-circle azimuth [−180°, 180°] loses
+        its last tick: the two ends are the same place, reachable at −180°.
+        """
+        top = self.ticks_per_rev - 1
+        span = self.tick_span(azimuth_limits_deg, elevation_limits_deg)
+        return tuple((max(lo, 0), min(hi, top)) for lo, hi in span)
+
     def light_position(self, ticks: tuple[int, int]) -> np.ndarray:
         """(3,) world position of the lamp for servo readings — the *measured* light of a frame."""
         az, el = np.radians(self.angles_for(ticks))

@@ -72,6 +72,12 @@ def _pose_problems(turntable_deg: float, light, rig: Rig) -> list[tuple[str, str
         for field, value, (lo, hi) in checks
         if not lo <= value <= hi
     ]
+    ticks = g.kinematics.ticks_for(light.azimuth_deg, light.elevation_deg)
+    for axis, tick, (lo, hi) in zip(("azimuth", "elevation"), ticks, g.servo_limits, strict=True):
+        if not problems and not lo <= tick <= hi:
+            problems.append(
+                (f"light.{axis}_deg", f"maps to servo tick {tick}, outside the servo limits [{lo}, {hi}]")
+            )
     on_sphere = g.centre + g.arm_radius * direction(*np.radians([light.azimuth_deg, light.elevation_deg]))
     miss = float(np.linalg.norm(on_sphere - np.asarray(light.position_m)))
     if miss > SPHERE_TOLERANCE_M:

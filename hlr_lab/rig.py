@@ -70,7 +70,27 @@ class _GantrySection(_Strict):
             raise ValueError("elevation_limits_deg must lie within [-90, 90]")
         if self.servo_ids[0] == self.servo_ids[1]:
             raise ValueError("servo_ids: azimuth and elevation need two different servo IDs")
+        self._limits_fit_the_servos()
         return self
+
+    def kinematics(self) -> GantryKinematics:
+        return GantryKinematics(
+            np.array(self.centre_m),
+            self.arm_radius_m,
+            tuple(self.zero_ticks),
+            tuple(self.directions),
+            self.ticks_per_rev,
+        )
+
+    def _limits_fit_the_servos(self) -> None:
+        spans = self.kinematics().tick_span(self.azimuth_limits_deg, self.elevation_limits_deg)
+        # one tick of slack: a closed full circle [−180°, 180°] needs ticks_per_rev + 1 positions
+        for name, (lo, hi) in zip(("azimuth_limits_deg", "elevation_limits_deg"), spans, strict=True):
+            if lo < -1 or hi > self.ticks_per_rev:
+                raise ValueError(
+                    f"{name} map to servo ticks [{lo}, {hi}], beyond the servo's one turn "
+                    f"0…{self.ticks_per_rev - 1}; set zero_ticks so that the limits fit, or narrow them"
+                )
 
 
 class _TurntableSection(_Strict):
@@ -98,6 +118,7 @@ class Gantry:
     min_light_height: float
     kinematics: GantryKinematics
     servo_ids: tuple[int, int]  # azimuth, elevation
+    servo_limits: tuple[tuple[int, int], tuple[int, int]]  # (min, max) ticks, azimuth and elevation
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,6 +150,7 @@ def sim_rig() -> Rig:
 
 def _build(f: _RigFile, source: str) -> Rig:
     c, g = f.camera, f.gantry
+    kinematics = g.kinematics()
     camera = Camera.look_at(
         c.position_m,
         c.look_at_m,
@@ -145,10 +167,9 @@ def _build(f: _RigFile, source: str) -> Rig:
         tuple(np.radians(g.elevation_limits_deg)),
         float(np.radians(g.camera_keepout_deg)),
         g.min_light_height_m,
-        GantryKinematics(
-            np.array(g.centre_m), g.arm_radius_m, tuple(g.zero_ticks), tuple(g.directions), g.ticks_per_rev
-        ),
+        kinematics,
         tuple(g.servo_ids),
+        kinematics.servo_limits(g.azimuth_limits_deg, g.elevation_limits_deg),
     )
     t = f.turntable
     return Rig(

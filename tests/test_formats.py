@@ -119,6 +119,7 @@ def test_sim_rig_file_loads():
         ("servo_ids = [1, 2]", "servo_ids = [1, 300]", "gantry.servo_ids"),
         ("directions = [1, 1]", "directions = [0, 1]", "gantry.directions"),
         ("ticks_per_rev = 4096", "ticks_per_rev = 0", "gantry.ticks_per_rev"),
+        ("zero_ticks = [2048, 1024]", "zero_ticks = [100, 1024]", "azimuth_limits_deg map to servo ticks"),
         ("steps_per_degree = 100.0", "steps_per_degree = -1", "turntable.steps_per_degree"),
     ],
 )

@@ -50,6 +50,8 @@ def test_sim_rig_file_matches_the_simulated_hardware(rig):
             rig.gantry.kinematics.light_position(tuple(t)), truth.light_position(*t), atol=1e-12
         )
     assert rig.turntable_kinematics.steps_per_degree == StageGeometry().steps_per_degree
+    # −10°…80° elevation about tick 1024 is 910.2…1934.2; the full-circle azimuth loses tick 4096 (= 0)
+    assert rig.gantry.servo_limits == ((0, 4095), (910, 1934))
 
 
 def test_turntable_round_trip():

@@ -36,17 +36,19 @@ def _with_pose(plan, i, **light_or_pose):
 
 
 @pytest.mark.parametrize(
-    ("change", "field"),
+    ("change", "field", "message"),
     [
-        ({"turntable_deg": 200.0}, "poses[1].turntable_deg"),
-        ({"elevation_deg": 85.0}, "poses[1].light.elevation_deg"),
-        ({"azimuth_deg": -181.0}, "poses[1].light.azimuth_deg"),
+        ({"turntable_deg": 200.0}, "poses[1].turntable_deg", "outside the rig's limits"),
+        ({"elevation_deg": 85.0}, "poses[1].light.elevation_deg", "outside the rig's limits"),
+        ({"azimuth_deg": -181.0}, "poses[1].light.azimuth_deg", "outside the rig's limits"),
+        # +180° is −180°, but position mode's one turn ends at tick 4095: the planner's −180° is reachable
+        ({"azimuth_deg": 180.0}, "poses[1].light.azimuth_deg", r"servo tick 4096, .* \[0, 4095\]"),
     ],
 )
-def test_a_pose_outside_the_limits_is_named(plan_file, rig, change, field):
+def test_a_pose_outside_the_limits_is_named(plan_file, rig, change, field, message):
     path, *_ = plan_file
     bad = _with_pose(read_plan(path), 1, **change)
-    with pytest.raises(InputError, match="outside the rig's limits") as err:
+    with pytest.raises(InputError, match=message) as err:
         motion_targets(bad, rig, path)
     assert err.value.field == field
     assert err.value.path == path
