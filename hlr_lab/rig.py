@@ -5,14 +5,15 @@ Read from ``rig.toml`` (DESIGN §4); the simulated rig ships as package data (``
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from drivers.modbus_stage import StageMap
 from hlr_lab.camera import Camera
 from hlr_lab.formats.io import check_header, read_toml, validate
 from hlr_lab.kinematics import GantryKinematics, TurntableKinematics
@@ -59,6 +60,14 @@ class _GantrySection(_Strict):
     zero_ticks: Annotated[list[int], _PAIR] = [2048, 1024]
     directions: Annotated[list[Literal[-1, 1]], _PAIR] = [1, 1]
     ticks_per_rev: int = Field(default=4096, gt=0)
+    # the link (DESIGN §6): a device path or a pyserial URL; the simulated rig supplies its own pty
+    port: str | None = None
+    baudrate: int = Field(default=1_000_000, gt=0)
+    profile_velocity: int = Field(default=100, gt=0)  # 0.229 rev/min per unit
+    profile_acceleration: int = Field(default=20, gt=0)  # 214.6 rev/min² per unit
+    tolerance_ticks: int = Field(default=2, ge=0)
+    settle_s: float = Field(default=0.05, ge=0)
+    reboot_on_alarm: bool = False  # clear a hardware error by reboot only when the operator allows it
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -97,13 +106,42 @@ class _TurntableSection(_Strict):
     limits_deg: Limits
     steps_per_degree: float = Field(default=100.0, gt=0)
     zero_steps: int = 0  # stage position at 0°
+    # the link: "host:port" (Modbus TCP) or a serial device path (RTU); the simulated rig supplies its own
+    address: str | None = None
+    device_id: int = Field(default=1, ge=1, le=247)
+    baudrate: int = Field(default=115_200, gt=0)
+    speed_steps_s: int = Field(default=4000, gt=0)
+    acceleration_steps_s2: int = Field(default=8000, gt=0)
+    current_permille: int = Field(default=500, gt=0, le=1000)
+    tolerance_steps: int = Field(default=1, ge=0)
+    reset_alarm: bool = False  # reset a drive alarm only when the operator allows it
+    registers: dict[
+        str, int
+    ] = {}  # overrides of the AZ-style direct-data map (drivers.modbus_stage.StageMap)
+
+    @field_validator("registers")
+    @classmethod
+    def _known_registers(cls, registers: dict[str, int]) -> dict[str, int]:
+        known = {f.name for f in fields(StageMap)} - {"unit"}
+        unknown = sorted(set(registers) - known)
+        if unknown:
+            raise ValueError(f"unknown register names {unknown}; known: {sorted(known)}")
+        return registers
 
 
-class _RigFile(_Strict):
+class _LampSection(_Strict):
+    """The lamp relay: a coil of a Modbus module on the turntable's link."""
+
+    device_id: int = Field(default=2, ge=1, le=247)
+    coil: int = Field(default=0, ge=0)
+
+
+class RigFile(_Strict):
     rig: _Header
     camera: _CameraSection
     gantry: _GantrySection
     turntable: _TurntableSection
+    lamp: _LampSection | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,6 +168,7 @@ class Rig:
     turntable_limits_deg: tuple[float, float]
     turntable_kinematics: TurntableKinematics
     source: str
+    file: RigFile  # the validated file, for the device links (hlr_lab.devices)
 
 
 def load_rig(path: str | Path) -> Rig:
@@ -137,7 +176,7 @@ def load_rig(path: str | Path) -> Rig:
     path = Path(path)
     data = read_toml(path)
     check_header(data, path, RIG_FORMAT, {1}, header="rig")
-    return _build(validate(_RigFile, data, path), str(path))
+    return _build(validate(RigFile, data, path), str(path))
 
 
 def sim_rig() -> Rig:
@@ -148,7 +187,7 @@ def sim_rig() -> Rig:
     return replace(rig, source="builtin:sim")
 
 
-def _build(f: _RigFile, source: str) -> Rig:
+def _build(f: RigFile, source: str) -> Rig:
     c, g = f.camera, f.gantry
     kinematics = g.kinematics()
     camera = Camera.look_at(
@@ -180,4 +219,5 @@ def _build(f: _RigFile, source: str) -> Rig:
         tuple(t.limits_deg),
         TurntableKinematics(t.steps_per_degree, t.zero_steps),
         source,
+        f,
     )

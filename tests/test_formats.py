@@ -113,6 +113,8 @@ def test_sim_rig_file_loads():
         ("elevation_limits_deg = [-10.0, 80.0]", "elevation_limits_deg = [80.0, -10.0]", "gantry"),
         ("arm_radius_m = 0.30", "arm_radius_m = -1", "gantry.arm_radius_m"),
         ("[turntable]", "[turntable]\nspeed = 3", "turntable.speed"),
+        ("[turntable]", "[turntable]\nregisters = {bogus = 3}", "turntable.registers"),
+        ("coil = 0", "coil = -1", "lamp.coil"),
         ('format = "hlr-lab.rig"', 'format = "hlr-lab.plan"', "rig.format"),
         ("width = 1280", "width = 1280 1280", "not valid TOML"),
         ("servo_ids = [1, 2]", "servo_ids = [3, 3]", "two different servo IDs"),

@@ -1,0 +1,123 @@
+"""The rig's devices, opened from the rig file: the Dynamixel gantry, the Modbus turntable and the lamp relay.
+
+The drivers' limits come from the rig's angle limits through the kinematics, so every goal is checked
+twice: against the plan before the first move (:mod:`hlr_lab.motion`) and by the driver before sending.
+:class:`RigDevices` always ends in a safe state: lamp off, turntable stopped, gantry torque off.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+
+from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
+from drivers.errors import DeviceError
+from drivers.modbus_stage import ModbusRelay, ModbusStage, StageConfig, StageMap
+from hlr_lab.errors import InputError
+from hlr_lab.rig import Rig
+
+log = logging.getLogger(__name__)
+
+
+def gantry_config(rig: Rig, port: str | None = None) -> GantryConfig:
+    """The gantry driver's settings; ``port`` overrides the file's (the simulated rig's pty)."""
+    g = rig.file.gantry
+    port = port or g.port
+    if not port:
+        raise InputError(
+            "no port: give the servo adapter's device path (e.g. /dev/ttyUSB0) or a pyserial URL",
+            path=rig.source,
+            field="gantry.port",
+        )
+    (az_lo, az_hi), (el_lo, el_hi) = rig.gantry.servo_limits
+    azimuth, elevation = rig.gantry.servo_ids
+    return GantryConfig(
+        port,
+        (Axis(azimuth, az_lo, az_hi, "azimuth"), Axis(elevation, el_lo, el_hi, "elevation")),
+        baudrate=g.baudrate,
+        profile_velocity=g.profile_velocity,
+        profile_acceleration=g.profile_acceleration,
+        tolerance_ticks=g.tolerance_ticks,
+        settle_s=g.settle_s,
+        reboot_on_alarm=g.reboot_on_alarm,
+    )
+
+
+def stage_config(rig: Rig, address: str | None = None) -> StageConfig:
+    """The turntable driver's settings; ``address`` overrides the file's (the simulated rig's server)."""
+    t = rig.file.turntable
+    address = address or t.address
+    if not address:
+        raise InputError(
+            'no address: give the drive\'s "host:port" (Modbus TCP) or its serial device path (RTU)',
+            path=rig.source,
+            field="turntable.address",
+        )
+    lo, hi = sorted(rig.turntable_kinematics.steps_for(d) for d in rig.turntable_limits_deg)
+    return StageConfig(
+        address,
+        lo,
+        hi,
+        map=replace(StageMap(), unit=t.device_id, **t.registers),
+        baudrate=t.baudrate,
+        speed=t.speed_steps_s,
+        acceleration=t.acceleration_steps_s2,
+        current=t.current_permille,
+        tolerance_steps=t.tolerance_steps,
+        reset_alarm=t.reset_alarm,
+    )
+
+
+@dataclass
+class RigDevices:
+    """The opened devices; use as a context manager so that every exit leaves the rig safe."""
+
+    gantry: DynamixelGantry
+    stage: ModbusStage
+    lamp: ModbusRelay | None
+
+    def connect(self) -> dict[str, str]:
+        """Configure and energise everything; returns a plain description of what answered."""
+        self.stage.connect()
+        models = self.gantry.connect()
+        found = {self.stage.name: "ready"}
+        found |= {f"servo {sid}": model for sid, model in models.items()}
+        if self.lamp is not None:
+            self.lamp.set(False)
+            found[f"lamp relay (device {self.lamp.unit}, coil {self.lamp.coil})"] = "off"
+        return found
+
+    def safe_state(self) -> None:
+        """Lamp off, turntable stopped, gantry torque off; each step is tried even if an earlier one fails."""
+        steps = [
+            ("switch the lamp off", (lambda: self.lamp.set(False)) if self.lamp else None),
+            ("stop the turntable", self.stage.stop),
+            ("switch the gantry torque off", self.gantry.close),
+            ("close the turntable link", self.stage.close),
+        ]
+        for what, step in steps:
+            if step is None:
+                continue
+            try:
+                step()
+            except DeviceError as exc:  # the rest must still run; the operator reads the log
+                log.error("could not %s: %s", what, exc)
+
+    def __enter__(self) -> RigDevices:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.safe_state()
+
+
+def open_devices(rig: Rig, *, gantry_port: str | None = None, stage_address: str | None = None) -> RigDevices:
+    """Open the links (nothing moves yet: :meth:`RigDevices.connect` configures and energises)."""
+    stage = ModbusStage(stage_config(rig, stage_address))
+    try:
+        gantry = DynamixelGantry(gantry_config(rig, gantry_port))
+    except BaseException:
+        stage.close()
+        raise
+    lamp_file = rig.file.lamp
+    lamp = None if lamp_file is None else ModbusRelay(stage, lamp_file.device_id, lamp_file.coil)
+    return RigDevices(gantry, stage, lamp)

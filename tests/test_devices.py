@@ -1,0 +1,97 @@
+"""The rig file's devices opened on the simulated rig: plan → targets → drivers → where the sim lamp is."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hlr_lab.devices import gantry_config, open_devices, stage_config
+from hlr_lab.errors import InputError
+from hlr_lab.formats.plan import read_plan
+from hlr_lab.motion import motion_targets
+from hlr_lab.rig import load_rig
+from sim.camera import GantryGeometry, StageGeometry
+from sim.rig import SimRig
+from sim.turntable import register_map as rm
+
+
+@pytest.fixture
+def sim():
+    with SimRig(speed_factor=40.0) as s:
+        yield s
+
+
+def devices_on(sim, rig):
+    return open_devices(rig, gantry_port=sim.endpoints.dynamixel, stage_address=sim.endpoints.modbus)
+
+
+def test_sim_rig_file_addresses_the_simulated_devices(rig):
+    assert stage_config(rig, "x:1").map.unit == rm.STAGE_UNIT
+    assert (rig.file.lamp.device_id, rig.file.lamp.coil) == (rm.RELAY_UNIT, rm.LAMP_COIL)
+
+
+def test_plan_poses_put_the_simulated_lamp_where_planned(sim, rig, plan_file):
+    path, *_ = plan_file
+    plan = read_plan(path)
+    targets = motion_targets(plan, rig, path)[:3]
+    truth = GantryGeometry()
+    # rounding (½ tick) plus the settle tolerance (2 ticks) per axis: an arc of R·√2·2.5·2π/4096 = 1.6 mm
+    tolerance_m = truth.arm_radius * np.sqrt(2) * 2.5 * 2 * np.pi / truth.ticks_per_rev
+    with devices_on(sim, rig) as devices:
+        found = devices.connect()
+        assert found["servo 1"] == found["servo 2"] == "XM430-W350"
+        for servo, (lo, hi) in zip(sim.bus.servos, rig.gantry.servo_limits, strict=True):
+            assert (servo.get("min_position_limit"), servo.get("max_position_limit")) == (lo, hi)
+        for pose, target in zip(plan.poses, targets, strict=True):
+            devices.stage.move_to((target.turntable_steps,))
+            devices.gantry.move_to(target.gantry_ticks)  # both axes travel at once
+            devices.stage.wait_settled(timeout_s=10)
+            ticks = devices.gantry.wait_settled(timeout_s=10)
+            devices.lamp.set(True)
+            assert sim.turntable.stage.lamp
+            assert np.linalg.norm(truth.light_position(*ticks) - pose.light.position_m) <= tolerance_m
+            stage_deg = sim.turntable.stage.position() / StageGeometry().steps_per_degree
+            assert stage_deg == pytest.approx(pose.turntable_deg, abs=0.011)  # ½ step + 1 step tolerance
+    # leaving the block leaves the rig safe
+    assert not sim.turntable.stage.lamp
+    assert all(s.get("torque_enable") == 0 for s in sim.bus.servos)
+
+
+def test_safe_state_runs_every_step_even_when_one_fails(sim, rig):
+    """A lamp relay that refuses (an address the module does not have) must not keep the torque on."""
+    broken = replace(
+        rig, file=rig.file.model_copy(update={"lamp": rig.file.lamp.model_copy(update={"coil": 99})})
+    )
+    with devices_on(sim, broken) as devices:
+        devices.gantry.connect()
+        assert all(s.get("torque_enable") == 1 for s in sim.bus.servos)
+    assert all(s.get("torque_enable") == 0 for s in sim.bus.servos)
+
+
+@pytest.mark.parametrize(
+    ("make", "field"), [(gantry_config, "gantry.port"), (stage_config, "turntable.address")]
+)
+def test_a_missing_link_is_named(rig, make, field):
+    with pytest.raises(InputError, match=r"no (port|address)") as err:
+        make(rig)
+    assert err.value.field == field
+    assert "builtin:sim" in str(err.value)
+
+
+def test_turntable_limits_become_stage_step_limits(rig):
+    config = stage_config(rig, "x:1")
+    assert (config.min_steps, config.max_steps) == (-18000, 18000)
+
+
+def test_the_documented_real_rig_example_is_valid():
+    """docs/rig.example.toml is what operators copy: it must load and give the drivers their settings."""
+    rig = load_rig(Path(__file__).resolve().parents[1] / "docs" / "rig.example.toml")
+    # azimuth ±170° about tick 2048; elevation −5…75° about 1024 counting down (directions = [1, −1])
+    assert rig.gantry.servo_limits == ((114, 3982), (171, 1081))
+    gantry = gantry_config(rig)
+    assert gantry.port.startswith("/dev/serial/by-id/")
+    assert [(a.servo_id, a.min_ticks, a.max_ticks) for a in gantry.axes] == [(1, 114, 3982), (2, 171, 1081)]
+    stage = stage_config(rig)
+    assert (stage.address, stage.min_steps, stage.max_steps) == ("192.168.0.30:502", -18000, 18000)
+    assert (rig.file.lamp.device_id, rig.file.lamp.coil) == (2, 0)
