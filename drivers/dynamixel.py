@@ -42,10 +42,11 @@ log = logging.getLogger(__name__)
 
 X_SERIES_MODELS = {1020: "XM430-W350", 1030: "XM430-W210", 1060: "XL430-W250", 1120: "XM540-W270"}
 # control table (X-series e-manual)
-RETURN_DELAY, OPERATING_MODE, MAX_POSITION, MIN_POSITION = 9, 11, 48, 52
+FIRMWARE, RETURN_DELAY, OPERATING_MODE = 6, 9, 11
+TEMPERATURE_LIMIT, MAX_VOLTAGE, MIN_VOLTAGE, MAX_POSITION, MIN_POSITION = 31, 32, 34, 48, 52
 TORQUE_ENABLE, HARDWARE_ERROR = 64, 70
 PROFILE_ACCELERATION, PROFILE_VELOCITY, GOAL_POSITION = 108, 112, 116
-MOVING, PRESENT_POSITION = 122, 132
+MOVING, PRESENT_POSITION, PRESENT_VOLTAGE, PRESENT_TEMPERATURE = 122, 132, 144, 146
 POSITION_MODE = 3
 ERROR_NAMES = {
     1: "result fail",
@@ -63,6 +64,23 @@ HARDWARE_BITS = {
     0x10: "electrical shock",
     0x20: "overload",
 }
+
+
+@dataclass(frozen=True)
+class ServoReport:
+    """What one servo says about itself, read without changing anything (``hlr-lab doctor``)."""
+
+    axis: Axis
+    model: str
+    firmware: int
+    hardware_error: tuple[str, ...]  # names of the set Hardware Error Status bits
+    torque_on: bool
+    position: int
+    stored_limits: tuple[int, int]  # min, max position limit in the servo's EEPROM
+    temperature_c: int
+    temperature_limit_c: int
+    voltage_v: float
+    voltage_limits_v: tuple[float, float]  # min, max input voltage before the servo shuts down
 
 
 class UrlPortHandler(PortHandler):
@@ -164,6 +182,30 @@ class DynamixelGantry:
                     )
             self._write(axis, TORQUE_ENABLE, 1, 1)
         return models
+
+    def inspect(self, axis: Axis) -> ServoReport:
+        """Read one servo's identity, limits and health; writes nothing, so it is safe on any rig state."""
+        model = self._retry(
+            lambda: self._call(axis, "ping", *self.ph.ping(self.port, axis.servo_id), alert_ok=True)
+        )
+
+        def read(address: int, size: int) -> int:  # a servo in alarm still answers; that is the point here
+            return self._read(axis, address, size, alert_ok=True)
+
+        status = read(HARDWARE_ERROR, 1)
+        return ServoReport(
+            axis=axis,
+            model=X_SERIES_MODELS.get(model, f"model {model} (not an X-series servo this driver knows)"),
+            firmware=read(FIRMWARE, 1),
+            hardware_error=tuple(n for bit, n in HARDWARE_BITS.items() if status & bit),
+            torque_on=bool(read(TORQUE_ENABLE, 1)),
+            position=read(PRESENT_POSITION, 4),
+            stored_limits=(read(MIN_POSITION, 4), read(MAX_POSITION, 4)),
+            temperature_c=read(PRESENT_TEMPERATURE, 1),
+            temperature_limit_c=read(TEMPERATURE_LIMIT, 1),
+            voltage_v=read(PRESENT_VOLTAGE, 2) / 10,
+            voltage_limits_v=(read(MIN_VOLTAGE, 2) / 10, read(MAX_VOLTAGE, 2) / 10),
+        )
 
     def _clear_alarm(self, axis: Axis) -> None:
         status = self._read(axis, HARDWARE_ERROR, 1)
@@ -283,10 +325,12 @@ class DynamixelGantry:
             out.append(decode(data))
         return out
 
-    def _read(self, axis: Axis, address: int, size: int) -> int:
+    def _read(self, axis: Axis, address: int, size: int, *, alert_ok: bool = False) -> int:
         reader = {1: self.ph.read1ByteTxRx, 2: self.ph.read2ByteTxRx, 4: self.ph.read4ByteTxRx}[size]
         value = self._retry(
-            lambda: self._call(axis, f"read {address}", *reader(self.port, axis.servo_id, address))
+            lambda: self._call(
+                axis, f"read {address}", *reader(self.port, axis.servo_id, address), alert_ok=alert_ok
+            )
         )
         return value - (1 << 32) if size == 4 and value >= 1 << 31 else value
 

@@ -43,6 +43,14 @@ class StageMap:
 
 
 @dataclass(frozen=True)
+class DriveReport:
+    ready: bool
+    in_position: bool
+    alarm: int  # the drive's alarm code, 0 when none
+    position: int  # steps
+
+
+@dataclass(frozen=True)
 class StageConfig:
     address: str  # "host:port" (TCP) or a serial device path (RTU)
     min_steps: int
@@ -150,6 +158,17 @@ class ModbusStage:
 
     def stop(self) -> None:
         self._command(self.config.map.stop_bit)
+
+    def inspect(self) -> DriveReport:
+        """The drive's status, alarm code and position; writes nothing (``hlr-lab doctor``)."""
+        status, alarm, position = self._read_block(3)
+        m = self.config.map
+        return DriveReport(
+            ready=bool(status & m.ready_bit),
+            in_position=bool(status & m.in_position_bit),
+            alarm=alarm if status & m.alarm_bit else 0,
+            position=position,
+        )
 
     def close(self) -> None:
         self.client.close()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from drivers.errors import HlrLabError
 
-__all__ = ["HlrLabError", "InputError", "PlanningError"]
+__all__ = ["HlrLabError", "InputError", "PlanningError", "RigNotReady"]
 
 
 class InputError(HlrLabError):
@@ -25,3 +25,7 @@ class InputError(HlrLabError):
 
 class PlanningError(HlrLabError):
     """The planner cannot work with this geometry (e.g. the object does not fit inside the sphere)."""
+
+
+class RigNotReady(HlrLabError):
+    """``hlr-lab doctor`` found problems (it has printed them, each with what to do)."""

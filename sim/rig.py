@@ -64,7 +64,9 @@ class SimRig:
         spp: int = 16,
         seed: int = 0,
     ):
-        self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor)
+        # the arm rests horizontal along +x (its zero ticks), inside any sensible joint limits
+        rest = dict(zip(servo_ids, gantry.zero_ticks, strict=False))  # a test may leave a servo out
+        self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor, positions=rest)
         self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
         self.camera: SimCamera | None = None
         self._camera_server = None

@@ -9,6 +9,7 @@ import click
 from hlr_lab import __version__
 from hlr_lab.cli.bench_cmd import bench
 from hlr_lab.cli.common import console
+from hlr_lab.cli.doctor_cmd import doctor
 from hlr_lab.cli.export_cmd import export
 from hlr_lab.cli.plan_cmd import plan
 from hlr_lab.cli.segment_cmd import segment
@@ -42,6 +43,7 @@ cli.add_command(plan)
 cli.add_command(export)
 cli.add_command(bench)
 cli.add_command(sim)
+cli.add_command(doctor)
 
 
 def main(argv: list[str] | None = None) -> int:

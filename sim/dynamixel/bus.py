@@ -71,10 +71,17 @@ class SimBus:
         self._sockets: list[socket.socket] = []
 
     @classmethod
-    def with_servos(cls, ids: list[int], *, speed_factor: float = 1.0, **servo_kw) -> SimBus:
+    def with_servos(
+        cls, ids: list[int], *, speed_factor: float = 1.0, positions: dict[int, int] | None = None, **servo_kw
+    ) -> SimBus:
+        """Servos sharing one clock; ``positions`` gives where some of them rest at power-up (else 2048)."""
         t0 = time.monotonic()
         clock: Callable[[], float] = lambda: (time.monotonic() - t0) * speed_factor  # noqa: E731
-        return cls([SimServo(i, clock, **servo_kw) for i in ids], speed_factor)
+        at = positions or {}
+        return cls(
+            [SimServo(i, clock, **({"position": at[i]} if i in at else {}), **servo_kw) for i in ids],
+            speed_factor,
+        )
 
     def servo(self, servo_id: int) -> SimServo:
         return next(s for s in self.servos if s.id == servo_id)

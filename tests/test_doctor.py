@@ -1,0 +1,125 @@
+"""``hlr-lab doctor`` on the simulated rig: healthy, with injected faults, and with devices missing."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from drivers.dynamixel import Axis, ServoReport
+from hlr_lab.cli.main import main
+from hlr_lab.doctor import diagnose_servo, examine_rig
+from sim.dynamixel.servo import OVERLOAD
+from sim.rig import SimRig
+from sim.turntable import register_map as rm
+
+
+def examine(sim, rig, **kw):
+    e = sim.endpoints
+    return examine_rig(
+        rig, gantry_port=kw.get("port", e.dynamixel), stage_address=kw.get("address", e.modbus)
+    )
+
+
+def by_device(findings):
+    return {f.device.split(" on ")[0]: f for f in findings}
+
+
+def test_a_healthy_rig_is_reported_and_left_untouched(rig):
+    with SimRig(speed_factor=40.0) as sim:
+        findings = examine(sim, rig)
+        assert [f.level for f in findings] == ["ok"] * 4
+        found = by_device(findings)
+        assert "XM430-W350" in found["servo 2 (elevation)"].message
+        assert "at tick 1024" in found["servo 2 (elevation)"].message
+        assert "lamp is off" in found["lamp relay (device 2, coil 0)"].message
+        # read-only: no goal sent, no torque switched on, nothing written to the EEPROM
+        assert sim.bus.goals == []
+        assert all(s.get("torque_enable") == 0 for s in sim.bus.servos)
+        assert all(s.get("max_position_limit") == 4095 for s in sim.bus.servos)
+
+
+def test_faults_are_named_with_what_to_do(rig):
+    with SimRig(speed_factor=40.0) as sim:
+        sim.bus.servo(2).hardware_fault(OVERLOAD)
+        sim.turntable.stage.alarm = rm.ALARM_OVERLOAD
+        host, port = sim.endpoints.modbus.split(":")
+        with ModbusTcpClient(host, port=int(port), timeout=1, retries=0) as client:  # someone left it on
+            assert not client.write_coil(rm.LAMP_COIL, True, device_id=rm.RELAY_UNIT).isError()
+        found = by_device(examine(sim, rig))
+    servo = found["servo 2 (elevation)"]
+    assert servo.level == "problem"
+    assert "overload" in servo.message
+    assert "reboot_on_alarm" in servo.message
+    assert found["servo 1 (azimuth)"].level == "ok"
+    stage = found["turntable"]
+    assert stage.level == "problem"
+    assert "alarm 0x30" in stage.message
+    assert "reset_alarm" in stage.message
+    assert found["lamp relay (device 2, coil 0)"].level == "warning"
+
+
+def test_missing_devices_are_findings_not_crashes(rig):
+    with SimRig(speed_factor=40.0, servo_ids=(1,)) as sim:  # servo 2 unplugged
+        found = by_device(examine(sim, rig, address="127.0.0.1:1"))
+    assert found["servo 1 (azimuth)"].level == "ok"
+    missing = found["servo 2 (elevation)"]
+    assert missing.level == "problem"
+    assert "no reply" in missing.message
+    assert "ID is 2" in missing.message
+    assert found["turntable"].level == "problem"
+    assert "cannot connect" in found["turntable"].message
+
+
+def report(**change) -> ServoReport:
+    healthy = ServoReport(
+        axis=Axis(2, 910, 1934, "elevation"),
+        model="XM430-W350",
+        firmware=48,
+        hardware_error=(),
+        torque_on=False,
+        position=1024,
+        stored_limits=(0, 4095),
+        temperature_c=35,
+        temperature_limit_c=80,
+        voltage_v=12.0,
+        voltage_limits_v=(9.5, 16.0),
+    )
+    return replace(healthy, **change)
+
+
+@pytest.mark.parametrize(
+    ("change", "level", "words"),
+    [
+        ({}, "ok", "XM430-W350"),
+        ({"temperature_c": 72}, "warning", "near its limit of 80"),
+        ({"temperature_c": 80}, "problem", "let it cool"),
+        ({"voltage_v": 9.0}, "problem", "check the power supply"),
+        ({"position": 2048}, "warning", "outside the rig's limits [910, 1934]"),
+        ({"model": "model 77 (not an X-series servo this driver knows)"}, "problem", "servo ID"),
+    ],
+)
+def test_servo_diagnoses(change, level, words):
+    (finding,) = diagnose_servo(report(**change))
+    assert finding.level == level
+    assert words in finding.message
+
+
+def test_cli_exit_status(tmp_path, capsys):
+    assert main(["doctor", "--sim"]) == 0
+    assert "the rig is ready" in capsys.readouterr().err
+    # a rig file whose links lead nowhere: two problems, one line saying so, exit status 1
+    text = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    text = text.replace("[turntable]", 'port = "/dev/hlr-lab-no-such-port"\n\n[turntable]')
+    text = text.replace("[lamp]", 'address = "127.0.0.1:1"\n\n[lamp]')
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(text)
+    assert main(["doctor", "--rig", str(rig_file)]) == 1
+    assert "2 problem(s)" in capsys.readouterr().err
+
+
+def test_a_port_that_does_not_open_is_one_finding(rig):
+    findings = examine_rig(rig, gantry_port="/dev/hlr-lab-no-such-port", stage_address="127.0.0.1:1")
+    assert [(f.device, f.level) for f in findings] == [("turntable", "problem"), ("gantry", "problem")]
+    assert "cannot open the port" in findings[1].message
+    assert "/dev/hlr-lab-no-such-port" in findings[1].message
