@@ -3,7 +3,10 @@ simulated devices alike (no inheritance needed)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
+
+import numpy as np
 
 
 @runtime_checkable
@@ -26,3 +29,28 @@ class Switch(Protocol):
     def set(self, on: bool) -> None: ...
 
     def get(self) -> bool: ...
+
+
+@dataclass(frozen=True, eq=False)
+class RawFrame:
+    """One raw frame as the sensor counted it, and what the camera says about it."""
+
+    pixels: np.ndarray  # (H, W, C) unsigned integers: the sensor's digital numbers, before any calibration
+    bits: int  # bit depth of the values (8, 10, 12, 16)
+    exposure_s: float
+    gain_db: float
+    captured_at: float  # Unix time when the frame arrived
+    meta: dict = field(default_factory=dict)  # device-specific (the simulator: where its axes were)
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """Manual exposure and gain, one raw frame at a time."""
+
+    def set_exposure(self, seconds: float) -> None: ...
+
+    def set_gain(self, gain_db: float) -> None: ...
+
+    def capture(self) -> RawFrame: ...
+
+    def close(self) -> None: ...

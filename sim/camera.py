@@ -68,7 +68,7 @@ class SimCamera:
             "lamp": bool(stage.lamp),
         }
 
-    def capture(self, exposure_s: float) -> tuple[np.ndarray, dict]:
+    def capture(self, exposure_s: float, gain_db: float = 0.0) -> tuple[np.ndarray, dict]:
         """One raw frame (H, W, 3) uint16 and what the simulator knows about it."""
         pose = self.pose()
         light = np.asarray(pose["light_position_m"])
@@ -81,4 +81,5 @@ class SimCamera:
         )
         rng = np.random.default_rng([self.seed, self.frames])
         self.frames += 1
-        return self.sensor.expose(radiance, exposure_s, rng), {**pose, "exposure_s": exposure_s}
+        frame = self.sensor.expose(radiance, exposure_s, rng, gain_db)
+        return frame, {**pose, "exposure_s": exposure_s, "gain_db": gain_db, "bits": self.sensor.bits}

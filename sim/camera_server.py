@@ -2,7 +2,7 @@
 
 Protocol, one TCP connection, requests in order:
 
-* request: one JSON line, ``{"exposure_s": 0.01}``
+* request: one JSON line, ``{"exposure_s": 0.01}``, optionally with ``"gain_db": 6.0``
 * reply: one JSON line, ``{"width": W, "height": H, "channels": 3, "dtype": "uint16", "meta": {...}}``,
   then W·H·3 little-endian uint16 pixel values, row by row; or ``{"error": "..."}`` for a bad request.
 
@@ -18,6 +18,8 @@ import threading
 import numpy as np
 
 from sim.camera import SimCamera
+
+MAX_GAIN_DB = 24.0  # a machine-vision sensor's analogue range
 
 
 class CameraServer:
@@ -49,14 +51,18 @@ class CameraServer:
 
     def _answer(self, line: bytes) -> bytes:
         try:
-            exposure = float(json.loads(line)["exposure_s"])
+            request = json.loads(line)
+            exposure, gain = float(request["exposure_s"]), float(request.get("gain_db", 0.0))
             if not exposure > 0:
                 raise ValueError("exposure_s must be positive")
+            if not 0 <= gain <= MAX_GAIN_DB:
+                raise ValueError(f"gain_db must lie in [0, {MAX_GAIN_DB:g}]")
         except (ValueError, KeyError, TypeError) as exc:
             return (
-                json.dumps({"error": f'bad request ({exc}); send {{"exposure_s": seconds}}'}) + "\n"
+                json.dumps({"error": f'bad request ({exc}); send {{"exposure_s": seconds, "gain_db": dB}}'})
+                + "\n"
             ).encode()
-        frame, meta = self.camera.capture(exposure)
+        frame, meta = self.camera.capture(exposure, gain)
         h, w, c = frame.shape
         header = {"width": w, "height": h, "channels": c, "dtype": "uint16", "meta": meta}
         return (json.dumps(header) + "\n").encode() + np.ascontiguousarray(frame, dtype="<u2").tobytes()

@@ -171,7 +171,11 @@ def test_trapezoidal_motion_follows_the_profile():
     positions = [p for _, p, _ in seen]
     assert positions == sorted(positions)  # monotonic
     assert all(m == 1 for _, p, m in seen if p < 3048)
-    s.present_position()
+    # the rounded position reaches the goal while the last half tick is still ramping down (≈ 14 ms of
+    # simulated time, 0.7 ms here): the profile must end, and report so, right after
+    deadline = time.monotonic() + 0.1
+    while s.present_position() == 3048 and s.get("moving") and time.monotonic() < deadline:
+        time.sleep(0.0005)
     assert s.get("moving") == 0
     assert s.get("moving_status") & 0x01
 

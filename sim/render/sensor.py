@@ -1,7 +1,8 @@
 """The camera sensor: radiance in, raw digital numbers out (seeded, reproducible).
 
-DN = response(radiance · exposure · sensitivity + ambient) with photon (Poisson) noise on the
-electrons, Gaussian read noise, quantisation to ``bits`` and clipping at the top code.
+DN = response(gain · (radiance · exposure · sensitivity + ambient)) with photon (Poisson) noise on the
+electrons and Gaussian read noise before the analogue gain, quantisation to ``bits`` and clipping at the
+top code.
 """
 
 from __future__ import annotations
@@ -26,14 +27,16 @@ class SensorModel:
     def top(self) -> int:
         return 2**self.bits - 1
 
-    def expose(self, radiance: np.ndarray, exposure_s: float, rng: np.random.Generator) -> np.ndarray:
-        """(H, W, 3) radiance → (H, W, 3) uint16 DN for one exposure."""
+    def expose(
+        self, radiance: np.ndarray, exposure_s: float, rng: np.random.Generator, gain_db: float = 0.0
+    ) -> np.ndarray:
+        """(H, W, 3) radiance → (H, W, 3) uint16 DN for one exposure at an analogue gain (dB)."""
         signal = np.clip(
             (np.asarray(radiance, np.float64) + self.ambient) * exposure_s * self.sensitivity, 0, None
         )
         if self.electrons_per_dn:
             signal = rng.poisson(signal * self.electrons_per_dn) / self.electrons_per_dn
-        signal = signal + rng.normal(0.0, self.read_noise_dn, signal.shape)
+        signal = (signal + rng.normal(0.0, self.read_noise_dn, signal.shape)) * 10 ** (gain_db / 20)
         if self.response == "gamma":
             signal = self.top * (np.clip(signal, 0, None) / self.top) ** (1.0 / self.gamma)
         return np.clip(np.round(signal), 0, self.top).astype(np.uint16)
