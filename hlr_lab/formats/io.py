@@ -27,7 +27,16 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """:func:`atomic_write_text` for bytes."""
-    path = Path(path)
+    _write_via_temporary(Path(path), data, os.replace)
+
+
+def atomic_create_bytes(path: str | Path, data: bytes) -> None:
+    """Like :func:`atomic_write_bytes`, but never replaces a file: :class:`FileExistsError` if ``path``
+    exists. A hard link publishes the temporary under its final name in one step that fails if taken."""
+    _write_via_temporary(Path(path), data, os.link)
+
+
+def _write_via_temporary(path: Path, data: bytes, publish) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -35,11 +44,15 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)
+        publish(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)  # after os.replace it is gone already; after os.link, a 2nd name
+    fsync_directory(path.parent)
+
+
+def fsync_directory(directory: Path) -> None:
+    """Make a rename or a new name in ``directory`` survive a power cut."""
+    dir_fd = os.open(directory, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
     finally:

@@ -1,0 +1,76 @@
+"""Raw frames in ``frames/``: lossless 16-bit PNG plus a JSON sidecar, each created once and never
+replaced; a frame counts when the journal holds its line with both files' sha256 (DESIGN §4).
+
+Order matters for a crash: image, then sidecar, then the journal line. Files without a journal line are
+leftovers of an interrupted frame; a resumed run takes the frame again under the next free attempt
+number instead of touching them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_create_bytes
+
+FRAMES = "frames"
+
+
+@dataclass(frozen=True)
+class StoredFrame:
+    file: str  # relative to the session directory
+    sha256: str
+    sidecar: str
+    sidecar_sha256: str
+
+    def as_event(self, **fields) -> dict:
+        return {"event": "frame", **fields, **asdict(self)}
+
+
+def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> StoredFrame:
+    """Write ``frames/NAME.png`` and ``frames/NAME.json``; :class:`FileExistsError` if either exists.
+
+    pixels: (H, W, 3) RGB or (H, W) uint8/uint16 raw values, stored bit for bit.
+    """
+    if pixels.dtype not in (np.uint8, np.uint16) or pixels.ndim not in (2, 3):
+        raise TypeError(f"raw frames are (H, W[, 3]) uint8 or uint16, not {pixels.dtype} {pixels.shape}")
+    bgr = pixels[..., ::-1] if pixels.ndim == 3 else pixels  # OpenCV stores BGR
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(bgr), [cv2.IMWRITE_PNG_COMPRESSION, 3])
+    if not ok:
+        raise OSError(f"PNG encoding of frame {name} failed")
+    image = png.tobytes()
+    meta = (json.dumps(sidecar, indent=1, sort_keys=True) + "\n").encode()
+    image_path, sidecar_path = f"{FRAMES}/{name}.png", f"{FRAMES}/{name}.json"
+    atomic_create_bytes(session / image_path, image)
+    atomic_create_bytes(session / sidecar_path, meta)
+    return StoredFrame(image_path, _sha256(image), sidecar_path, _sha256(meta))
+
+
+def frame_problem(session: Path, event: dict) -> str | None:
+    """Why a journaled frame cannot be trusted (missing or changed file), or None when it is intact."""
+    for key, digest in (("file", "sha256"), ("sidecar", "sidecar_sha256")):
+        path = session / event[key]
+        if not path.is_file():
+            return f"{event[key]} is missing"
+        if _sha256(path.read_bytes()) != event[digest]:
+            return f"{event[key]} does not match its checksum in the journal"
+    return None
+
+
+def load_frame(session: Path, event: dict) -> np.ndarray:
+    """The pixels of a journaled frame, checked against the journal first."""
+    problem = frame_problem(session, event)
+    if problem:
+        raise InputError(f"{problem}; run hlr-lab acquire again on this session to retake it", path=session)
+    pixels = cv2.imread(str(session / event["file"]), cv2.IMREAD_UNCHANGED)
+    return pixels[..., ::-1] if pixels.ndim == 3 else pixels
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()

@@ -1,0 +1,111 @@
+"""The session directory: frames stored bit for bit and never replaced, a journal that survives a kill."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+from hlr_lab.errors import InputError
+from hlr_lab.session.frames import frame_problem, load_frame, store_frame
+from hlr_lab.session.journal import Journal, read_journal
+
+
+@pytest.mark.parametrize(
+    ("shape", "dtype", "top"), [((48, 64, 3), np.uint16, 4095), ((48, 64), np.uint8, 255)]
+)
+def test_frames_are_stored_bit_for_bit(tmp_path, shape, dtype, top):
+    pixels = np.random.default_rng(0).integers(0, top + 1, size=shape).astype(dtype)
+    stored = store_frame(tmp_path, "p000_e0", pixels, {"exposure_s": 0.01})
+    event = stored.as_event(pose="p000")
+    assert frame_problem(tmp_path, event) is None
+    back = load_frame(tmp_path, event)
+    assert back.dtype == dtype
+    np.testing.assert_array_equal(back, pixels)  # RGB order kept: OpenCV's BGR stays inside
+
+
+def test_nothing_is_overwritten(tmp_path):
+    first = np.full((4, 4, 3), 7, np.uint16)
+    stored = store_frame(tmp_path, "p000_e0", first, {})
+    with pytest.raises(FileExistsError):
+        store_frame(tmp_path, "p000_e0", first + 1, {})
+    np.testing.assert_array_equal(load_frame(tmp_path, stored.as_event()), first)
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["p000_e0.json", "p000_e0.png"]
+
+
+def test_a_changed_or_missing_frame_is_detected(tmp_path):
+    event = store_frame(tmp_path, "a", np.zeros((4, 4, 3), np.uint16), {}).as_event()
+    png = tmp_path / event["file"]
+    data = bytearray(png.read_bytes())
+    data[-20] ^= 0xFF
+    png.write_bytes(bytes(data))
+    assert "does not match its checksum" in frame_problem(tmp_path, event)
+    with pytest.raises(InputError, match="retake it"):
+        load_frame(tmp_path, event)
+    (tmp_path / event["sidecar"]).unlink()
+    png.unlink()
+    assert frame_problem(tmp_path, event) == "frames/a.png is missing"
+
+
+def test_a_torn_last_line_is_cut_and_appends_continue(tmp_path):
+    path = tmp_path / "journal.jsonl"
+    with Journal(path) as journal:
+        journal.append({"event": "start"})
+        journal.append({"event": "frame", "n": 1})
+    with path.open("ab") as f:
+        f.write(b'{"event": "frame", "n"')  # the power went out here
+    assert read_journal(path) == [{"event": "start"}, {"event": "frame", "n": 1}]
+    with Journal(path) as journal:
+        assert len(journal.events) == 2
+        journal.append({"event": "frame", "n": 2})
+    assert [e.get("n") for e in read_journal(path)] == [None, 1, 2]
+
+
+def test_damage_before_the_last_line_is_refused(tmp_path):
+    path = tmp_path / "journal.jsonl"
+    path.write_text('{"event": "start"}\n{"event": "fr\n{"event": "end"}\n')
+    with pytest.raises(InputError, match="line 2 is damaged"):
+        Journal(path)
+
+
+CHILD = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    import numpy as np
+    from hlr_lab.session.frames import store_frame
+    from hlr_lab.session.journal import Journal
+
+    session = Path(sys.argv[1])
+    rng = np.random.default_rng(1)
+    with Journal(session / "journal.jsonl") as journal:
+        print("ready", flush=True)
+        for i in range(100000):
+            pixels = rng.integers(0, 4096, size=(120, 160, 3)).astype(np.uint16)
+            stored = store_frame(session, f"f{i:05d}", pixels, {"i": i})
+            journal.append(stored.as_event(i=i))
+    """
+)
+
+
+def test_a_killed_acquisition_loses_no_journaled_frame(tmp_path):
+    """SIGKILL (no cleanup at all) at an arbitrary moment: every frame the journal holds is intact."""
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    assert child.stdout.readline().strip() == "ready"
+    time.sleep(1.0)
+    os.kill(child.pid, signal.SIGKILL)
+    child.wait()
+    child.stdout.close()
+    with Journal(tmp_path / "journal.jsonl") as journal:  # opening repairs a torn last line
+        events = journal.events
+    assert len(events) > 5
+    assert [e["i"] for e in events] == list(range(len(events)))
+    assert all(frame_problem(tmp_path, e) is None for e in events)
+    # what was cut off is at most the one frame in flight, never referenced by the journal
+    journaled = {e["file"] for e in events} | {e["sidecar"] for e in events}
+    leftovers = {f"frames/{p.name}" for p in (tmp_path / "frames").iterdir()} - journaled
+    assert len(leftovers) <= 3  # image, sidecar and one temporary of the interrupted frame
