@@ -1,0 +1,120 @@
+"""The acquisition loop: every pose of a plan → move, settle, light, capture the exposure bracket, store,
+journal. Knows the devices only through the Protocols of :mod:`drivers.protocols`.
+
+Resuming is the same call on the same session: frames whose journal line and files check out are
+skipped; a frame whose file is missing or changed is taken again under a new attempt name, so nothing
+is overwritten. The caller owns the devices and their safe state (:class:`hlr_lab.devices.RigDevices`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.protocols import Camera, Positioner, Switch
+from hlr_lab.formats.plan import PlanFile
+from hlr_lab.motion import PoseTarget
+from hlr_lab.session.frames import frame_problem, store_frame
+from hlr_lab.session.journal import Journal
+
+log = logging.getLogger(__name__)
+JOURNAL = "journal.jsonl"
+
+
+@dataclass(frozen=True)
+class Instruments:
+    """What acquisition drives: device-unit positioners, a camera and the lamp."""
+
+    turntable: Positioner  # one axis, stage steps
+    gantry: Positioner  # azimuth and elevation servo ticks
+    camera: Camera
+    lamp: Switch
+
+
+@dataclass
+class Outcome:
+    taken: int = 0
+    already_done: int = 0
+    retaken: list[str] | None = None  # frames whose earlier copy was missing or changed
+
+
+def acquire(
+    plan: PlanFile,
+    targets: list[PoseTarget],
+    rig: Instruments,
+    session: Path,
+    *,
+    settle_timeout_s: float = 60.0,
+    progress: Callable[[str], None] = lambda _: None,
+) -> Outcome:
+    """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``."""
+    outcome = Outcome(retaken=[])
+    with Journal(session / JOURNAL) as journal:
+        done = _intact_frames(session, journal.events, outcome.retaken)
+        for pose, target in zip(plan.poses, targets, strict=True):
+            todo = [k for k in range(len(pose.exposures_s)) if (pose.id, k) not in done]
+            outcome.already_done += len(pose.exposures_s) - len(todo)
+            if not todo:
+                continue
+            progress(f"{pose.id}: moving")
+            measured = _move(rig, target, settle_timeout_s)
+            journal.append({"event": "pose", "pose": pose.id, **_positions(target, measured)})
+            rig.lamp.set(True)
+            for k in todo:
+                exposure = pose.exposures_s[k]
+                progress(f"{pose.id}: exposure {exposure:g} s")
+                rig.camera.set_exposure(exposure)
+                frame = rig.camera.capture()
+                sidecar = {
+                    "pose": pose.id,
+                    "exposure_index": k,
+                    "exposure_s": frame.exposure_s,
+                    "gain_db": frame.gain_db,
+                    "bits": frame.bits,
+                    "captured_at": frame.captured_at,
+                    **_positions(target, measured),
+                    "camera": frame.meta,
+                }
+                stored = store_frame(session, _free_name(session, pose.id, k), frame.pixels, sidecar)
+                journal.append(stored.as_event(pose=pose.id, exposure_index=k, exposure_s=exposure))
+                outcome.taken += 1
+            rig.lamp.set(False)
+    return outcome
+
+
+def _move(rig: Instruments, target: PoseTarget, timeout_s: float) -> dict:
+    rig.turntable.move_to((target.turntable_steps,))
+    rig.gantry.move_to(target.gantry_ticks)  # both travel at once; wait for the slower
+    (steps,) = rig.turntable.wait_settled(timeout_s)
+    ticks = rig.gantry.wait_settled(timeout_s)
+    return {"turntable_steps": int(steps), "gantry_ticks": [int(t) for t in ticks]}
+
+
+def _positions(target: PoseTarget, measured: dict) -> dict:
+    commanded = {"turntable_steps": target.turntable_steps, "gantry_ticks": list(target.gantry_ticks)}
+    return {"commanded": commanded, "measured": measured}
+
+
+def _intact_frames(session: Path, events: list[dict], retaken: list[str]) -> set[tuple[str, int]]:
+    done = set()
+    for event in events:
+        if event.get("event") != "frame":
+            continue
+        problem = frame_problem(session, event)
+        if problem:
+            log.warning("%s; taking it again", problem)
+            retaken.append(event["file"])
+            continue
+        done.add((event["pose"], event["exposure_index"]))
+    return done
+
+
+def _free_name(session: Path, pose_id: str, index: int) -> str:
+    """``p003_e1``, or ``p003_e1_a2`` … when an earlier attempt left files under that name."""
+    name, attempt = f"{pose_id}_e{index}", 1
+    while (session / "frames" / f"{name}.png").exists() or (session / "frames" / f"{name}.json").exists():
+        attempt += 1
+        name = f"{pose_id}_e{index}_a{attempt}"
+    return name
