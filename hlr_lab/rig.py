@@ -46,6 +46,8 @@ class _CameraSection(_Strict):
     look_at_m: Vec3
     up: Vec3 = [0.0, 0.0, 1.0]
     exposure_bracket_s: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=1)] = [0.01]
+    # the camera's frame endpoint, "host:port" (drivers.net_camera); the simulated rig supplies its own
+    address: str | None = None
 
 
 class _GantrySection(_Strict):

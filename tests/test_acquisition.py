@@ -7,8 +7,9 @@ import pytest
 
 from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import JOURNAL, Instruments, acquire
+from hlr_lab.cli.main import main
 from hlr_lab.devices import open_devices
-from hlr_lab.formats.plan import read_plan
+from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.motion import motion_targets
 from hlr_lab.segment import segment
 from hlr_lab.session.frames import load_frame
@@ -80,3 +81,47 @@ def test_acquire_then_resume(sim_world, rig, plan_file, tmp_path):
     assert (third.taken, third.retaken) == (1, [frames[1]["file"]])
     latest = read_journal(tmp_path / JOURNAL)[-1]
     assert latest["file"].endswith("_e1_a2.png")
+
+
+@pytest.fixture(scope="module")
+def builtin_plan(tmp_path_factory):
+    """A plan of builtin:pebble, the object the default simulated world is made of."""
+    path = tmp_path_factory.mktemp("builtin") / "plan.json"
+    assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(path)]) == 0
+    return path
+
+
+def test_cli_acquire_dry_run_resume_and_changed_plan(builtin_plan, tmp_path, capsys):
+    plan_path = builtin_plan
+    session = tmp_path / "session"
+    common = ["acquire", "--plan", str(plan_path), "--sim", "--out", str(session)]
+    assert main([*common, "--dry-run"]) == 0
+    assert "within limits" in capsys.readouterr().err
+    assert not session.exists()  # a dry run writes nothing
+
+    assert main([*common, "--speed-factor", "40"]) == 0
+    plan = read_plan(plan_path)
+    frames = sum(len(p.exposures_s) for p in plan.poses)
+    assert f"{frames} frames taken, 0 already done" in capsys.readouterr().err
+    assert main([*common, "--speed-factor", "40"]) == 0
+    assert f"0 frames taken, {frames} already done" in capsys.readouterr().err
+
+    other = tmp_path / "other-plan.json"
+    write_plan(other, plan.model_copy(update={"poses": plan.poses[:1]}))
+    assert main(["acquire", "--plan", str(other), "--sim", "--out", str(session)]) == 1
+    assert "started with another plan" in capsys.readouterr().err
+    events = read_journal(session / JOURNAL)
+    assert sum(e["event"] == "frame" for e in events) == frames  # the refused run added nothing
+
+
+def test_cli_acquire_refuses_a_scene_without_sim(plan_file, capsys):
+    assert main(["acquire", "--plan", str(plan_file[0]), "--rig", "x.toml", "--scene", "s.toml"]) == 1
+    assert "--scene" in capsys.readouterr().err
+
+
+def test_a_world_that_does_not_match_the_plan_creates_no_session(plan_file, tmp_path, capsys):
+    """plan_file plans a finer pebble than builtin:pebble: the simulated world must refuse it, early."""
+    session = tmp_path / "session"
+    assert main(["acquire", "--plan", str(plan_file[0]), "--sim", "--out", str(session)]) == 1
+    assert "has changed since the plan was made" in capsys.readouterr().err
+    assert not session.exists()

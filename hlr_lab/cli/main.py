@@ -7,6 +7,7 @@ import sys
 import click
 
 from hlr_lab import __version__
+from hlr_lab.cli.acquire_cmd import acquire_cmd
 from hlr_lab.cli.bench_cmd import bench
 from hlr_lab.cli.common import console
 from hlr_lab.cli.doctor_cmd import doctor
@@ -40,6 +41,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 cli.add_command(segment)
 cli.add_command(plan)
+cli.add_command(acquire_cmd)
 cli.add_command(export)
 cli.add_command(bench)
 cli.add_command(sim)

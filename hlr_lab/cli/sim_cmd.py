@@ -46,7 +46,7 @@ def serve(scene_spec, speed_factor) -> int:
       hlr-lab sim serve --scene builtin:cylinder
     """
     # the simulator is reached only from the command line (the composition root)
-    from sim.render.camera import CameraSpec
+    from hlr_lab.cli.sim_world import sim_camera_spec
     from sim.render.scene import SceneError, builtin_scene, load_scene
     from sim.rig import SimRig
 
@@ -56,8 +56,7 @@ def serve(scene_spec, speed_factor) -> int:
             scene = builtin_scene(scene_spec) if scene_spec.startswith("builtin:") else load_scene(scene_spec)
         except SceneError as exc:
             raise InputError(str(exc), field="--scene") from exc
-        c = sim_rig().camera
-        camera = CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
+        camera = sim_camera_spec(sim_rig())
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -1,0 +1,144 @@
+"""``hlr-lab acquire``: run a plan on the rig (or the simulated rig) into a session directory."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from drivers.net_camera import NetworkCamera
+from hlr_lab.acquisition import Instruments, acquire
+from hlr_lab.cli.common import console, resolve_rig
+from hlr_lab.devices import open_devices
+from hlr_lab.errors import InputError
+from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.mesh import file_sha256
+from hlr_lab.motion import PoseTarget, motion_targets
+from hlr_lab.rig import Rig
+from hlr_lab.session.metadata import start_or_resume
+
+
+@click.command("acquire")
+@click.option(
+    "--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="plan.json."
+)
+@click.option(
+    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
+)
+@click.option(
+    "--sim", is_flag=True, help="Run on the simulated rig (servos, turntable, lamp, Mitsuba camera)."
+)
+@click.option(
+    "--scene",
+    "scene_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="With --sim: the simulated world (sim scene file; its mesh must be the plan's). Default: the "
+    "plan's mesh with a default material per region.",
+)
+@click.option(
+    "--out",
+    "out",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Session directory (default: PLAN-session beside the plan). Given again, the run resumes.",
+)
+@click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
+@click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
+@click.option(
+    "--speed-factor",
+    type=click.FloatRange(min=0.01),
+    default=1.0,
+    show_default=True,
+    help="With --sim: simulated time runs this much faster than real time.",
+)
+def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed_factor) -> None:
+    """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
+
+    A frame counts once its file and its journal line are on disk; killing the run loses at most the
+    frame in flight. Running the same command again resumes: finished frames are checked and kept,
+    the rest are taken. Whatever happens, the lamp ends off, the turntable stopped, the torque off.
+
+    \b
+    Examples:
+      hlr-lab acquire --plan plan.json --sim
+      hlr-lab acquire --plan plan.json --rig rig.toml --dry-run
+      hlr-lab acquire --plan plan.json --rig rig.toml --out sessions/bunny-1
+    """
+    if scene_path is not None and not sim:
+        raise InputError("--scene describes the simulated world: use it with --sim", field="--scene")
+    rig = resolve_rig(rig_path, sim)
+    plan = read_plan(plan_path)
+    targets = motion_targets(plan, rig, plan_path)
+    console.print(_motion_table(plan, targets))
+    if dry_run:
+        console.print(
+            f"{len(targets)} poses, {sum(len(p.exposures_s) for p in plan.poses)} frames: within limits"
+        )
+        return
+    session = out or plan_path.with_name(f"{plan_path.stem}-session")
+    with contextlib.ExitStack() as stack:  # unwinds in reverse: camera, devices (safe state), simulator
+        links = _links(stack, rig, plan, plan_path, scene_path, sim, speed_factor)
+        devices = stack.enter_context(
+            open_devices(rig, gantry_port=links.get("gantry"), stage_address=links.get("stage"))
+        )
+        devices.connect()
+        if devices.lamp is None:
+            raise InputError(
+                "acquisition needs the lamp relay: add a [lamp] section", path=rig.source, field="lamp"
+            )
+        camera = NetworkCamera(links["camera"])
+        stack.callback(camera.close)
+        # only now, with every device answering, does the session directory come into being
+        resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
+        console.print(f"{'resuming' if resumed else 'starting'} session {session}")
+        with console.status("acquiring…") as status:
+            outcome = acquire(
+                plan,
+                targets,
+                Instruments(devices.stage, devices.gantry, camera, devices.lamp),
+                session,
+                progress=lambda what: status.update(f"acquiring: {what}"),
+            )
+    console.print(
+        f"{outcome.taken} frames taken, {outcome.already_done} already done"
+        + (f", {len(outcome.retaken)} retaken (missing or changed)" if outcome.retaken else "")
+        + f"; session in {session}"
+    )
+
+
+def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> dict:
+    if not sim:
+        address = rig.file.camera.address
+        if not address:
+            raise InputError(
+                'no camera link: set camera.address to the camera\'s frame endpoint ("host:port")',
+                path=rig.source,
+                field="camera.address",
+            )
+        return {"camera": address}
+    # the simulator is reached only from the command line (the composition root)
+    from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
+    from sim.rig import SimRig
+
+    scene = sim_scene(plan, plan_path, scene_path)
+    world = stack.enter_context(SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor))
+    e = world.endpoints
+    return {"gantry": e.dynamixel, "stage": e.modbus, "camera": e.camera}
+
+
+def _motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:
+    t = Table(title="motion sequence", title_justify="left")
+    for column in ("pose", "turntable", "azimuth", "elevation", "stage steps", "servo ticks", "exposures"):
+        t.add_column(column, justify="right")
+    for pose, target in zip(plan.poses, targets, strict=True):
+        t.add_row(
+            pose.id,
+            f"{target.turntable_deg:g}°",
+            f"{target.gantry_deg[0]:.2f}°",
+            f"{target.gantry_deg[1]:.2f}°",
+            str(target.turntable_steps),
+            ", ".join(map(str, target.gantry_ticks)),
+            ", ".join(f"{e:g}" for e in pose.exposures_s) + " s",
+        )
+    return t

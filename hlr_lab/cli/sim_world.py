@@ -1,0 +1,73 @@
+"""The simulated world for a plan (composition root: the only application code that builds sim types).
+
+Without a scene file the world is the plan's own mesh, placed as the plan places it, with one default
+material per planned region (the region's colour as Rd, a grey lobe): enough to exercise the whole
+instrument; a scene file gives the true materials a fit is checked against.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from hlr_lab.colour import srgb8_to_linear
+from hlr_lab.errors import InputError
+from hlr_lab.formats.plan import PlanFile
+from hlr_lab.mesh import file_sha256, load_mesh
+from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
+from hlr_lab.rig import Rig
+from sim.render.camera import CameraSpec
+from sim.render.scene import Material, SceneError, SceneSpec, load_scene
+
+DEFAULT_RS, DEFAULT_N, RD_SCALE = (0.25, 0.25, 0.25), 40.0, 0.8  # Rd + Rs ≤ 1: energy is not created
+
+
+def sim_camera_spec(rig: Rig) -> CameraSpec:
+    c = rig.camera
+    return CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
+
+
+def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> SceneSpec:
+    placement = np.array(plan.object.mesh_to_turntable or np.eye(4))
+    if scene_path is not None:
+        return replace(_scene_file(plan, scene_path), mesh_to_turntable=placement)
+    ref = plan.object.mesh
+    if ref.startswith(BUILTIN_PREFIX):
+        mesh = builtin_object(ref).mesh
+    else:
+        texture = None if plan.object.texture is None else plan_path.parent / plan.object.texture
+        mesh = load_mesh(plan_path.parent / ref, texture)
+    if mesh.sha256 != plan.object.sha256:
+        raise InputError(
+            f"the mesh {ref} has changed since the plan was made (sha256 differs); plan again",
+            path=plan_path,
+            field="object.sha256",
+        )
+    if mesh.vertex_colours is None:
+        raise InputError(
+            "a textured mesh needs its simulated world as a scene file: give --scene FILE", field="--scene"
+        )
+    palette = np.array([r.color for r in plan.object.regions], np.float64)  # (R, 3) sRGB8
+    face_colour = mesh.vertex_colours[mesh.faces].astype(np.float64).mean(axis=1)  # (F, 3)
+    region = np.argmin(((face_colour[:, None] - palette[None]) ** 2).sum(axis=2), axis=1)
+    rd = srgb8_to_linear(palette) * RD_SCALE
+    materials = [Material(tuple(map(float, c)), DEFAULT_RS, DEFAULT_N) for c in rd]
+    return SceneSpec(mesh.vertices, mesh.faces, region, materials, placement)
+
+
+def _scene_file(plan: PlanFile, scene_path: Path) -> SceneSpec:
+    try:
+        mesh_name = tomllib.loads(scene_path.read_text(encoding="utf-8"))["object"]["mesh"]
+        spec = load_scene(scene_path)
+    except (OSError, KeyError, tomllib.TOMLDecodeError, SceneError) as exc:
+        raise InputError(f"cannot use the scene ({exc})", path=scene_path) from exc
+    if file_sha256(scene_path.parent / mesh_name) != plan.object.sha256:
+        raise InputError(
+            f"its mesh {mesh_name} is not the plan's (sha256 differs); give the scene of the planned object",
+            path=scene_path,
+            field="object.mesh",
+        )
+    return spec

@@ -1,0 +1,51 @@
+"""``session.json``: what a session was started with (plan checksum, rig snapshot, software version),
+written once. A resumed run must use the same plan and rig, or say explicitly that it does not."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+from hlr_lab import __version__
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_create_bytes, dumps, read_json
+from hlr_lab.rig import Rig
+
+SESSION = "session.json"
+SESSION_FORMAT = "hlr-lab.session"
+
+
+def start_or_resume(session: Path, plan_path: Path, plan_sha256: str, rig: Rig, *, force: bool) -> bool:
+    """Create ``session.json``, or check it against this plan and rig; True when resuming."""
+    snapshot = rig.file.model_dump(mode="json")
+    rig_sha256 = hashlib.sha256(json.dumps(snapshot, sort_keys=True).encode()).hexdigest()
+    path = session / SESSION
+    if not path.exists():
+        record = {
+            "format": SESSION_FORMAT,
+            "version": 1,
+            "plan": {"path": str(plan_path.resolve()), "sha256": plan_sha256},
+            "rig": {"source": rig.source, "sha256": rig_sha256, "snapshot": snapshot},
+            "software": {"hlr-lab": __version__},
+            "started_at": time.time(),
+        }
+        atomic_create_bytes(path, (dumps(record) + "\n").encode())
+        return False
+    record = read_json(path)
+    changed = [
+        what
+        for what, old, new in (
+            ("plan", record["plan"]["sha256"], plan_sha256),
+            ("rig", record["rig"]["sha256"], rig_sha256),
+        )
+        if old != new
+    ]
+    if changed and not force:
+        raise InputError(
+            f"this session was started with another {' and '.join(changed)}; give a new --out to start a "
+            "new session, or --force to continue this one anyway",
+            path=path,
+        )
+    return True
