@@ -19,16 +19,22 @@ from hlr_lab.rig import Rig
 log = logging.getLogger(__name__)
 
 
+def link(rig: Rig, field: str, override: str | None, advice: str) -> str:
+    """Where a device is reached: ``override`` (the simulated rig's endpoint), else the rig file's
+    ``field`` ("section.key"); neither is an error naming the field, with ``advice``."""
+    section, key = field.split(".")
+    address = override or getattr(getattr(rig.file, section), key)
+    if not address:
+        raise InputError(f"no {key}: {advice}", path=rig.source, field=field)
+    return address
+
+
 def gantry_config(rig: Rig, port: str | None = None) -> GantryConfig:
     """The gantry driver's settings; ``port`` overrides the file's (the simulated rig's pty)."""
     g = rig.file.gantry
-    port = port or g.port
-    if not port:
-        raise InputError(
-            "no port: give the servo adapter's device path (e.g. /dev/ttyUSB0) or a pyserial URL",
-            path=rig.source,
-            field="gantry.port",
-        )
+    port = link(
+        rig, "gantry.port", port, "give the servo adapter's device path (e.g. /dev/ttyUSB0) or a pyserial URL"
+    )
     (az_lo, az_hi), (el_lo, el_hi) = rig.gantry.servo_limits
     azimuth, elevation = rig.gantry.servo_ids
     return GantryConfig(
@@ -46,13 +52,12 @@ def gantry_config(rig: Rig, port: str | None = None) -> GantryConfig:
 def stage_config(rig: Rig, address: str | None = None) -> StageConfig:
     """The turntable driver's settings; ``address`` overrides the file's (the simulated rig's server)."""
     t = rig.file.turntable
-    address = address or t.address
-    if not address:
-        raise InputError(
-            'no address: give the drive\'s "host:port" (Modbus TCP) or its serial device path (RTU)',
-            path=rig.source,
-            field="turntable.address",
-        )
+    address = link(
+        rig,
+        "turntable.address",
+        address,
+        'give the drive\'s "host:port" (Modbus TCP) or its serial device path (RTU)',
+    )
     lo, hi = sorted(rig.turntable_kinematics.steps_for(d) for d in rig.turntable_limits_deg)
     return StageConfig(
         address,

@@ -10,8 +10,8 @@ from rich.table import Table
 
 from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import Instruments, acquire
-from hlr_lab.cli.common import console, resolve_rig
-from hlr_lab.devices import open_devices
+from hlr_lab.cli.common import console, resolve_rig, speed_factor_option
+from hlr_lab.devices import link, open_devices
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.mesh import file_sha256
@@ -45,13 +45,7 @@ from hlr_lab.session.metadata import start_or_resume
 )
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
-@click.option(
-    "--speed-factor",
-    type=click.FloatRange(min=0.01),
-    default=1.0,
-    show_default=True,
-    help="With --sim: simulated time runs this much faster than real time.",
-)
+@speed_factor_option("With --sim: simulated")
 def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed_factor) -> None:
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
@@ -109,14 +103,11 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed
 
 def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> dict:
     if not sim:
-        address = rig.file.camera.address
-        if not address:
-            raise InputError(
-                'no camera link: set camera.address to the camera\'s frame endpoint ("host:port")',
-                path=rig.source,
-                field="camera.address",
+        return {
+            "camera": link(
+                rig, "camera.address", None, 'set it to the camera\'s frame endpoint ("host:port")'
             )
-        return {"camera": address}
+        }
     # the simulator is reached only from the command line (the composition root)
     from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
     from sim.rig import SimRig

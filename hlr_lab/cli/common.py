@@ -77,3 +77,14 @@ def region_table(regions: list[Region], title: str) -> Table:
             str(r.id), str(r.material), swatch(r.colour), str(r.vertices), str(r.faces), f"{r.area_m2:.4g}"
         )
     return t
+
+
+def speed_factor_option(subject: str):
+    """``--speed-factor`` for commands that run the simulated rig (tests and demos run it fast)."""
+    return click.option(
+        "--speed-factor",
+        type=click.FloatRange(min=0.01),
+        default=1.0,
+        show_default=True,
+        help=f"{subject} time runs this much faster than real time.",
+    )

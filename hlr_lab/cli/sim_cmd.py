@@ -8,7 +8,7 @@ import threading
 
 import click
 
-from hlr_lab.cli.common import console
+from hlr_lab.cli.common import console, speed_factor_option
 from hlr_lab.errors import InputError
 from hlr_lab.rig import sim_rig
 
@@ -26,13 +26,7 @@ def sim() -> None:
     help="Also serve a camera photographing this scene: a scene file (format in sim/render/scene.py), "
     "builtin:cylinder (the paper's 4.2) or builtin:lumpy (four materials).",
 )
-@click.option(
-    "--speed-factor",
-    type=click.FloatRange(min=0.01),
-    default=1.0,
-    show_default=True,
-    help="Simulated time runs this much faster than real time.",
-)
+@speed_factor_option("Simulated")
 def serve(scene_spec, speed_factor) -> int:
     """Run the simulated devices until interrupted; print their endpoints as one JSON line.
 
