@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers.protocols import Camera, Positioner, Switch
@@ -37,20 +37,20 @@ class Instruments:
 class Outcome:
     taken: int = 0
     already_done: int = 0
-    retaken: list[str] | None = None  # frames whose earlier copy was missing or changed
+    retaken: list[str] = field(default_factory=list)  # frames whose earlier copy was missing or changed
 
 
 def acquire(
     plan: PlanFile,
     targets: list[PoseTarget],
-    rig: Instruments,
+    instruments: Instruments,
     session: Path,
     *,
     settle_timeout_s: float = 60.0,
     progress: Callable[[str], None] = lambda _: None,
 ) -> Outcome:
     """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``."""
-    outcome = Outcome(retaken=[])
+    outcome = Outcome()
     with Journal(session / JOURNAL) as journal:
         done = _intact_frames(session, journal.events, outcome.retaken)
         for pose, target in zip(plan.poses, targets, strict=True):
@@ -59,14 +59,14 @@ def acquire(
             if not todo:
                 continue
             progress(f"{pose.id}: moving")
-            measured = _move(rig, target, settle_timeout_s)
+            measured = _move(instruments, target, settle_timeout_s)
             journal.append({"event": "pose", "pose": pose.id, **_positions(target, measured)})
-            rig.lamp.set(True)
+            instruments.lamp.set(True)
             for k in todo:
                 exposure = pose.exposures_s[k]
                 progress(f"{pose.id}: exposure {exposure:g} s")
-                rig.camera.set_exposure(exposure)
-                frame = rig.camera.capture()
+                instruments.camera.set_exposure(exposure)
+                frame = instruments.camera.capture()
                 sidecar = {
                     "pose": pose.id,
                     "exposure_index": k,
@@ -80,15 +80,15 @@ def acquire(
                 stored = store_frame(session, _free_name(session, pose.id, k), frame.pixels, sidecar)
                 journal.append(stored.as_event(pose=pose.id, exposure_index=k, exposure_s=exposure))
                 outcome.taken += 1
-            rig.lamp.set(False)
+            instruments.lamp.set(False)
     return outcome
 
 
-def _move(rig: Instruments, target: PoseTarget, timeout_s: float) -> dict:
-    rig.turntable.move_to((target.turntable_steps,))
-    rig.gantry.move_to(target.gantry_ticks)  # both travel at once; wait for the slower
-    (steps,) = rig.turntable.wait_settled(timeout_s)
-    ticks = rig.gantry.wait_settled(timeout_s)
+def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> dict:
+    instruments.turntable.move_to((target.turntable_steps,))
+    instruments.gantry.move_to(target.gantry_ticks)  # both travel at once; wait for the slower
+    (steps,) = instruments.turntable.wait_settled(timeout_s)
+    ticks = instruments.gantry.wait_settled(timeout_s)
     return {"turntable_steps": int(steps), "gantry_ticks": [int(t) for t in ticks]}
 
 
