@@ -21,6 +21,7 @@ class Journal:
         self.path = Path(path)
         self.events, intact_bytes = _read(self.path)
         new = not self.path.exists()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         if os.fstat(self._fd).st_size > intact_bytes:
             os.ftruncate(self._fd, intact_bytes)
