@@ -9,12 +9,13 @@ is overwritten. The caller owns the devices and their safe state (:class:`hlr_la
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers.protocols import Camera, Positioner, Switch
-from hlr_lab.formats.plan import PlanFile
+from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
 from hlr_lab.session.frames import frame_problem, store_frame
 from hlr_lab.session.journal import Journal
@@ -53,35 +54,55 @@ def acquire(
     outcome = Outcome()
     with Journal(session / JOURNAL) as journal:
         done = _intact_frames(session, journal.events, outcome.retaken)
-        for pose, target in zip(plan.poses, targets, strict=True):
-            todo = [k for k in range(len(pose.exposures_s)) if (pose.id, k) not in done]
-            outcome.already_done += len(pose.exposures_s) - len(todo)
-            if not todo:
-                continue
-            progress(f"{pose.id}: moving")
-            measured = _move(instruments, target, settle_timeout_s)
-            journal.append({"event": "pose", "pose": pose.id, **_positions(target, measured)})
-            instruments.lamp.set(True)
-            for k in todo:
-                exposure = pose.exposures_s[k]
-                progress(f"{pose.id}: exposure {exposure:g} s")
-                instruments.camera.set_exposure(exposure)
-                frame = instruments.camera.capture()
-                sidecar = {
-                    "pose": pose.id,
-                    "exposure_index": k,
-                    "exposure_s": frame.exposure_s,
-                    "gain_db": frame.gain_db,
-                    "bits": frame.bits,
-                    "captured_at": frame.captured_at,
-                    **_positions(target, measured),
-                    "camera": frame.meta,
-                }
-                stored = store_frame(session, _free_name(session, pose.id, k), frame.pixels, sidecar)
-                journal.append(stored.as_event(pose=pose.id, exposure_index=k, exposure_s=exposure))
-                outcome.taken += 1
-            instruments.lamp.set(False)
+        run = _Run(instruments, session, journal, settle_timeout_s, progress)
+        journal.append({"event": "run_start", "at": time.time(), "frames_done": len(done)})
+        try:
+            for pose, target in zip(plan.poses, targets, strict=True):
+                todo = [k for k in range(len(pose.exposures_s)) if (pose.id, k) not in done]
+                outcome.already_done += len(pose.exposures_s) - len(todo)
+                if todo:
+                    outcome.taken += run.take_pose(pose, target, todo)
+        except BaseException as exc:  # an interrupt too: the journal says why the run ended
+            journal.append({"event": "stopped", "at": time.time(), "reason": str(exc) or type(exc).__name__})
+            raise
+        journal.append({"event": "run_end", "at": time.time(), "taken": outcome.taken})
     return outcome
+
+
+@dataclass(frozen=True)
+class _Run:
+    instruments: Instruments
+    session: Path
+    journal: Journal
+    settle_timeout_s: float
+    progress: Callable[[str], None]
+
+    def take_pose(self, pose: PlanPose, target: PoseTarget, todo: list[int]) -> int:
+        """Move, settle, light, and capture the exposures ``todo`` (indices into the bracket)."""
+        instruments = self.instruments
+        self.progress(f"{pose.id}: moving")
+        measured = _move(instruments, target, self.settle_timeout_s)
+        self.journal.append({"event": "pose", "pose": pose.id, **_positions(target, measured)})
+        instruments.lamp.set(True)
+        for k in todo:
+            exposure = pose.exposures_s[k]
+            self.progress(f"{pose.id}: exposure {exposure:g} s")
+            instruments.camera.set_exposure(exposure)
+            frame = instruments.camera.capture()
+            sidecar = {
+                "pose": pose.id,
+                "exposure_index": k,
+                "exposure_s": frame.exposure_s,
+                "gain_db": frame.gain_db,
+                "bits": frame.bits,
+                "captured_at": frame.captured_at,
+                **_positions(target, measured),
+                "camera": frame.meta,
+            }
+            stored = store_frame(self.session, _free_name(self.session, pose.id, k), frame.pixels, sidecar)
+            self.journal.append(stored.as_event(pose=pose.id, exposure_index=k, exposure_s=exposure))
+        instruments.lamp.set(False)
+        return len(todo)
 
 
 def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> dict:

@@ -1,6 +1,10 @@
 """Acquisition on the simulated rig: plan → motion → Mitsuba frames → session; resumed without repeats."""
 
 import json
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -79,8 +83,11 @@ def test_acquire_then_resume(sim_world, rig, plan_file, tmp_path):
     (tmp_path / frames[1]["file"]).unlink()  # a frame lost after the fact is taken again, under a new name
     third = run(sim_world, rig, plan, tmp_path)
     assert (third.taken, third.retaken) == (1, [frames[1]["file"]])
-    latest = read_journal(tmp_path / JOURNAL)[-1]
+    events = read_journal(tmp_path / JOURNAL)
+    latest = [e for e in events if e["event"] == "frame"][-1]
     assert latest["file"].endswith("_e1_a2.png")
+    assert [e["event"] for e in events].count("run_start") == 3
+    assert events[-1]["event"] == "run_end"
 
 
 @pytest.fixture(scope="module")
@@ -125,3 +132,40 @@ def test_a_world_that_does_not_match_the_plan_creates_no_session(plan_file, tmp_
     assert main(["acquire", "--plan", str(plan_file[0]), "--sim", "--out", str(session)]) == 1
     assert "has changed since the plan was made" in capsys.readouterr().err
     assert not session.exists()
+
+
+def test_a_killed_run_stops_safely_and_resumes_without_repeats(builtin_plan, tmp_path):
+    """`kill` mid-run: exit 130, the journal says why, every journaled frame is intact; the same command
+    again finishes the plan, each frame exactly once."""
+    session = tmp_path / "session"
+    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session)]
+    child = subprocess.Popen(
+        [sys.executable, "-m", "hlr_lab.cli.main", *command, "--speed-factor", "5"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not any(e["event"] == "frame" for e in read_journal(session / JOURNAL)):
+            assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        child.send_signal(signal.SIGTERM)
+        assert child.wait(timeout=30) == 130
+        assert "interrupted" in child.stderr.read()
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+        child.stderr.close()
+    events = read_journal(session / JOURNAL)
+    assert events[-1] == {**events[-1], "event": "stopped", "reason": "signal SIGTERM"}
+    frames = [e for e in events if e["event"] == "frame"]
+    assert all(load_frame(session, e) is not None for e in frames)
+
+    assert main([*command, "--speed-factor", "40"]) == 0
+    frames = [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"]
+    keys = [(e["pose"], e["exposure_index"]) for e in frames]
+    plan = read_plan(builtin_plan)
+    assert sorted(keys) == sorted((p.id, k) for p in plan.poses for k in range(len(p.exposures_s)))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import signal
 from pathlib import Path
 
 import click
@@ -72,6 +73,9 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed
         return
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
     with contextlib.ExitStack() as stack:  # unwinds in reverse: camera, devices (safe state), simulator
+        # `kill` (SIGTERM) stops the run like Ctrl-C: the journal says so and the rig ends safe
+        previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        stack.callback(signal.signal, signal.SIGTERM, previous)
         links = _links(stack, rig, plan, plan_path, scene_path, sim, speed_factor)
         devices = stack.enter_context(
             open_devices(rig, gantry_port=links.get("gantry"), stage_address=links.get("stage"))
@@ -99,6 +103,10 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed
         + (f", {len(outcome.retaken)} retaken (missing or changed)" if outcome.retaken else "")
         + f"; session in {session}"
     )
+
+
+def _terminate_as_interrupt(signum, _frame) -> None:
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
 def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> dict:
