@@ -207,6 +207,10 @@ class DynamixelGantry:
             voltage_limits_v=(read(MIN_VOLTAGE, 2) / 10, read(MAX_VOLTAGE, 2) / 10),
         )
 
+    def temperatures(self) -> dict[str, float]:
+        """Present temperature of every servo, °C, by axis label."""
+        return {axis.label: float(self._read(axis, PRESENT_TEMPERATURE, 1)) for axis in self.config.axes}
+
     def _clear_alarm(self, axis: Axis) -> None:
         status = self._read(axis, HARDWARE_ERROR, 1)
         if not status:

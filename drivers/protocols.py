@@ -31,6 +31,13 @@ class Switch(Protocol):
     def get(self) -> bool: ...
 
 
+@runtime_checkable
+class Thermometer(Protocol):
+    """A device that reports its temperatures (°C by part name), for the frames' sidecars."""
+
+    def temperatures(self) -> dict[str, float]: ...
+
+
 @dataclass(frozen=True, eq=False)
 class RawFrame:
     """One raw frame as the sensor counted it, and what the camera says about it."""

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.protocols import Camera, Positioner, Switch
+from drivers.protocols import Camera, Positioner, Switch, Thermometer
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
 from hlr_lab.session.frames import frame_problem, store_frame
@@ -32,6 +32,7 @@ class Instruments:
     gantry: Positioner  # azimuth and elevation servo ticks
     camera: Camera
     lamp: Switch
+    thermometers: tuple[Thermometer, ...] = ()  # read once per pose, into the pose line and sidecars
 
 
 @dataclass
@@ -82,7 +83,9 @@ class _Run:
         instruments = self.instruments
         self.progress(f"{pose.id}: moving")
         measured = _move(instruments, target, self.settle_timeout_s)
-        self.journal.append({"event": "pose", "pose": pose.id, **_positions(target, measured)})
+        temperatures = {k: v for t in instruments.thermometers for k, v in t.temperatures().items()}
+        state = {**_positions(target, measured), "temperatures_c": temperatures}
+        self.journal.append({"event": "pose", "pose": pose.id, **state})
         instruments.lamp.set(True)
         for k in todo:
             exposure = pose.exposures_s[k]
@@ -96,7 +99,7 @@ class _Run:
                 "gain_db": frame.gain_db,
                 "bits": frame.bits,
                 "captured_at": frame.captured_at,
-                **_positions(target, measured),
+                **state,
                 "camera": frame.meta,
             }
             stored = store_frame(self.session, _free_name(self.session, pose.id, k), frame.pixels, sidecar)

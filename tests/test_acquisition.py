@@ -50,7 +50,10 @@ def run(world, rig, plan, session):
         camera = NetworkCamera(e.camera)
         try:
             return acquire(
-                plan, targets, Instruments(devices.stage, devices.gantry, camera, devices.lamp), session
+                plan,
+                targets,
+                Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
+                session,
             )
         finally:
             camera.close()
@@ -72,7 +75,10 @@ def test_acquire_then_resume(sim_world, rig, plan_file, tmp_path):
         assert pixels.shape == (480, 640, 3)
         assert pixels.max() > 100  # lit: the lamp was on for the capture
         pose = next(p for p in plan.poses if p.id == event["pose"])
-        ticks = json.loads((tmp_path / event["sidecar"]).read_text())["measured"]["gantry_ticks"]
+        sidecar = json.loads((tmp_path / event["sidecar"]).read_text())
+        ticks = sidecar["measured"]["gantry_ticks"]
+        # the simulated servos sit at 30 °C and warm by 3 °C with torque on
+        assert sidecar["temperatures_c"] == {"azimuth": 33.0, "elevation": 33.0}
         # ½ tick rounding + 2 ticks settle tolerance per axis: 1.6 mm on the 0.30 m arm (test_devices)
         assert np.linalg.norm(truth.light_position(*ticks) - pose.light.position_m) < 1.7e-3
     assert not sim_world.turntable.stage.lamp  # off between poses and at the end

@@ -94,7 +94,7 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed
             outcome = acquire(
                 plan,
                 targets,
-                Instruments(devices.stage, devices.gantry, camera, devices.lamp),
+                Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
                 session,
                 progress=lambda what: status.update(f"acquiring: {what}"),
             )
