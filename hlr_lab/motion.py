@@ -89,3 +89,37 @@ def _pose_problems(turntable_deg: float, light, rig: Rig) -> list[tuple[str, str
             )
         )
     return problems
+
+
+# Dynamixel X-series profile units (e-manual): velocity 0.229 rev/min, acceleration 214.6 rev/min²
+_REV_PER_MIN = 1 / 60
+VELOCITY_UNIT_REV_S = 0.229 * _REV_PER_MIN
+ACCELERATION_UNIT_REV_S2 = 214.6 * _REV_PER_MIN * _REV_PER_MIN
+FRAME_OVERHEAD_S = 0.3  # transfer, PNG encoding and the fsync'ed journal line (measured ≈ 0.2 s, 1280×960)
+
+
+def trapezoid_s(distance: float, speed: float, acceleration: float) -> float:
+    """Duration of a rest-to-rest move with a trapezoidal (or, when short, triangular) speed profile."""
+    distance = abs(distance)
+    if distance * acceleration >= speed * speed:
+        return distance / speed + speed / acceleration
+    return 2.0 * float(np.sqrt(distance / acceleration))
+
+
+def estimate_duration_s(plan: PlanFile, targets: list[PoseTarget], rig: Rig) -> float:
+    """How long the plan takes on this rig: per pose the slowest axis (from the previous pose; the first
+    from the axes' zero), the settle time, the exposures, and a per-frame overhead."""
+    g, t = rig.file.gantry, rig.file.turntable
+    tick_speed = g.profile_velocity * VELOCITY_UNIT_REV_S * g.ticks_per_rev
+    tick_acceleration = g.profile_acceleration * ACCELERATION_UNIT_REV_S2 * g.ticks_per_rev
+    ticks, steps = tuple(g.zero_ticks), t.zero_steps
+    total = 0.0
+    for pose, target in zip(plan.poses, targets, strict=True):
+        axes = [
+            trapezoid_s(b - a, tick_speed, tick_acceleration)
+            for a, b in zip(ticks, target.gantry_ticks, strict=True)
+        ]
+        axes.append(trapezoid_s(target.turntable_steps - steps, t.speed_steps_s, t.acceleration_steps_s2))
+        total += max(axes) + g.settle_s + sum(pose.exposures_s) + FRAME_OVERHEAD_S * len(pose.exposures_s)
+        ticks, steps = target.gantry_ticks, target.turntable_steps
+    return total

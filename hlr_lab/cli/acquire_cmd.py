@@ -16,7 +16,7 @@ from hlr_lab.devices import link, open_devices
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.mesh import file_sha256
-from hlr_lab.motion import PoseTarget, motion_targets
+from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
 from hlr_lab.rig import Rig
 from hlr_lab.session.metadata import start_or_resume
 
@@ -67,8 +67,10 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed
     targets = motion_targets(plan, rig, plan_path)
     console.print(_motion_table(plan, targets))
     if dry_run:
+        frames = sum(len(p.exposures_s) for p in plan.poses)
+        duration = estimate_duration_s(plan, targets, rig)
         console.print(
-            f"{len(targets)} poses, {sum(len(p.exposures_s) for p in plan.poses)} frames: within limits"
+            f"{len(targets)} poses, {frames} frames: within limits; about {duration:.0f} s on this rig"
         )
         return
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
