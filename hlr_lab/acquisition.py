@@ -14,10 +14,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.protocols import Camera, Positioner, Switch, Thermometer
+import numpy as np
+
+from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
-from hlr_lab.session.frames import frame_problem, store_frame
+from hlr_lab.session.frames import frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import Journal
 
 log = logging.getLogger(__name__)
@@ -42,6 +44,19 @@ class Outcome:
     retaken: list[str] = field(default_factory=list)  # frames whose earlier copy was missing or changed
 
 
+@dataclass(frozen=True)
+class Bracketing:
+    """Adaptive bracketing: while the shortest frame of a pose has clipped pixels, add a frame ``factor``
+    times shorter, at most ``max_extra`` of them, so that the HDR merge never needs a clipped value."""
+
+    max_extra: int = 3
+    factor: float = 4.0
+    max_clipped: int = 0  # clipped pixels tolerated in the shortest frame
+
+    def wants_shorter(self, shortest: _Shortest, extra_so_far: int) -> bool:
+        return extra_so_far < self.max_extra and shortest.clipped() > self.max_clipped
+
+
 def acquire(
     plan: PlanFile,
     targets: list[PoseTarget],
@@ -49,20 +64,20 @@ def acquire(
     session: Path,
     *,
     settle_timeout_s: float = 60.0,
+    bracket: Bracketing = Bracketing(),
     progress: Callable[[str], None] = lambda _: None,
 ) -> Outcome:
     """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``."""
     outcome = Outcome()
     with Journal(session / JOURNAL) as journal:
         done = _intact_frames(session, journal.events, outcome.retaken)
-        run = _Run(instruments, session, journal, settle_timeout_s, progress)
-        journal.append({"event": "run_start", "at": time.time(), "frames_done": len(done)})
+        run = _Run(instruments, session, journal, settle_timeout_s, bracket, progress)
+        journal.append({"event": "run_start", "at": time.time(), "frames_done": sum(map(len, done.values()))})
         try:
             for pose, target in zip(plan.poses, targets, strict=True):
-                todo = [k for k in range(len(pose.exposures_s)) if (pose.id, k) not in done]
-                outcome.already_done += len(pose.exposures_s) - len(todo)
-                if todo:
-                    outcome.taken += run.take_pose(pose, target, todo)
+                have = done.get(pose.id, {})
+                outcome.already_done += len(have)
+                outcome.taken += run.take_pose(pose, target, have)
         except BaseException as exc:  # an interrupt too: the journal says why the run ended
             journal.append({"event": "stopped", "at": time.time(), "reason": str(exc) or type(exc).__name__})
             raise
@@ -76,10 +91,17 @@ class _Run:
     session: Path
     journal: Journal
     settle_timeout_s: float
+    bracket: Bracketing
     progress: Callable[[str], None]
 
-    def take_pose(self, pose: PlanPose, target: PoseTarget, todo: list[int]) -> int:
-        """Move, settle, light, and capture the exposures ``todo`` (indices into the bracket)."""
+    def take_pose(self, pose: PlanPose, target: PoseTarget, have: dict[int, dict]) -> int:
+        """The planned exposures not in ``have`` (index → journaled frame), then shorter ones while the
+        shortest frame still clips; nothing (and no motion) when the pose is complete. Returns the count."""
+        planned = [k for k in range(len(pose.exposures_s)) if k not in have]
+        # exposure → pixels of the frames of this pose, read from disk only when needed
+        shortest = _Shortest({e["exposure_s"]: e for e in have.values()}, self.session)
+        if not planned and not self.bracket.wants_shorter(shortest, len(have) - len(pose.exposures_s)):
+            return 0
         instruments = self.instruments
         self.progress(f"{pose.id}: moving")
         measured = _move(instruments, target, self.settle_timeout_s)
@@ -87,25 +109,70 @@ class _Run:
         state = {**_positions(target, measured), "temperatures_c": temperatures}
         self.journal.append({"event": "pose", "pose": pose.id, **state})
         instruments.lamp.set(True)
-        for k in todo:
-            exposure = pose.exposures_s[k]
-            self.progress(f"{pose.id}: exposure {exposure:g} s")
-            instruments.camera.set_exposure(exposure)
-            frame = instruments.camera.capture()
-            sidecar = {
-                "pose": pose.id,
-                "exposure_index": k,
-                "exposure_s": frame.exposure_s,
-                "gain_db": frame.gain_db,
-                "bits": frame.bits,
-                "captured_at": frame.captured_at,
-                **state,
-                "camera": frame.meta,
-            }
-            stored = store_frame(self.session, _free_name(self.session, pose.id, k), frame.pixels, sidecar)
-            self.journal.append(stored.as_event(pose=pose.id, exposure_index=k, exposure_s=exposure))
+        taken = 0
+        for k in planned:
+            shortest.add(
+                pose.exposures_s[k], self._capture(pose, k, pose.exposures_s[k], state, adaptive=False)
+            )
+            taken += 1
+        k = max(len(pose.exposures_s), max(have, default=-1) + 1)
+        while self.bracket.wants_shorter(shortest, k - len(pose.exposures_s)):
+            exposure = shortest.exposure_s / self.bracket.factor
+            shortest.add(exposure, self._capture(pose, k, exposure, state, adaptive=True))
+            taken, k = taken + 1, k + 1
         instruments.lamp.set(False)
-        return len(todo)
+        return taken
+
+    def _capture(self, pose: PlanPose, k: int, exposure: float, state: dict, *, adaptive: bool) -> RawFrame:
+        self.progress(f"{pose.id}: exposure {exposure:g} s" + (" (clipping: shorter)" if adaptive else ""))
+        self.instruments.camera.set_exposure(exposure)
+        frame = self.instruments.camera.capture()
+        sidecar = {
+            "pose": pose.id,
+            "exposure_index": k,
+            "adaptive": adaptive,
+            "exposure_s": frame.exposure_s,
+            "gain_db": frame.gain_db,
+            "bits": frame.bits,
+            "captured_at": frame.captured_at,
+            "clipped_pixels": _clipped(frame.pixels, frame.bits),
+            **state,
+            "camera": frame.meta,
+        }
+        stored = store_frame(self.session, _free_name(self.session, pose.id, k), frame.pixels, sidecar)
+        self.journal.append(
+            stored.as_event(
+                pose=pose.id, exposure_index=k, exposure_s=exposure, adaptive=adaptive, bits=frame.bits
+            )
+        )
+        return frame
+
+
+class _Shortest:
+    """The shortest exposure of a pose so far, and its clipped-pixel count (frames loaded lazily)."""
+
+    def __init__(self, journaled: dict[float, dict], session: Path):
+        self.exposure_s = min(journaled, default=float("inf"))
+        self._event = journaled.get(self.exposure_s)
+        self._session = session
+        self._frame: RawFrame | None = None
+
+    def add(self, exposure_s: float, frame: RawFrame) -> None:
+        if exposure_s < self.exposure_s:
+            self.exposure_s, self._frame, self._event = exposure_s, frame, None
+
+    def clipped(self) -> int:
+        if self._frame is not None:
+            return _clipped(self._frame.pixels, self._frame.bits)
+        if self._event is not None:
+            return _clipped(load_frame(self._session, self._event), self._event.get("bits", 16))
+        return 0  # nothing taken yet: the planned bracket comes first
+
+
+def _clipped(pixels: np.ndarray, bits: int) -> int:
+    """Pixels with any channel at the top code: their true value is unknown."""
+    top = (1 << bits) - 1
+    return int((pixels >= top).any(axis=-1).sum() if pixels.ndim == 3 else (pixels >= top).sum())
 
 
 def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> dict:
@@ -121,8 +188,9 @@ def _positions(target: PoseTarget, measured: dict) -> dict:
     return {"commanded": commanded, "measured": measured}
 
 
-def _intact_frames(session: Path, events: list[dict], retaken: list[str]) -> set[tuple[str, int]]:
-    done = set()
+def _intact_frames(session: Path, events: list[dict], retaken: list[str]) -> dict[str, dict[int, dict]]:
+    """pose → exposure index → journal line, for the frames whose files check out."""
+    done: dict[str, dict[int, dict]] = {}
     for event in events:
         if event.get("event") != "frame":
             continue
@@ -131,7 +199,7 @@ def _intact_frames(session: Path, events: list[dict], retaken: list[str]) -> set
             log.warning("%s; taking it again", problem)
             retaken.append(event["file"])
             continue
-        done.add((event["pose"], event["exposure_index"]))
+        done.setdefault(event["pose"], {})[event["exposure_index"]] = event
     return done
 
 

@@ -1,5 +1,6 @@
 """Acquisition on the simulated rig: plan → motion → Mitsuba frames → session; resumed without repeats."""
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from drivers.net_camera import NetworkCamera
-from hlr_lab.acquisition import JOURNAL, Instruments, acquire
+from hlr_lab.acquisition import JOURNAL, Bracketing, Instruments, acquire
 from hlr_lab.cli.main import main
 from hlr_lab.devices import open_devices
 from hlr_lab.formats.plan import read_plan, write_plan
@@ -25,8 +26,9 @@ from sim.rig import SimRig
 from tests.test_sim_render import half_size_camera  # also skips this module where no renderer runs
 
 
-@pytest.fixture
-def sim_world(plan_file):
+@contextlib.contextmanager
+def world_of(plan_file, power=1.0):
+    """The planned pebble under a point lamp of power Φ, photographed at 640×480."""
     _, _, obj, m = plan_file
     seg = segment(obj.mesh)
     scene = SceneSpec(
@@ -35,6 +37,7 @@ def sim_world(plan_file):
         seg.face_labels,
         [Material((0.5, 0.4, 0.3), (0.3, 0.3, 0.3), 40.0)] * len(seg.regions),
         m,
+        power=power,
     )
     c = half_size_camera()
     spec = CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
@@ -42,7 +45,13 @@ def sim_world(plan_file):
         yield world
 
 
-def run(world, rig, plan, session):
+@pytest.fixture
+def sim_world(plan_file):
+    with world_of(plan_file) as world:
+        yield world
+
+
+def run(world, rig, plan, session, bracket=None):
     targets = motion_targets(plan, rig)
     e = world.endpoints
     with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
@@ -54,6 +63,7 @@ def run(world, rig, plan, session):
                 targets,
                 Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
                 session,
+                bracket=bracket or Bracketing(),
             )
         finally:
             camera.close()
@@ -175,3 +185,34 @@ def test_a_killed_run_stops_safely_and_resumes_without_repeats(builtin_plan, tmp
     keys = [(e["pose"], e["exposure_index"]) for e in frames]
     plan = read_plan(builtin_plan)
     assert sorted(keys) == sorted((p.id, k) for p in plan.poses for k in range(len(p.exposures_s)))
+
+
+def test_adaptive_bracketing_adds_shorter_frames_until_nothing_clips(plan_file, rig, tmp_path):
+    """A lamp bright enough to clip the highlight even in the shortest planned exposure."""
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    planned = len(plan.poses[0].exposures_s)
+    with world_of(plan_file, power=300.0) as world:
+        first = run(world, rig, plan, tmp_path)
+        frames = [e for e in read_journal(tmp_path / JOURNAL) if e["event"] == "frame"]
+        sidecars = [json.loads((tmp_path / e["sidecar"]).read_text()) for e in frames]
+        assert sidecars[planned - 1]["clipped_pixels"] > 0  # the planned bracket was not enough
+        extra = sidecars[planned:]
+        assert 1 <= len(extra) <= 3
+        assert first.taken == planned + len(extra)
+        assert all(e["adaptive"] for e in extra)
+        assert extra[-1]["clipped_pixels"] == 0  # the HDR merge has an unclipped value everywhere
+        exposures = [e["exposure_s"] for e in sidecars]
+        np.testing.assert_allclose(np.divide(exposures[planned - 1 : -1], exposures[planned:]), 4.0)
+        # complete: a resumed run neither moves nor captures
+        again = run(world, rig, plan, tmp_path)
+        assert (again.taken, again.already_done) == (0, planned + len(extra))
+
+
+def test_adaptive_bracketing_stops_at_its_limit(plan_file, rig, tmp_path):
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    with world_of(plan_file, power=1e6) as world:  # clips at any exposure the bracket will reach
+        outcome = run(world, rig, plan, tmp_path, bracket=Bracketing(max_extra=1))
+        assert outcome.taken == len(plan.poses[0].exposures_s) + 1
+        assert run(world, rig, plan, tmp_path, bracket=Bracketing(max_extra=1)).taken == 0
