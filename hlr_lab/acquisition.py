@@ -52,6 +52,7 @@ class Bracketing:
     max_extra: int = 3
     factor: float = 4.0
     max_clipped: int = 0  # clipped pixels tolerated in the shortest frame
+    dark_frames: bool = False  # also each exposure with the lamp off, for ambient subtraction
 
     def wants_shorter(self, shortest: _Shortest, extra_so_far: int) -> bool:
         return extra_so_far < self.max_extra and shortest.clipped() > self.max_clipped
@@ -94,13 +95,18 @@ class _Run:
     bracket: Bracketing
     progress: Callable[[str], None]
 
-    def take_pose(self, pose: PlanPose, target: PoseTarget, have: dict[int, dict]) -> int:
-        """The planned exposures not in ``have`` (index → journaled frame), then shorter ones while the
-        shortest frame still clips; nothing (and no motion) when the pose is complete. Returns the count."""
-        planned = [k for k in range(len(pose.exposures_s)) if k not in have]
-        # exposure → pixels of the frames of this pose, read from disk only when needed
-        shortest = _Shortest({e["exposure_s"]: e for e in have.values()}, self.session)
-        if not planned and not self.bracket.wants_shorter(shortest, len(have) - len(pose.exposures_s)):
+    def take_pose(self, pose: PlanPose, target: PoseTarget, have: dict[tuple[int, bool], dict]) -> int:
+        """The planned exposures not in ``have`` ((index, dark) → journaled frame), then shorter ones while
+        the shortest frame still clips, then the dark frames; nothing (and no motion) when the pose is
+        complete. Returns the number of frames taken."""
+        lit = {k: e["exposure_s"] for (k, dark), e in have.items() if not dark}  # index → exposure
+        darks = {k for k, dark in have if dark}
+        planned = [k for k in range(len(pose.exposures_s)) if k not in lit]
+        # the shortest frame of this pose so far, read from disk only when needed
+        shortest = _Shortest({e["exposure_s"]: e for (_, dark), e in have.items() if not dark}, self.session)
+        extra = len(lit) - len(pose.exposures_s) + len(planned)
+        wants_dark = self.bracket.dark_frames and bool(set(lit) - darks)
+        if not planned and not wants_dark and not self.bracket.wants_shorter(shortest, extra):
             return 0
         instruments = self.instruments
         self.progress(f"{pose.id}: moving")
@@ -109,28 +115,31 @@ class _Run:
         state = {**_positions(target, measured), "temperatures_c": temperatures}
         self.journal.append({"event": "pose", "pose": pose.id, **state})
         instruments.lamp.set(True)
-        taken = 0
         for k in planned:
-            shortest.add(
-                pose.exposures_s[k], self._capture(pose, k, pose.exposures_s[k], state, adaptive=False)
-            )
-            taken += 1
-        k = max(len(pose.exposures_s), max(have, default=-1) + 1)
+            lit[k] = pose.exposures_s[k]
+            shortest.add(lit[k], self._capture(pose, k, lit[k], state, kind="planned"))
+        k = max(len(pose.exposures_s), max(lit) + 1)
         while self.bracket.wants_shorter(shortest, k - len(pose.exposures_s)):
-            exposure = shortest.exposure_s / self.bracket.factor
-            shortest.add(exposure, self._capture(pose, k, exposure, state, adaptive=True))
-            taken, k = taken + 1, k + 1
+            lit[k] = shortest.exposure_s / self.bracket.factor
+            shortest.add(lit[k], self._capture(pose, k, lit[k], state, kind="adaptive"))
+            k += 1
         instruments.lamp.set(False)
-        return taken
+        dark = sorted(set(lit) - darks) if self.bracket.dark_frames else []
+        for k in dark:  # same pose and exposure, lamp off: the ambient light to subtract
+            self._capture(pose, k, lit[k], state, kind="dark")
+        return len(lit) - (len(have) - len(darks)) + len(dark)
 
-    def _capture(self, pose: PlanPose, k: int, exposure: float, state: dict, *, adaptive: bool) -> RawFrame:
-        self.progress(f"{pose.id}: exposure {exposure:g} s" + (" (clipping: shorter)" if adaptive else ""))
+    def _capture(self, pose: PlanPose, k: int, exposure: float, state: dict, *, kind: str) -> RawFrame:
+        """One frame; ``kind`` is "planned", "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
+        self.progress(f"{pose.id}: exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
+        adaptive, dark = kind == "adaptive", kind == "dark"
         self.instruments.camera.set_exposure(exposure)
         frame = self.instruments.camera.capture()
         sidecar = {
             "pose": pose.id,
             "exposure_index": k,
             "adaptive": adaptive,
+            "dark": dark,
             "exposure_s": frame.exposure_s,
             "gain_db": frame.gain_db,
             "bits": frame.bits,
@@ -139,10 +148,16 @@ class _Run:
             **state,
             "camera": frame.meta,
         }
-        stored = store_frame(self.session, _free_name(self.session, pose.id, k), frame.pixels, sidecar)
+        name = _free_name(self.session, f"{pose.id}_e{k}" + ("_dark" if dark else ""))
+        stored = store_frame(self.session, name, frame.pixels, sidecar)
         self.journal.append(
             stored.as_event(
-                pose=pose.id, exposure_index=k, exposure_s=exposure, adaptive=adaptive, bits=frame.bits
+                pose=pose.id,
+                exposure_index=k,
+                exposure_s=exposure,
+                adaptive=adaptive,
+                dark=dark,
+                bits=frame.bits,
             )
         )
         return frame
@@ -188,9 +203,11 @@ def _positions(target: PoseTarget, measured: dict) -> dict:
     return {"commanded": commanded, "measured": measured}
 
 
-def _intact_frames(session: Path, events: list[dict], retaken: list[str]) -> dict[str, dict[int, dict]]:
-    """pose → exposure index → journal line, for the frames whose files check out."""
-    done: dict[str, dict[int, dict]] = {}
+def _intact_frames(
+    session: Path, events: list[dict], retaken: list[str]
+) -> dict[str, dict[tuple[int, bool], dict]]:
+    """pose → (exposure index, dark) → journal line, for the frames whose files check out."""
+    done: dict[str, dict[tuple[int, bool], dict]] = {}
     for event in events:
         if event.get("event") != "frame":
             continue
@@ -199,14 +216,14 @@ def _intact_frames(session: Path, events: list[dict], retaken: list[str]) -> dic
             log.warning("%s; taking it again", problem)
             retaken.append(event["file"])
             continue
-        done.setdefault(event["pose"], {})[event["exposure_index"]] = event
+        done.setdefault(event["pose"], {})[(event["exposure_index"], bool(event.get("dark")))] = event
     return done
 
 
-def _free_name(session: Path, pose_id: str, index: int) -> str:
+def _free_name(session: Path, base: str) -> str:
     """``p003_e1``, or ``p003_e1_a2`` … when an earlier attempt left files under that name."""
-    name, attempt = f"{pose_id}_e{index}", 1
+    name, attempt = base, 1
     while (session / "frames" / f"{name}.png").exists() or (session / "frames" / f"{name}.json").exists():
         attempt += 1
-        name = f"{pose_id}_e{index}_a{attempt}"
+        name = f"{base}_a{attempt}"
     return name

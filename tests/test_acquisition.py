@@ -22,12 +22,13 @@ from hlr_lab.session.journal import read_journal
 from sim.camera import GantryGeometry
 from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneSpec
+from sim.render.sensor import SensorModel
 from sim.rig import SimRig
 from tests.test_sim_render import half_size_camera  # also skips this module where no renderer runs
 
 
 @contextlib.contextmanager
-def world_of(plan_file, power=1.0):
+def world_of(plan_file, power=1.0, sensor=None):
     """The planned pebble under a point lamp of power Φ, photographed at 640×480."""
     _, _, obj, m = plan_file
     seg = segment(obj.mesh)
@@ -41,7 +42,7 @@ def world_of(plan_file, power=1.0):
     )
     c = half_size_camera()
     spec = CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
-    with SimRig(speed_factor=40.0, scene=scene, camera=spec, spp=2) as world:
+    with SimRig(speed_factor=40.0, scene=scene, camera=spec, sensor=sensor, spp=2) as world:
         yield world
 
 
@@ -216,3 +217,23 @@ def test_adaptive_bracketing_stops_at_its_limit(plan_file, rig, tmp_path):
         outcome = run(world, rig, plan, tmp_path, bracket=Bracketing(max_extra=1))
         assert outcome.taken == len(plan.poses[0].exposures_s) + 1
         assert run(world, rig, plan, tmp_path, bracket=Bracketing(max_extra=1)).taken == 0
+
+
+def test_dark_frames_record_the_ambient_light(plan_file, rig, tmp_path):
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    exposures = plan.poses[0].exposures_s
+    sensor = SensorModel(ambient=0.5)  # stray light everywhere: 0.5 · t · 4095 DN
+    with world_of(plan_file, sensor=sensor) as world:
+        outcome = run(world, rig, plan, tmp_path, bracket=Bracketing(dark_frames=True))
+        assert outcome.taken == 2 * len(exposures)
+        frames = [e for e in read_journal(tmp_path / JOURNAL) if e["event"] == "frame"]
+        darks = {e["exposure_index"]: e for e in frames if e["dark"]}
+        lit = {e["exposure_index"]: e for e in frames if not e["dark"]}
+        assert sorted(darks) == sorted(lit) == list(range(len(exposures)))
+        for k, t in enumerate(exposures):
+            dark, bright = load_frame(tmp_path, darks[k]), load_frame(tmp_path, lit[k])
+            # a million pixels average photon and read noise far below the 5 % allowed here
+            assert dark.mean() == pytest.approx(0.5 * t * sensor.sensitivity, rel=0.05)
+            assert bright.max() > dark.max()
+        assert run(world, rig, plan, tmp_path, bracket=Bracketing(dark_frames=True)).taken == 0

@@ -10,7 +10,7 @@ import click
 from rich.table import Table
 
 from drivers.net_camera import NetworkCamera
-from hlr_lab.acquisition import Instruments, acquire
+from hlr_lab.acquisition import Bracketing, Instruments, acquire
 from hlr_lab.cli.common import console, resolve_rig, speed_factor_option
 from hlr_lab.devices import link, open_devices
 from hlr_lab.errors import InputError
@@ -44,10 +44,15 @@ from hlr_lab.session.metadata import start_or_resume
     type=click.Path(file_okay=False, path_type=Path),
     help="Session directory (default: PLAN-session beside the plan). Given again, the run resumes.",
 )
+@click.option(
+    "--dark-frames",
+    is_flag=True,
+    help="Also take each exposure with the lamp off (ambient light to subtract).",
+)
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
-def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed_factor) -> None:
+def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run, force, speed_factor) -> None:
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
@@ -98,6 +103,7 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dry_run, force, speed
                 targets,
                 Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
                 session,
+                bracket=Bracketing(dark_frames=dark_frames),
                 progress=lambda what: status.update(f"acquiring: {what}"),
             )
     console.print(
