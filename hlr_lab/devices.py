@@ -80,6 +80,7 @@ class RigDevices:
     gantry: DynamixelGantry
     stage: ModbusStage
     lamp: ModbusRelay | None
+    park: str = "torque_off"  # the rig file's gantry.park
 
     def connect(self) -> dict[str, str]:
         """Configure and energise everything; returns a plain description of what answered."""
@@ -93,11 +94,12 @@ class RigDevices:
         return found
 
     def safe_state(self) -> None:
-        """Lamp off, turntable stopped, gantry torque off; each step is tried even if an earlier one fails."""
+        """Lamp off, turntable stopped, gantry parked (torque off unless the rig says hold), links closed;
+        each step is tried even if an earlier one fails."""
         steps = [
             ("switch the lamp off", (lambda: self.lamp.set(False)) if self.lamp else None),
             ("stop the turntable", self.stage.stop),
-            ("switch the gantry torque off", self.gantry.close),
+            ("park the gantry", lambda: self.gantry.close(torque_off=self.park == "torque_off")),
             ("close the turntable link", self.stage.close),
         ]
         for what, step in steps:
@@ -125,4 +127,4 @@ def open_devices(rig: Rig, *, gantry_port: str | None = None, stage_address: str
         raise
     lamp_file = rig.file.lamp
     lamp = None if lamp_file is None else ModbusRelay(stage, lamp_file.device_id, lamp_file.coil)
-    return RigDevices(gantry, stage, lamp)
+    return RigDevices(gantry, stage, lamp, rig.file.gantry.park)

@@ -70,6 +70,9 @@ class _GantrySection(_Strict):
     tolerance_ticks: int = Field(default=2, ge=0)
     settle_s: float = Field(default=0.05, ge=0)
     reboot_on_alarm: bool = False  # clear a hardware error by reboot only when the operator allows it
+    # at the end of a run or on a stop: "torque_off" (the arm can be moved by hand; a heavy arm may sag)
+    # or "hold" (the servos keep the last position, powered)
+    park: Literal["torque_off", "hold"] = "torque_off"
 
     @model_validator(mode="after")
     def _ordered(self):

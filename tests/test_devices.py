@@ -115,3 +115,13 @@ def test_the_duration_estimate_matches_the_simulated_servo(rig):
             # polling every ~1 ms real (2 ms simulated, ~10 ms on a loaded machine) on moves of 0.22 s and
             # 0.96 s: 6 % covers the polling; a wrong unit or profile shape is off by far more
             assert servo.clock() - t0 == pytest.approx(trapezoid_s(distance, speed, acceleration), rel=0.06)
+
+
+def test_park_policy_hold_keeps_the_torque(sim, rig):
+    holding = replace(
+        rig, file=rig.file.model_copy(update={"gantry": rig.file.gantry.model_copy(update={"park": "hold"})})
+    )
+    with devices_on(sim, holding) as devices:
+        devices.connect()
+    assert all(s.get("torque_enable") == 1 for s in sim.bus.servos)
+    assert not sim.turntable.stage.lamp
