@@ -24,9 +24,13 @@ class NetworkCamera:
         self.max_gain_db = max_gain_db
         self.exposure_s = 0.01
         self.gain_db = 0.0
-        host, _, port = address.rpartition(":")
+        self.timeout_s = timeout_s
+        self._connect()
+
+    def _connect(self) -> None:
+        host, _, port = self.address.rpartition(":")
         try:
-            self._conn = socket.create_connection((host, int(port)), timeout=timeout_s)
+            self._conn = socket.create_connection((host, int(port)), timeout=self.timeout_s)
         except (OSError, ValueError) as exc:
             raise DeviceError(
                 f"cannot connect ({exc}); check the camera address and that its server runs", device=self.name
@@ -48,10 +52,13 @@ class NetworkCamera:
         self.gain_db = float(gain_db)
 
     def capture(self) -> RawFrame:
-        """One frame at the current exposure and gain. After any error the link is closed: a reply read
-        part-way would leave the next frame misaligned, so reconnect (a new NetworkCamera) instead."""
+        """One frame at the current exposure and gain. After any error the link is closed, and the next
+        capture opens a new one: a reply read part-way would misalign every later frame.
+
+        A link that drops or a frame that stops short is a :class:`DeviceTimeout` (worth retrying); a
+        request the camera refuses is a :class:`DeviceFault` (not)."""
         if self._conn.fileno() < 0:
-            raise DeviceError("the link was closed after an earlier error; reconnect", device=self.name)
+            self._connect()
         try:
             return self._exchange()
         except DeviceError:
@@ -64,7 +71,7 @@ class NetworkCamera:
             self._conn.sendall((json.dumps(request) + "\n").encode())
             header = json.loads(self._reply.readline() or b"null")
             if header is None:
-                raise DeviceError("the camera closed the link", device=self.name)
+                raise DeviceTimeout("the camera closed the link", device=self.name)
             if "error" in header:
                 raise DeviceFault(
                     f"the camera refused the request: {header['error']}", device=self.name, code=0
@@ -75,9 +82,9 @@ class NetworkCamera:
         except TimeoutError as exc:
             raise DeviceTimeout("no frame within the timeout", device=self.name) from exc
         except OSError as exc:
-            raise DeviceError(f"the link dropped ({exc})", device=self.name) from exc
+            raise DeviceTimeout(f"the link dropped ({exc})", device=self.name) from exc
         if len(data) != size:
-            raise DeviceError(f"the frame stopped after {len(data)} of {size} bytes", device=self.name)
+            raise DeviceTimeout(f"the frame stopped after {len(data)} of {size} bytes", device=self.name)
         meta = header.get("meta", {})
         return RawFrame(
             pixels=np.frombuffer(data, dtype="<u2").reshape(shape).astype(np.uint16),

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.errors import ChecksumError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
@@ -42,6 +43,9 @@ class Outcome:
     taken: int = 0
     already_done: int = 0
     retaken: list[str] = field(default_factory=list)  # frames whose earlier copy was missing or changed
+
+
+CAPTURE_RETRIES, RETRY_BACKOFF_S = 3, 0.2  # a camera link that drops now and then; then give up
 
 
 @dataclass(frozen=True)
@@ -134,7 +138,7 @@ class _Run:
         self.progress(f"{pose.id}: exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
         adaptive, dark = kind == "adaptive", kind == "dark"
         self.instruments.camera.set_exposure(exposure)
-        frame = self.instruments.camera.capture()
+        frame = _retry_capture(self.instruments.camera, self.journal, pose.id, k)
         sidecar = {
             "pose": pose.id,
             "exposure_index": k,
@@ -188,6 +192,21 @@ def _clipped(pixels: np.ndarray, bits: int) -> int:
     """Pixels with any channel at the top code: their true value is unknown."""
     top = (1 << bits) - 1
     return int((pixels >= top).any(axis=-1).sum() if pixels.ndim == 3 else (pixels >= top).sum())
+
+
+def _retry_capture(camera: Camera, journal: Journal, pose_id: str, k: int) -> RawFrame:
+    """Capture, retrying a dropped link or a frame cut short with growing pauses, each retry journaled;
+    a refusal or a fault that stays is raised (and stops the run safely)."""
+    for attempt in range(CAPTURE_RETRIES + 1):
+        try:
+            return camera.capture()
+        except (DeviceTimeout, ChecksumError) as exc:
+            if attempt == CAPTURE_RETRIES:
+                raise
+            log.warning("%s; retrying (%d of %d)", exc, attempt + 1, CAPTURE_RETRIES)
+            journal.append({"event": "retry", "pose": pose_id, "exposure_index": k, "error": str(exc)})
+            time.sleep(RETRY_BACKOFF_S * 2**attempt)
+    raise AssertionError("unreachable")
 
 
 def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> dict:

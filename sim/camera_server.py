@@ -28,6 +28,7 @@ class CameraServer:
         self._stop = threading.Event()
         self._server: socket.socket | None = None
         self._thread: threading.Thread | None = None
+        self.cut_replies = 0  # fault injection: this many next replies stop half-way and drop the link
 
     def serve_tcp(self, host: str = "127.0.0.1") -> str:
         self._server = socket.create_server((host, 0))
@@ -47,7 +48,12 @@ class CameraServer:
                 for line in requests:
                     if self._stop.is_set():
                         break
-                    conn.sendall(self._answer(line))
+                    reply = self._answer(line)
+                    if self.cut_replies > 0:  # an injected fault: half a reply, then the link drops
+                        self.cut_replies -= 1
+                        conn.sendall(reply[: len(reply) // 2])
+                        break
+                    conn.sendall(reply)
 
     def _answer(self, line: bytes) -> bytes:
         try:

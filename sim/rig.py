@@ -69,7 +69,7 @@ class SimRig:
         self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor, positions=rest)
         self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
         self.camera: SimCamera | None = None
-        self._camera_server = None
+        self.camera_server = None
         try:
             host, port = self.turntable.serve_tcp()
             camera_endpoint = None
@@ -86,8 +86,8 @@ class SimRig:
                     stage,
                     seed,
                 )
-                self._camera_server = CameraServer(self.camera)
-                camera_endpoint = self._camera_server.serve_tcp()
+                self.camera_server = CameraServer(self.camera)
+                camera_endpoint = self.camera_server.serve_tcp()
             self.endpoints = Endpoints(
                 self.bus.serve_pty(), f"{host}:{port}", tuple(servo_ids), camera_endpoint
             )
@@ -96,8 +96,8 @@ class SimRig:
             raise
 
     def close(self) -> None:
-        if self._camera_server:
-            self._camera_server.close()
+        if self.camera_server:
+            self.camera_server.close()
         self.bus.close()
         self.turntable.close()
 

@@ -237,3 +237,17 @@ def test_dark_frames_record_the_ambient_light(plan_file, rig, tmp_path):
             assert dark.mean() == pytest.approx(0.5 * t * sensor.sensitivity, rel=0.05)
             assert bright.max() > dark.max()
         assert run(world, rig, plan, tmp_path, bracket=Bracketing(dark_frames=True)).taken == 0
+
+
+def test_a_dropping_camera_link_is_retried_and_journaled(plan_file, rig, tmp_path):
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    with world_of(plan_file) as world:
+        world.camera_server.cut_replies = 2  # two frames stop half-way, the link dropping each time
+        outcome = run(world, rig, plan, tmp_path)
+    assert outcome.taken == len(plan.poses[0].exposures_s)
+    events = read_journal(tmp_path / JOURNAL)
+    retries = [e for e in events if e["event"] == "retry"]
+    assert len(retries) == 2
+    assert "stopped after" in retries[0]["error"]
+    assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")

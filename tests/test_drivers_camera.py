@@ -6,7 +6,7 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceError, LimitError
+from drivers.errors import DeviceError, DeviceTimeout, LimitError
 from drivers.net_camera import NetworkCamera
 from drivers.protocols import Camera
 from sim.render.camera import CameraSpec
@@ -75,9 +75,18 @@ def test_a_frame_cut_short_is_an_error_and_closes_the_link():
     peer = threading.Thread(target=answer_half)
     peer.start()
     camera = NetworkCamera(f"127.0.0.1:{server.getsockname()[1]}", timeout_s=5)
-    with pytest.raises(DeviceError, match="stopped after 10 of 48 bytes"):
+    with pytest.raises(DeviceTimeout, match="stopped after 10 of 48 bytes"):
         camera.capture()
-    with pytest.raises(DeviceError, match="reconnect"):
+    server.close()  # the bridge is gone: the next capture opens a new link, and says it cannot
+    with pytest.raises(DeviceError, match="cannot connect"):
         camera.capture()
     peer.join()
-    server.close()
+
+
+def test_after_a_dropped_link_the_next_frame_comes_on_a_new_one(sim):
+    camera = NetworkCamera(sim.endpoints.camera)
+    sim.camera_server.cut_replies = 1
+    with pytest.raises(DeviceTimeout, match="stopped after"):
+        camera.capture()
+    assert camera.capture().pixels.shape == (480, 640, 3)
+    camera.close()
