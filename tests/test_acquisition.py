@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+from drivers.errors import HardwareAlarm
 from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import JOURNAL, Bracketing, Instruments, acquire
 from hlr_lab.cli.main import main
@@ -20,6 +21,7 @@ from hlr_lab.segment import segment
 from hlr_lab.session.frames import load_frame
 from hlr_lab.session.journal import read_journal
 from sim.camera import GantryGeometry
+from sim.dynamixel.servo import OVERLOAD
 from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneSpec
 from sim.render.sensor import SensorModel
@@ -52,7 +54,7 @@ def sim_world(plan_file):
         yield world
 
 
-def run(world, rig, plan, session, bracket=None):
+def run(world, rig, plan, session, bracket=None, progress=None):
     targets = motion_targets(plan, rig)
     e = world.endpoints
     with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
@@ -65,6 +67,7 @@ def run(world, rig, plan, session, bracket=None):
                 Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
                 session,
                 bracket=bracket or Bracketing(),
+                progress=progress or (lambda _: None),
             )
         finally:
             camera.close()
@@ -251,3 +254,24 @@ def test_a_dropping_camera_link_is_retried_and_journaled(plan_file, rig, tmp_pat
     assert len(retries) == 2
     assert "stopped after" in retries[0]["error"]
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
+
+
+def test_a_servo_fault_mid_run_stops_safely(plan_file, rig, tmp_path):
+    """Overload on the elevation servo while moving to the second pose: the run stops with the servo
+    named, the journal says why, the lamp is off and no servo holds torque."""
+    plan = read_plan(plan_file[0])
+    assert len(plan.poses) >= 2
+    with world_of(plan_file) as world:
+
+        def fault_on_second_pose(what):
+            if what == f"{plan.poses[1].id}: moving":
+                world.bus.servo(2).hardware_fault(OVERLOAD)
+
+        with pytest.raises(HardwareAlarm, match=r"elevation \(id 2\).*overload"):
+            run(world, rig, plan, tmp_path, progress=fault_on_second_pose)
+        assert not world.turntable.stage.lamp
+        assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
+    events = read_journal(tmp_path / JOURNAL)
+    assert events[-1]["event"] == "stopped"
+    assert "overload" in events[-1]["reason"]
+    assert {e["pose"] for e in events if e["event"] == "frame"} == {plan.poses[0].id}
