@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -275,3 +276,13 @@ def test_a_servo_fault_mid_run_stops_safely(plan_file, rig, tmp_path):
     assert events[-1]["event"] == "stopped"
     assert "overload" in events[-1]["reason"]
     assert {e["pose"] for e in events if e["event"] == "frame"} == {plan.poses[0].id}
+
+
+def test_a_rig_without_a_lamp_relay_is_refused_before_anything_opens(plan_file, tmp_path, capsys):
+    text = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(text[: text.index("[lamp]")])
+    session = tmp_path / "session"
+    assert main(["acquire", "--plan", str(plan_file[0]), "--rig", str(rig_file), "--out", str(session)]) == 1
+    assert "add a [lamp] section" in capsys.readouterr().err
+    assert not session.exists()

@@ -57,7 +57,8 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
     frame in flight. Running the same command again resumes: finished frames are checked and kept,
-    the rest are taken. Whatever happens, the lamp ends off, the turntable stopped, the torque off.
+    the rest are taken. Whatever happens, the lamp ends off, the turntable stopped and the gantry
+    parked as the rig file says (torque off by default). Ctrl-C or kill: exit status 130.
 
     \b
     Examples:
@@ -78,6 +79,8 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
             f"{len(targets)} poses, {frames} frames: within limits; about {duration:.0f} s on this rig"
         )
         return
+    if rig.file.lamp is None:
+        raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
     with contextlib.ExitStack() as stack:  # unwinds in reverse: camera, devices (safe state), simulator
         # `kill` (SIGTERM) stops the run like Ctrl-C: the journal says so and the rig ends safe
@@ -88,10 +91,6 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
             open_devices(rig, gantry_port=links.get("gantry"), stage_address=links.get("stage"))
         )
         devices.connect()
-        if devices.lamp is None:
-            raise InputError(
-                "acquisition needs the lamp relay: add a [lamp] section", path=rig.source, field="lamp"
-            )
         camera = NetworkCamera(links["camera"])
         stack.callback(camera.close)
         # only now, with every device answering, does the session directory come into being

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from rich.markup import escape
 from rich.table import Table
 
 from hlr_lab.cli.common import console, resolve_rig
@@ -52,5 +53,5 @@ def _table(name: str, findings: list[Finding]) -> Table:
     for column in ("device", "state", "what it says / what to do"):
         table.add_column(column, overflow="fold")
     for f in findings:
-        table.add_row(f.device, MARKS[f.level], f.message)
+        table.add_row(escape(f.device), MARKS[f.level], escape(f.message))
     return table

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 import click
+from rich.markup import escape
 
 from hlr_lab import __version__
 from hlr_lab.cli.acquire_cmd import acquire_cmd
@@ -61,13 +62,13 @@ def main(argv: list[str] | None = None) -> int:
     except HlrLabError as exc:
         if debug:
             console.print_exception()
-        console.print(f"[bold red]error:[/] {exc}", soft_wrap=True)
+        console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)  # "[lamp]" is no markup
         return EXIT_ERROR
     except Exception as exc:  # the last line of defence: a bug must still end in one clear line
         if debug:
             console.print_exception()
         console.print(
-            f"[bold red]internal error:[/] {type(exc).__name__}: {exc} — please report it with the "
+            f"[bold red]internal error:[/] {type(exc).__name__}: {escape(str(exc))} — please report it with the "
             "output of the same command run with --debug",
             soft_wrap=True,
         )
