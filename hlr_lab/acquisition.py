@@ -20,7 +20,7 @@ from drivers.errors import ChecksumError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
-from hlr_lab.session.frames import frame_problem, load_frame, store_frame
+from hlr_lab.session.frames import frame_problem, store_frame
 from hlr_lab.session.journal import Journal
 
 log = logging.getLogger(__name__)
@@ -58,8 +58,8 @@ class Bracketing:
     max_clipped: int = 0  # clipped pixels tolerated in the shortest frame
     dark_frames: bool = False  # also each exposure with the lamp off, for ambient subtraction
 
-    def wants_shorter(self, shortest: _Shortest, extra_so_far: int) -> bool:
-        return extra_so_far < self.max_extra and shortest.clipped() > self.max_clipped
+    def wants_shorter(self, clipped_in_shortest: int, extra_so_far: int) -> bool:
+        return extra_so_far < self.max_extra and clipped_in_shortest > self.max_clipped
 
 
 def acquire(
@@ -106,11 +106,14 @@ class _Run:
         lit = {k: e["exposure_s"] for (k, dark), e in have.items() if not dark}  # index → exposure
         darks = {k for k, dark in have if dark}
         planned = [k for k in range(len(pose.exposures_s)) if k not in lit]
-        # the shortest frame of this pose so far, read from disk only when needed
-        shortest = _Shortest({e["exposure_s"]: e for (_, dark), e in have.items() if not dark}, self.session)
+        # (exposure, clipped pixels) of the shortest frame of this pose so far, from the journal
+        shortest = min(
+            ((e["exposure_s"], e["clipped_pixels"]) for (_, dark), e in have.items() if not dark),
+            default=(float("inf"), 0),
+        )
         extra = len(lit) - len(pose.exposures_s) + len(planned)
         wants_dark = self.bracket.dark_frames and bool(set(lit) - darks)
-        if not planned and not wants_dark and not self.bracket.wants_shorter(shortest, extra):
+        if not planned and not wants_dark and not self.bracket.wants_shorter(shortest[1], extra):
             return 0
         instruments = self.instruments
         self.progress(f"{pose.id}: moving")
@@ -121,11 +124,11 @@ class _Run:
         instruments.lamp.set(True)
         for k in planned:
             lit[k] = pose.exposures_s[k]
-            shortest.add(lit[k], self._capture(pose, k, lit[k], state, kind="planned"))
+            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, kind="planned")))
         k = max(len(pose.exposures_s), max(lit) + 1)
-        while self.bracket.wants_shorter(shortest, k - len(pose.exposures_s)):
-            lit[k] = shortest.exposure_s / self.bracket.factor
-            shortest.add(lit[k], self._capture(pose, k, lit[k], state, kind="adaptive"))
+        while self.bracket.wants_shorter(shortest[1], k - len(pose.exposures_s)):
+            lit[k] = shortest[0] / self.bracket.factor
+            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, kind="adaptive")))
             k += 1
         instruments.lamp.set(False)
         dark = sorted(set(lit) - darks) if self.bracket.dark_frames else []
@@ -133,12 +136,14 @@ class _Run:
             self._capture(pose, k, lit[k], state, kind="dark")
         return len(lit) - (len(have) - len(darks)) + len(dark)
 
-    def _capture(self, pose: PlanPose, k: int, exposure: float, state: dict, *, kind: str) -> RawFrame:
-        """One frame; ``kind`` is "planned", "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
+    def _capture(self, pose: PlanPose, k: int, exposure: float, state: dict, *, kind: str) -> int:
+        """One frame, stored and journaled; returns its clipped-pixel count. ``kind`` is "planned",
+        "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
         self.progress(f"{pose.id}: exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
         adaptive, dark = kind == "adaptive", kind == "dark"
         self.instruments.camera.set_exposure(exposure)
         frame = _retry_capture(self.instruments.camera, self.journal, pose.id, k)
+        clipped = _clipped(frame.pixels, frame.bits)
         sidecar = {
             "pose": pose.id,
             "exposure_index": k,
@@ -148,7 +153,7 @@ class _Run:
             "gain_db": frame.gain_db,
             "bits": frame.bits,
             "captured_at": frame.captured_at,
-            "clipped_pixels": _clipped(frame.pixels, frame.bits),
+            "clipped_pixels": clipped,
             **state,
             "camera": frame.meta,
         }
@@ -161,31 +166,10 @@ class _Run:
                 exposure_s=exposure,
                 adaptive=adaptive,
                 dark=dark,
-                bits=frame.bits,
+                clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
             )
         )
-        return frame
-
-
-class _Shortest:
-    """The shortest exposure of a pose so far, and its clipped-pixel count (frames loaded lazily)."""
-
-    def __init__(self, journaled: dict[float, dict], session: Path):
-        self.exposure_s = min(journaled, default=float("inf"))
-        self._event = journaled.get(self.exposure_s)
-        self._session = session
-        self._frame: RawFrame | None = None
-
-    def add(self, exposure_s: float, frame: RawFrame) -> None:
-        if exposure_s < self.exposure_s:
-            self.exposure_s, self._frame, self._event = exposure_s, frame, None
-
-    def clipped(self) -> int:
-        if self._frame is not None:
-            return _clipped(self._frame.pixels, self._frame.bits)
-        if self._event is not None:
-            return _clipped(load_frame(self._session, self._event), self._event.get("bits", 16))
-        return 0  # nothing taken yet: the planned bracket comes first
+        return clipped
 
 
 def _clipped(pixels: np.ndarray, bits: int) -> int:
