@@ -13,6 +13,7 @@ import pytest
 from hlr_lab.errors import InputError
 from hlr_lab.session.frames import frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import Journal, read_journal
+from hlr_lab.session.metadata import SESSION, start_or_resume
 
 
 @pytest.mark.parametrize(
@@ -109,3 +110,16 @@ def test_a_killed_acquisition_loses_no_journaled_frame(tmp_path):
     journaled = {e["file"] for e in events} | {e["sidecar"] for e in events}
     leftovers = {f"frames/{p.name}" for p in (tmp_path / "frames").iterdir()} - journaled
     assert len(leftovers) <= 3  # image, sidecar and one temporary of the interrupted frame
+
+
+def test_a_damaged_session_record_is_named(tmp_path, rig):
+    plan = tmp_path / "plan.json"
+    plan.write_text("{}")
+    assert start_or_resume(tmp_path, plan, "a" * 64, rig, force=False) is False
+    assert start_or_resume(tmp_path, plan, "a" * 64, rig, force=False) is True
+    with pytest.raises(InputError, match="started with another plan"):
+        start_or_resume(tmp_path, plan, "b" * 64, rig, force=False)
+    (tmp_path / SESSION).write_text('{"format": "hlr-lab.session", "version": 1, "plan": {}}')
+    with pytest.raises(InputError, match="session record is damaged") as err:
+        start_or_resume(tmp_path, plan, "a" * 64, rig, force=False)
+    assert str(tmp_path / SESSION) in str(err.value)

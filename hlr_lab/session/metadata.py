@@ -10,7 +10,7 @@ from pathlib import Path
 
 from hlr_lab import __version__
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_create_bytes, dumps, read_json
+from hlr_lab.formats.io import atomic_create_bytes, check_header, dumps, read_json
 from hlr_lab.rig import Rig
 
 SESSION = "session.json"
@@ -34,14 +34,16 @@ def start_or_resume(session: Path, plan_path: Path, plan_sha256: str, rig: Rig, 
         atomic_create_bytes(path, (dumps(record) + "\n").encode())
         return False
     record = read_json(path)
-    changed = [
-        what
-        for what, old, new in (
-            ("plan", record["plan"]["sha256"], plan_sha256),
-            ("rig", record["rig"]["sha256"], rig_sha256),
-        )
-        if old != new
-    ]
+    check_header(record, path, SESSION_FORMAT, {1})
+    try:
+        started_with = {"plan": record["plan"]["sha256"], "rig": record["rig"]["sha256"]}
+    except (KeyError, TypeError) as exc:
+        raise InputError(
+            f"the session record is damaged (no {exc}); give a new --out to start a new session",
+            path=path,
+        ) from exc
+    now = {"plan": plan_sha256, "rig": rig_sha256}
+    changed = [what for what in ("plan", "rig") if started_with[what] != now[what]]
     if changed and not force:
         raise InputError(
             f"this session was started with another {' and '.join(changed)}; give a new --out to start a "
