@@ -4,8 +4,6 @@ The independent side is hlr-lab's own geometry (Embree G-buffer, OpenCV camera m
 engine and camera code from the renderer's.
 """
 
-import os
-
 import numpy as np
 import pytest
 import scipy.ndimage as ndi
@@ -15,20 +13,15 @@ from hlr_lab.camera import Camera
 from hlr_lab.mesh import ColouredMesh
 from hlr_lab.raycast import RayCaster
 from hlr_lab.rig import sim_rig
-from sim.render.llvm import RendererUnavailable, find_libllvm
+from sim.render.llvm import RendererUnavailable
 from sim.render.sensor import SensorModel
+from tests.renderer_guard import require_renderer
 
-try:
-    find_libllvm()
-    import mitsuba  # noqa: F401
-except (RendererUnavailable, ImportError) as exc:  # pragma: no cover - CI installs both
-    if os.environ.get("CI"):  # scripts/setup installs libLLVM: in CI a missing renderer is a failure
-        raise
-    pytest.skip(f"no renderer here: {exc}", allow_module_level=True)
-
-from sim.render.camera import CameraSpec
-from sim.render.renderer import Renderer
-from sim.render.scene import Material, SceneSpec
+require_renderer(module_level=True)
+# after the guard: these import Mitsuba
+from sim.render.camera import CameraSpec  # noqa: E402
+from sim.render.renderer import Renderer  # noqa: E402
+from sim.render.scene import Material, SceneSpec  # noqa: E402
 
 RD, RS, N = np.array([0.55, 0.4, 0.3]), np.array([0.3, 0.3, 0.35]), 30.0
 

@@ -72,17 +72,11 @@ def test_sim_serve_prints_endpoints_and_stops_on_sigint():
 
 def test_the_camera_photographs_where_the_axes_are():
     import numpy as np
-    import pytest
     import trimesh
 
-    from sim.render.llvm import RendererUnavailable, find_libllvm
+    from tests.renderer_guard import require_renderer
 
-    try:
-        find_libllvm()
-    except RendererUnavailable as exc:  # pragma: no cover - CI installs libLLVM
-        if os.environ.get("CI"):
-            raise
-        pytest.skip(str(exc))
+    require_renderer()
     from dynamixel_sdk import GroupSyncWrite
 
     from sim.camera import GantryGeometry
