@@ -7,8 +7,10 @@
 * Connect: ping, check the model, refuse a servo in hardware alarm (or reboot it if allowed), then with
   torque off write the EEPROM settings and read each back, then the profile, then torque on.
 * Goals outside the configured limits are refused before anything is sent. Both axes move with one sync
-  write; their state comes back with one sync read. Reads are retried a bounded number of times with
-  backoff; a move is never retried silently.
+  write; their state comes back with one sync read. Reads and register writes (which set a value, so
+  repeating one does what sending it once does) are retried a bounded number of times with backoff,
+  each retry logged with ``RETRY``. The move itself is a broadcast without a reply, so it has nothing
+  to retry on: a move that does not arrive ends in a settle timeout, never in a silent second move.
 * SDK result codes never leave this module: they become :mod:`drivers.errors` exceptions.
 """
 
@@ -29,6 +31,7 @@ from dynamixel_sdk import (
 )
 
 from drivers.errors import (
+    RETRY,
     ChecksumError,
     DeviceError,
     DeviceFault,
@@ -125,7 +128,7 @@ class GantryConfig:
 @dataclass
 class DynamixelGantry:
     config: GantryConfig
-    retried: int = field(default=0, init=False)  # reads that needed a retry, for the run summary
+    retried: int = field(default=0, init=False)  # reads that needed a retry
 
     def __post_init__(self):
         self.port = UrlPortHandler(self.config.port)
@@ -341,7 +344,11 @@ class DynamixelGantry:
     def _write(self, axis: Axis, address: int, value: int, size: int) -> None:
         writer = {1: self.ph.write1ByteTxRx, 2: self.ph.write2ByteTxRx, 4: self.ph.write4ByteTxRx}[size]
         raw = value & ((1 << (8 * size)) - 1)
-        self._call(axis, f"write {address}", None, *writer(self.port, axis.servo_id, address, raw))
+        self._retry(
+            lambda: self._call(
+                axis, f"write {address}", None, *writer(self.port, axis.servo_id, address, raw)
+            )
+        )
 
     def _call(self, axis: Axis, what: str, value, result: int, error: int = 0, *, alert_ok: bool = False):
         """Turn an SDK result into a value or an exception."""
@@ -368,7 +375,7 @@ class DynamixelGantry:
         return value
 
     def _retry(self, operation):
-        """Repeat a read on a timeout or corrupted reply, with growing pauses; then give up."""
+        """Repeat an exchange on a timeout or corrupted reply, with growing pauses; then give up."""
         for attempt in range(self.config.retries + 1):
             try:
                 return operation()
@@ -376,7 +383,7 @@ class DynamixelGantry:
                 if attempt == self.config.retries:
                     raise
                 self.retried += 1
-                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries)
+                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries, extra=RETRY)
                 self.port.clearPort()  # a late reply must not be taken for the next one
                 time.sleep(self.config.backoff_s * 2**attempt)
         raise AssertionError("unreachable")

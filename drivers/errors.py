@@ -6,6 +6,9 @@ errors must belong to the same tree as the application's input errors
 :mod:`hlr_lab.errors`. SDK result codes never leave ``drivers``: they become these exceptions.
 """
 
+# ``extra`` of the log record of every retried device exchange: the acquisition journals and counts them
+RETRY = {"retry": True}
+
 
 class HlrLabError(Exception):
     """Any failure hlr-lab reports to its user: the message says what is wrong and what to do."""

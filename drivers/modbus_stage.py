@@ -2,8 +2,11 @@
 
 The register map comes from the rig file (:class:`StageMap`; the defaults are the simulated stage's, see
 ``sim/turntable/register_map.py``). 32-bit values span two registers, high word first. The operation
-data goes in one FC16 write; START acts on its rising edge. Reads are retried with backoff (reconnecting
-after a dropped link); a move is never retried. pymodbus types never leave this module.
+data goes in one FC16 write; START acts on its rising edge. Reads and writes are retried with backoff
+(reconnecting after a dropped link), each retry logged with ``RETRY``. Repeating a write is safe because
+every write here sets a value: an absolute target, a coil state, or a command word whose bit acts on
+its rising edge (commands clear the word first, so a repeated "set" never starts a second move). A
+move is thus never repeated, silently or otherwise. pymodbus types never leave this module.
 """
 
 from __future__ import annotations
@@ -15,7 +18,15 @@ from dataclasses import dataclass, field
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from drivers.errors import DeviceError, DeviceFault, DeviceTimeout, HardwareAlarm, LimitError, SettleTimeout
+from drivers.errors import (
+    RETRY,
+    DeviceError,
+    DeviceFault,
+    DeviceTimeout,
+    HardwareAlarm,
+    LimitError,
+    SettleTimeout,
+)
 
 log = logging.getLogger(__name__)
 EXCEPTIONS = {1: "illegal function", 2: "illegal address", 3: "illegal value", 4: "device failure", 6: "busy"}
@@ -183,9 +194,13 @@ class ModbusStage:
         registers = [
             r for v in values for r in self.client.convert_to_registers(int(v), self.client.DATATYPE.INT32)
         ]
-        self._check(
-            self._io(lambda: self.client.write_registers(address, registers, device_id=self.config.map.unit)),
-            f"write at {address}",
+        self._retry(
+            lambda: self._check(
+                self._io(
+                    lambda: self.client.write_registers(address, registers, device_id=self.config.map.unit)
+                ),
+                f"write at {address}",
+            )
         )
 
     def _read_block(self, n: int) -> list[int]:
@@ -207,14 +222,18 @@ class ModbusStage:
                 for i in range(n)
             ]
 
+        return self._retry(read)
+
+    def _retry(self, operation):
+        """Repeat an exchange whose reply was lost (or whose link dropped), with growing pauses."""
         for attempt in range(self.config.retries + 1):
             try:
-                return read()
+                return operation()
             except DeviceTimeout as exc:
                 if attempt == self.config.retries:
                     raise
                 self.retried += 1
-                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries)
+                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries, extra=RETRY)
                 time.sleep(self.config.backoff_s * 2**attempt)
                 if not self.client.connected:
                     self.client.connect()
@@ -252,9 +271,11 @@ class ModbusRelay:
 
     def set(self, on: bool) -> None:
         stage = self.client_owner
-        stage._check(
-            stage._io(lambda: stage.client.write_coil(self.coil, bool(on), device_id=self.unit)),
-            "lamp switch",
+        stage._retry(
+            lambda: stage._check(
+                stage._io(lambda: stage.client.write_coil(self.coil, bool(on), device_id=self.unit)),
+                "lamp switch",
+            )
         )
 
     def get(self) -> bool:

@@ -1,6 +1,10 @@
 """The acquisition loop: every pose of a plan → move, settle, light, capture the exposure bracket, store,
 journal. Knows the devices only through the Protocols of :mod:`drivers.protocols`.
 
+Frames are stored by a :class:`FrameWriter` thread while the next exposure or move runs. Every retry of a
+device exchange (a driver's or this loop's, logged with :data:`drivers.errors.RETRY`) gets a journal
+line. The run's summary ends the journal: ``run_end``, or ``stopped`` with the reason.
+
 Resuming is the same call on the same session: frames whose journal line and files check out are
 skipped; a frame whose file is missing or changed is taken again under a new attempt name, so nothing
 is overwritten. The caller owns the devices and their safe state (:class:`hlr_lab.devices.RigDevices`).
@@ -12,16 +16,18 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from drivers.errors import ChecksumError, DeviceTimeout
+from drivers.errors import RETRY, ChecksumError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
-from hlr_lab.session.frames import frame_problem, store_frame
+from hlr_lab.session.frames import frame_problem
 from hlr_lab.session.journal import Journal
+from hlr_lab.session.writer import FrameWriter
 
 log = logging.getLogger(__name__)
 JOURNAL = "journal.jsonl"
@@ -40,9 +46,35 @@ class Instruments:
 
 @dataclass
 class Outcome:
+    """The run's summary, also the journal's last line."""
+
     taken: int = 0
     already_done: int = 0
     retaken: list[str] = field(default_factory=list)  # frames whose earlier copy was missing or changed
+    poses_moved: int = 0  # poses the rig went to (complete poses are not even moved to)
+    retries: int = 0  # device exchanges retried (each has a journal line)
+    duration_s: float = 0.0
+
+    def summary(self) -> dict:
+        return {
+            "frames_taken": self.taken,
+            "frames_already_done": self.already_done,
+            "frames_retaken": len(self.retaken),
+            "poses_moved": self.poses_moved,
+            "retries": self.retries,
+            "duration_s": round(self.duration_s, 3),
+        }
+
+
+@dataclass(frozen=True)
+class Step:
+    """Where the run is, for a progress display: pose ``index`` of ``poses`` and what happens now;
+    ``action`` "done" closes each pose (also one that was complete already)."""
+
+    index: int
+    poses: int
+    pose: str
+    action: str
 
 
 CAPTURE_RETRIES, RETRY_BACKOFF_S = 3, 0.2  # a camera link that drops now and then; then give up
@@ -70,24 +102,69 @@ def acquire(
     *,
     settle_timeout_s: float = 60.0,
     bracket: Bracketing = Bracketing(),
-    progress: Callable[[str], None] = lambda _: None,
+    progress: Callable[[Step], None] = lambda _: None,
 ) -> Outcome:
     """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``."""
-    outcome = Outcome()
-    with Journal(session / JOURNAL) as journal:
+    outcome, started = Outcome(), time.monotonic()
+    with Journal(session / JOURNAL) as journal, _RetryJournal(journal) as retries:
         done = _intact_frames(session, journal.events, outcome.retaken)
-        run = _Run(instruments, session, journal, settle_timeout_s, bracket, progress)
         journal.append({"event": "run_start", "at": time.time(), "frames_done": sum(map(len, done.values()))})
         try:
-            for pose, target in zip(plan.poses, targets, strict=True):
-                have = done.get(pose.id, {})
-                outcome.already_done += len(have)
-                outcome.taken += run.take_pose(pose, target, have)
+            with FrameWriter(session, journal) as writer:
+                run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket)
+                for i, (pose, target) in enumerate(zip(plan.poses, targets, strict=True)):
+                    retries.pose = pose.id
+                    have = done.get(pose.id, {})
+                    outcome.already_done += len(have)
+                    report = partial(_report, progress, i, len(targets), pose.id)
+                    taken = run.take_pose(pose, target, have, report)
+                    outcome.taken += taken
+                    outcome.poses_moved += taken > 0
+                    report("done")
         except BaseException as exc:  # an interrupt too: the journal says why the run ended
-            journal.append({"event": "stopped", "at": time.time(), "reason": str(exc) or type(exc).__name__})
+            _finish(outcome, started, retries.count)
+            reason = str(exc) or type(exc).__name__
+            journal.append({"event": "stopped", "at": time.time(), "reason": reason, **outcome.summary()})
             raise
-        journal.append({"event": "run_end", "at": time.time(), "taken": outcome.taken})
+        _finish(outcome, started, retries.count)
+        journal.append({"event": "run_end", "at": time.time(), **outcome.summary()})
     return outcome
+
+
+def _report(progress: Callable[[Step], None], index: int, poses: int, pose: str, action: str) -> None:
+    progress(Step(index, poses, pose, action))
+
+
+def _finish(outcome: Outcome, started: float, retries: int) -> None:
+    outcome.duration_s, outcome.retries = time.monotonic() - started, retries
+
+
+class _RetryJournal(logging.Handler):
+    """Journals and counts the retries that drivers and this loop log (records tagged with ``RETRY``),
+    while it is installed on their loggers."""
+
+    LOGGERS = ("drivers", __name__)
+
+    def __init__(self, journal: Journal):
+        super().__init__(logging.WARNING)
+        self.journal, self.count, self.pose = journal, 0, None
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if getattr(record, "retry", False):
+            self.count += 1
+            self.journal.append(
+                {"event": "retry", "at": record.created, "pose": self.pose, "source": record.name,
+                 "error": record.getMessage()}
+            )  # fmt: skip
+
+    def __enter__(self) -> _RetryJournal:
+        for name in self.LOGGERS:
+            logging.getLogger(name).addHandler(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for name in self.LOGGERS:
+            logging.getLogger(name).removeHandler(self)
 
 
 @dataclass(frozen=True)
@@ -95,11 +172,17 @@ class _Run:
     instruments: Instruments
     session: Path
     journal: Journal
+    writer: FrameWriter
     settle_timeout_s: float
     bracket: Bracketing
-    progress: Callable[[str], None]
 
-    def take_pose(self, pose: PlanPose, target: PoseTarget, have: dict[tuple[int, bool], dict]) -> int:
+    def take_pose(
+        self,
+        pose: PlanPose,
+        target: PoseTarget,
+        have: dict[tuple[int, bool], dict],
+        progress: Callable[[str], None],
+    ) -> int:
         """The planned exposures not in ``have`` ((index, dark) → journaled frame), then shorter ones while
         the shortest frame still clips, then the dark frames; nothing (and no motion) when the pose is
         complete. Returns the number of frames taken."""
@@ -116,33 +199,36 @@ class _Run:
         if not planned and not wants_dark and not self.bracket.wants_shorter(shortest[1], extra):
             return 0
         instruments = self.instruments
-        self.progress(f"{pose.id}: moving")
+        progress("moving")
         measured = _move(instruments, target, self.settle_timeout_s)
         temperatures = {k: v for t in instruments.thermometers for k, v in t.temperatures().items()}
         state = {**_positions(target, measured), "temperatures_c": temperatures}
         self.journal.append({"event": "pose", "pose": pose.id, **state})
+        log.info("%s: settled at %s, %s", pose.id, measured, temperatures)
         instruments.lamp.set(True)
         for k in planned:
             lit[k] = pose.exposures_s[k]
-            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, kind="planned")))
+            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, "planned", progress)))
         k = max(len(pose.exposures_s), max(lit) + 1)
         while self.bracket.wants_shorter(shortest[1], k - len(pose.exposures_s)):
             lit[k] = shortest[0] / self.bracket.factor
-            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, kind="adaptive")))
+            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, "adaptive", progress)))
             k += 1
         instruments.lamp.set(False)
         dark = sorted(set(lit) - darks) if self.bracket.dark_frames else []
         for k in dark:  # same pose and exposure, lamp off: the ambient light to subtract
-            self._capture(pose, k, lit[k], state, kind="dark")
+            self._capture(pose, k, lit[k], state, "dark", progress)
         return len(lit) - (len(have) - len(darks)) + len(dark)
 
-    def _capture(self, pose: PlanPose, k: int, exposure: float, state: dict, *, kind: str) -> int:
-        """One frame, stored and journaled; returns its clipped-pixel count. ``kind`` is "planned",
+    def _capture(
+        self, pose: PlanPose, k: int, exposure: float, state: dict, kind: str, progress: Callable[[str], None]
+    ) -> int:
+        """One frame, handed to the writer; returns its clipped-pixel count. ``kind`` is "planned",
         "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
-        self.progress(f"{pose.id}: exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
+        progress(f"exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
         adaptive, dark = kind == "adaptive", kind == "dark"
         self.instruments.camera.set_exposure(exposure)
-        frame = _retry_capture(self.instruments.camera, self.journal, pose.id, k)
+        frame = _retry_capture(self.instruments.camera)
         clipped = _clipped(frame.pixels, frame.bits)
         sidecar = {
             "pose": pose.id,
@@ -158,16 +244,16 @@ class _Run:
             "camera": frame.meta,
         }
         name = _free_name(self.session, f"{pose.id}_e{k}" + ("_dark" if dark else ""))
-        stored = store_frame(self.session, name, frame.pixels, sidecar)
-        self.journal.append(
-            stored.as_event(
-                pose=pose.id,
-                exposure_index=k,
-                exposure_s=exposure,
-                adaptive=adaptive,
-                dark=dark,
-                clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
-            )
+        self.writer.submit(
+            name,
+            frame.pixels,
+            sidecar,
+            pose=pose.id,
+            exposure_index=k,
+            exposure_s=exposure,
+            adaptive=adaptive,
+            dark=dark,
+            clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
         )
         return clipped
 
@@ -175,20 +261,21 @@ class _Run:
 def _clipped(pixels: np.ndarray, bits: int) -> int:
     """Pixels with any channel at the top code: their true value is unknown."""
     top = (1 << bits) - 1
+    if pixels.max() < top:  # the usual case, and 5× faster than counting
+        return 0
     return int((pixels >= top).any(axis=-1).sum() if pixels.ndim == 3 else (pixels >= top).sum())
 
 
-def _retry_capture(camera: Camera, journal: Journal, pose_id: str, k: int) -> RawFrame:
-    """Capture, retrying a dropped link or a frame cut short with growing pauses, each retry journaled;
-    a refusal or a fault that stays is raised (and stops the run safely)."""
+def _retry_capture(camera: Camera) -> RawFrame:
+    """Capture, retrying a dropped link or a frame cut short with growing pauses (each retry logged, so
+    journaled); a refusal or a fault that stays is raised (and stops the run safely)."""
     for attempt in range(CAPTURE_RETRIES + 1):
         try:
             return camera.capture()
         except (DeviceTimeout, ChecksumError) as exc:
             if attempt == CAPTURE_RETRIES:
                 raise
-            log.warning("%s; retrying (%d of %d)", exc, attempt + 1, CAPTURE_RETRIES)
-            journal.append({"event": "retry", "pose": pose_id, "exposure_index": k, "error": str(exc)})
+            log.warning("%s; retrying (%d of %d)", exc, attempt + 1, CAPTURE_RETRIES, extra=RETRY)
             time.sleep(RETRY_BACKOFF_S * 2**attempt)
     raise AssertionError("unreachable")
 

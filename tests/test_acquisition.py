@@ -2,6 +2,7 @@
 
 import contextlib
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.errors import HardwareAlarm
+from drivers.errors import DeviceFault, HardwareAlarm
 from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import JOURNAL, Bracketing, Instruments, acquire
 from hlr_lab.cli.main import main
@@ -130,9 +131,16 @@ def test_cli_acquire_dry_run_resume_and_changed_plan(builtin_plan, tmp_path, cap
     assert main([*common, "--speed-factor", "40"]) == 0
     plan = read_plan(plan_path)
     frames = sum(len(p.exposures_s) for p in plan.poses)
-    assert f"{frames} frames taken, 0 already done" in capsys.readouterr().err
+    summary = capsys.readouterr().err
+    assert re.search(rf"frames taken\s+│\s+{frames} ", summary)
+    assert re.search(rf"poses moved to\s+│\s+{len(plan.poses)} ", summary)
     assert main([*common, "--speed-factor", "40"]) == 0
-    assert f"0 frames taken, {frames} already done" in capsys.readouterr().err
+    summary = capsys.readouterr().err
+    assert re.search(r"frames taken\s+│\s+0 ", summary)
+    assert re.search(rf"frames already done\s+│\s+{frames} ", summary)
+    log = (session / "acquire.log").read_text()  # both runs logged to the session
+    assert log.count("run summary") == 2
+    assert log.count(f"{plan.poses[0].id}: settled at") == 1
 
     other = tmp_path / "other-plan.json"
     write_plan(other, plan.model_copy(update={"poses": plan.poses[:1]}))
@@ -257,6 +265,64 @@ def test_a_dropping_camera_link_is_retried_and_journaled(plan_file, rig, tmp_pat
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
 
 
+def _inject_on_second_pose(plan, inject):
+    """A progress callback that injects a fault as the rig starts moving to the second pose."""
+
+    def progress(step):
+        if (step.index, step.action) == (1, "moving"):
+            inject()
+
+    return progress
+
+
+LINK_FAULTS = {  # fault → the logger of the driver that must retry it
+    "servo no reply": (lambda w: setattr(w.bus.fault(2), "drop_replies", 1), "drivers.dynamixel"),
+    "servo corrupted byte": (lambda w: setattr(w.bus.fault(1), "corrupt_replies", 1), "drivers.dynamixel"),
+    "Modbus no reply": (lambda w: setattr(w.turntable.faults, "no_reply", 1), "drivers.modbus_stage"),
+    "Modbus disconnect": (lambda w: w.turntable.disconnect_clients(), "drivers.modbus_stage"),
+}
+
+
+@pytest.mark.parametrize("fault", LINK_FAULTS)
+def test_a_link_fault_is_retried_journaled_and_the_run_completes(fault, plan_file, rig, tmp_path):
+    """One lost, corrupted or disconnected exchange while moving to the second pose: retried with backoff,
+    journaled, every frame taken; the stage started exactly one move per pose (no move repeated)."""
+    inject, source = LINK_FAULTS[fault]
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:2]})
+    targets = motion_targets(plan, rig)
+    with world_of(plan_file) as world:
+        outcome = run(
+            world, rig, plan, tmp_path, progress=_inject_on_second_pose(plan, lambda: inject(world))
+        )
+        assert world.turntable.stage.moves == [t.turntable_steps for t in targets]
+    assert outcome.taken == sum(len(p.exposures_s) for p in plan.poses)
+    events = read_journal(tmp_path / JOURNAL)
+    retries = [e for e in events if e["event"] == "retry"]
+    assert [(e["pose"], e["source"]) for e in retries] == [(plan.poses[1].id, source)]
+    assert "retrying (1 of 3)" in retries[0]["error"]
+    assert events[-1]["event"] == "run_end"
+    assert (outcome.retries, events[-1]["retries"]) == (1, 1)
+    assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
+
+
+def test_a_modbus_exception_stops_the_run_safely(plan_file, rig, tmp_path):
+    """The drive answers exception 4 (device failure): not a link fault, so no retry; the run stops with
+    the drive named, lamp off and torque off, and the first pose's frames are kept."""
+    plan = read_plan(plan_file[0])
+    with world_of(plan_file) as world:
+        inject = _inject_on_second_pose(plan, lambda: setattr(world.turntable.faults, "exception", 1))
+        with pytest.raises(DeviceFault, match=r"turntable on .*exception 4"):
+            run(world, rig, plan, tmp_path, progress=inject)
+        assert not world.turntable.stage.lamp
+        assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
+    events = read_journal(tmp_path / JOURNAL)
+    assert events[-1]["event"] == "stopped"
+    assert "exception 4" in events[-1]["reason"]
+    assert events[-1]["frames_taken"] == len(plan.poses[0].exposures_s)
+    assert not [e for e in events if e["event"] == "retry"]
+
+
 def test_a_servo_fault_mid_run_stops_safely(plan_file, rig, tmp_path):
     """Overload on the elevation servo while moving to the second pose: the run stops with the servo
     named, the journal says why, the lamp is off and no servo holds torque."""
@@ -264,8 +330,8 @@ def test_a_servo_fault_mid_run_stops_safely(plan_file, rig, tmp_path):
     assert len(plan.poses) >= 2
     with world_of(plan_file) as world:
 
-        def fault_on_second_pose(what):
-            if what == f"{plan.poses[1].id}: moving":
+        def fault_on_second_pose(step):
+            if (step.index, step.pose, step.action) == (1, plan.poses[1].id, "moving"):
                 world.bus.servo(2).hardware_fault(OVERLOAD)
 
         with pytest.raises(HardwareAlarm, match=r"elevation \(id 2\).*overload"):

@@ -1,6 +1,7 @@
 """The command line as an operator meets it: exit codes, one-line errors, files written or not at all."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import trimesh
 from hlr_lab.cli.main import main
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.procedural import pebble
+from tests.renderer_guard import require_renderer
 
 
 def run(capsys, *args):
@@ -128,7 +130,10 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
         ["bench", "plan"],
         ["bench", "fit"],
         ["bench", "sim"],
+        ["bench", "acquire"],
         ["sim", "serve"],
+        ["acquire"],
+        ["doctor"],
     ],
 )
 def test_every_command_has_help_with_an_example(capsys, command):
@@ -171,6 +176,21 @@ def test_sim_benchmark_prints_figures(capsys):
     assert code == 0, err
     assert "ping" in out
     assert "median" in out
+
+
+def test_acquire_benchmark_prints_figures(capsys):
+    require_renderer()
+    code, out, err = run(capsys, "bench", "acquire", "--poses", "3")
+    assert code == 0, err
+    assert "3 poses, 9 frames" in out
+    overhead = re.search(r"overhead per pose .*: median ([\d.]+) ms", out)
+    assert overhead
+    assert 0 < float(overhead[1]) < 1000
+    counts = re.search(r"transactions per pose, median: servo (\d+), Modbus (\d+)", out)
+    assert counts
+    # a move and its settling take several servo sync reads, and the stage a write, START and status reads
+    assert int(counts[1]) >= 3
+    assert int(counts[2]) >= 4
 
 
 @pytest.mark.slow

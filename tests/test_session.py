@@ -14,6 +14,7 @@ from hlr_lab.errors import InputError
 from hlr_lab.session.frames import frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import Journal, read_journal
 from hlr_lab.session.metadata import SESSION, start_or_resume
+from hlr_lab.session.writer import FrameWriter
 
 
 @pytest.mark.parametrize(
@@ -123,3 +124,35 @@ def test_a_damaged_session_record_is_named(tmp_path, rig):
     with pytest.raises(InputError, match="session record is damaged") as err:
         start_or_resume(tmp_path, plan, "a" * 64, rig, force=False)
     assert str(tmp_path / SESSION) in str(err.value)
+
+
+def test_the_frame_writer_stores_every_queued_frame_and_journals_it(tmp_path):
+    frames = {f"f{i}": np.full((4, 5), i, np.uint16) for i in range(5)}
+    with Journal(tmp_path / "journal.jsonl") as journal, FrameWriter(tmp_path, journal, depth=1) as writer:
+        for name, pixels in frames.items():
+            writer.submit(name, pixels, {"n": name}, pose=name)
+    events = read_journal(tmp_path / "journal.jsonl")
+    assert [e["pose"] for e in events] == list(frames)
+    for e in events:
+        assert np.array_equal(load_frame(tmp_path, e), frames[e["pose"]])
+
+
+def test_a_storing_failure_stops_the_run_and_later_frames_are_not_stored(tmp_path):
+    """A frame that cannot be stored (here: its name is taken, as a full disk would fail a write) is
+    raised in the acquiring thread at its next submit or at close; nothing after it is stored."""
+    store_frame(tmp_path, "taken", np.zeros((2, 2), np.uint16), {})
+    with Journal(tmp_path / "journal.jsonl") as journal:
+        writer = FrameWriter(tmp_path, journal)
+        with pytest.raises(FileExistsError):
+            _submit_then_close(writer, ["taken", "after"])
+    assert read_journal(tmp_path / "journal.jsonl") == []
+    assert not (tmp_path / "frames" / "after.png").exists()
+
+
+def _submit_then_close(writer, names):
+    """The failure surfaces at the second submit or at close (a race between the threads): both right."""
+    try:
+        for name in names:
+            writer.submit(name, np.ones((2, 2), np.uint16), {})
+    finally:
+        writer.close()

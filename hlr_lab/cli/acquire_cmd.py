@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import signal
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import click
+from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from drivers.net_camera import NetworkCamera
-from hlr_lab.acquisition import Bracketing, Instruments, acquire
+from hlr_lab.acquisition import Bracketing, Instruments, Outcome, Step, acquire
 from hlr_lab.cli.common import console, resolve_rig, speed_factor_option
 from hlr_lab.devices import link, open_devices
 from hlr_lab.errors import InputError
@@ -19,6 +23,9 @@ from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
 from hlr_lab.rig import Rig
 from hlr_lab.session.metadata import start_or_resume
+
+log = logging.getLogger(__name__)
+LOG = "acquire.log"
 
 
 @click.command("acquire")
@@ -95,21 +102,82 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
         stack.callback(camera.close)
         # only now, with every device answering, does the session directory come into being
         resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
-        console.print(f"{'resuming' if resumed else 'starting'} session {session}")
-        with console.status("acquiring…") as status:
-            outcome = acquire(
-                plan,
-                targets,
-                Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
-                session,
-                bracket=Bracketing(dark_frames=dark_frames),
-                progress=lambda what: status.update(f"acquiring: {what}"),
+        stack.enter_context(_session_log(session / LOG))
+        console.print(f"{'resuming' if resumed else 'starting'} session {escape(str(session))}")
+        try:
+            with _progress_bar(len(targets)) as show:
+                outcome = acquire(
+                    plan,
+                    targets,
+                    Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
+                    session,
+                    bracket=Bracketing(dark_frames=dark_frames),
+                    progress=show,
+                )
+        except BaseException:
+            console.print(
+                "[yellow]stopped[/]: the lamp is off and the rig parked; the journal and "
+                f"{LOG} say why. Run the same command again to resume.",
+                soft_wrap=True,
             )
-    console.print(
-        f"{outcome.taken} frames taken, {outcome.already_done} already done"
-        + (f", {len(outcome.retaken)} retaken (missing or changed)" if outcome.retaken else "")
-        + f"; session in {session}"
+            raise
+        log.info("run summary: %s", outcome.summary())
+    console.print(_summary_table(outcome, session))
+
+
+@contextlib.contextmanager
+def _progress_bar(poses: int) -> Iterator[Callable[[Step], None]]:
+    """A bar over the poses with the count, the time left and the current action."""
+    columns = (
+        TextColumn("pose {task.completed}/{task.total}"),
+        BarColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.description}"),
     )
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task("starting", total=poses)
+
+        def show(step: Step) -> None:
+            done = step.index + (step.action == "done")
+            bar.update(task, completed=done, description=escape(f"{step.pose}: {step.action}"))
+
+        yield show
+
+
+@contextlib.contextmanager
+def _session_log(path: Path) -> Iterator[None]:
+    """Everything the drivers and hlr-lab log during the run (retries, reboots, warnings), appended to
+    the session's log file."""
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    loggers = [logging.getLogger(name) for name in ("drivers", "hlr_lab")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+        handler.close()
+
+
+def _summary_table(outcome: Outcome, session: Path) -> Table:
+    t = Table(title=f"session {escape(str(session))}", title_justify="left", show_header=False)
+    t.add_column(justify="left")
+    t.add_column(justify="right")
+    for label, value in (
+        ("frames taken", outcome.taken),
+        ("frames already done", outcome.already_done),
+        ("frames retaken (missing or changed)", len(outcome.retaken)),
+        ("poses moved to", outcome.poses_moved),
+        ("device retries", outcome.retries),
+        ("duration", f"{outcome.duration_s:.1f} s"),
+    ):
+        t.add_row(label, str(value))
+    return t
 
 
 def _terminate_as_interrupt(signum, _frame) -> None:

@@ -187,3 +187,44 @@ def bench_sim(transactions, frames) -> None:
         )
         for name, value in render.items():
             out.print(f"  {name:40s} {value:8.3f}", markup=False)
+
+
+@bench.command("acquire")
+@click.option("--poses", type=click.IntRange(2, 10_000), default=20, show_default=True)
+@click.option(
+    "--speed-factor",
+    type=click.FloatRange(min=1.0),
+    default=1000.0,
+    show_default=True,
+    help="Simulated motion this much faster than real time (fast, so that waiting hides nothing).",
+)
+def bench_acquire(poses, speed_factor) -> None:
+    """Acquisition on the simulated rig with the real drivers: software overhead per pose (wall time not
+    spent waiting for the axes or the camera) and servo / Modbus transactions per pose.
+
+    The plan is builtin:pebble's, its poses cycled to the count asked for; frames are 1280×960, 16-bit,
+    stored in a scratch directory that is removed afterwards.
+
+    \b
+    Example:
+      hlr-lab bench acquire --poses 50
+    """
+    from hlr_lab.cli.bench_acquire import acquire_figures  # builds the simulated rig: CLI only
+
+    with console.status(f"acquiring {poses} poses on the simulated rig…"):
+        f = acquire_figures(poses=poses, speed_factor=speed_factor)
+    overhead = sorted(1e3 * p.overhead_s for p in f.poses)
+    p90 = overhead[min(len(overhead) - 1, int(0.9 * len(overhead)))]
+    lines = [
+        f"{len(f.poses)} poses, {f.frames} frames (1280×960×3, 16-bit) in {f.total_s:.1f} s, motion ×{speed_factor:g}",
+        f"software overhead per pose (target ≤ 20 ms median): median {f.median('overhead_s') * 1e3:.1f} ms, "
+        f"p90 {p90:.1f} ms, max {overhead[-1]:.1f} ms",
+        f"  per pose, median: wall {f.median('wall_s') * 1e3:.0f} ms = waiting for the axes "
+        f"{f.median('moving_s') * 1e3:.0f} ms + camera {f.median('capture_s') * 1e3:.0f} ms + overhead",
+        f"transactions per pose, median: servo {f.median('servo_transactions'):.0f}, "
+        f"Modbus {f.median('modbus_transactions'):.0f}",
+        f"storing the frames still queued after the last pose: {f.drain_s * 1e3:.0f} ms",
+        f"peak RSS {f.peak_rss_mb:.0f} MB",
+    ]
+    for line in lines:
+        out.print(line, markup=False, soft_wrap=True)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from pathlib import Path
 
 from hlr_lab.errors import InputError
@@ -28,15 +29,17 @@ class Journal:
             os.fsync(self._fd)
         if new:
             fsync_directory(self.path.parent)
+        self._lock = threading.Lock()  # the frame writer appends from its own thread
 
     def append(self, event: dict) -> None:
         line = (json.dumps(event, ensure_ascii=False, sort_keys=True) + "\n").encode()
-        written = os.write(self._fd, line)
-        if written != len(line):  # a full disk: cut the part-line so the journal stays whole
-            os.ftruncate(self._fd, os.fstat(self._fd).st_size - written)
-            raise OSError(f"{self.path}: the disk took {written} of {len(line)} bytes; free some space")
-        os.fsync(self._fd)
-        self.events.append(event)
+        with self._lock:
+            written = os.write(self._fd, line)
+            if written != len(line):  # a full disk: cut the part-line so the journal stays whole
+                os.ftruncate(self._fd, os.fstat(self._fd).st_size - written)
+                raise OSError(f"{self.path}: the disk took {written} of {len(line)} bytes; free some space")
+            os.fsync(self._fd)
+            self.events.append(event)
 
     def close(self) -> None:
         os.close(self._fd)

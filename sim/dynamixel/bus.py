@@ -61,6 +61,7 @@ class SimBus:
     speed_factor: float = 1.0
     goals: list[GoalRecord] = field(default_factory=list)
     faults: dict[int, Faults] = field(default_factory=dict)
+    instructions: int = 0  # instruction packets received (transactions, for the acquisition benchmark)
 
     def __post_init__(self):
         self._reader = PacketReader()
@@ -95,6 +96,7 @@ class SimBus:
         with self._lock:
             out = bytearray()
             for packet in self._reader.feed(data):
+                self.instructions += 1
                 for reply in self._dispatch(packet):
                     out.extend(self._apply_faults(reply))
             return bytes(out)

@@ -43,6 +43,7 @@ class TurntableServer:
     def __init__(self, stage: RotaryStage):
         self.stage = stage
         self.faults = ModbusFaults()
+        self.requests = 0  # Modbus requests served, stage and relay (for the acquisition benchmark)
         self._lock = threading.Lock()
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="sim-modbus", daemon=True)
@@ -83,6 +84,7 @@ class TurntableServer:
 
     async def _stage_action(self, function_code, start, address, count, registers, values):
         with self._lock:
+            self.requests += 1
             if self.faults.exception > 0:
                 self.faults.exception -= 1
                 return ExcCodes.DEVICE_FAILURE
@@ -128,6 +130,7 @@ class TurntableServer:
 
     async def _relay_action(self, function_code, start, address, count, registers, values):
         with self._lock:
+            self.requests += 1
             if values is not None and address == rm.LAMP_COIL:
                 self.stage.lamp = bool(values[0])
         return None

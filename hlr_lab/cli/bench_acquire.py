@@ -1,0 +1,198 @@
+"""``hlr-lab bench acquire``: the acquisition loop's own cost on the simulated rig, with the real drivers.
+
+Software overhead per pose is the pose's wall time minus the time spent waiting for the axes to arrive
+and settle (``wait_settled``) and for the camera to expose and deliver its frame (``capture``); what is
+left is hlr-lab's work on the critical path: commands, the pose journal line, temperatures, the lamp,
+clipping checks, handing frames to the writer. Motion runs at a high speed factor so that the wait does
+not hide anything. Transactions are counted where they arrive: instruction packets at the simulated
+servo bus, requests at the Modbus server.
+
+Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import resource
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from drivers.net_camera import NetworkCamera
+from drivers.protocols import Camera, Positioner, RawFrame
+from hlr_lab.acquisition import Instruments, Step, acquire
+from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
+from hlr_lab.devices import open_devices
+from hlr_lab.formats.plan import PlanFile, build_plan
+from hlr_lab.motion import motion_targets
+from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.planner import PlanSettings, plan_lights
+from hlr_lab.procedural import builtin_object
+from hlr_lab.rig import Rig, sim_rig
+from hlr_lab.segment import segment
+from sim.rig import SimRig
+
+BENCH_OBJECT = "builtin:pebble"
+
+
+@dataclass
+class _Stopwatch:
+    seconds: float = 0.0
+
+    def timed(self, call, *args):
+        t0 = time.perf_counter()
+        try:
+            return call(*args)
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+
+@dataclass
+class _TimedPositioner:
+    """A Positioner whose waits for arrival are clocked."""
+
+    inner: Positioner
+    waiting: _Stopwatch
+
+    def move_to(self, goal: tuple[int, ...]) -> None:
+        self.inner.move_to(goal)
+
+    def wait_settled(self, timeout_s: float) -> tuple[int, ...]:
+        return self.waiting.timed(self.inner.wait_settled, timeout_s)
+
+    def position(self) -> tuple[int, ...]:
+        return self.inner.position()
+
+    def stop(self) -> None:
+        self.inner.stop()
+
+
+@dataclass
+class _TimedCamera:
+    """A Camera whose captures (exposure, readout, transfer) are clocked."""
+
+    inner: Camera
+    capturing: _Stopwatch
+
+    def set_exposure(self, seconds: float) -> float:
+        return self.inner.set_exposure(seconds)
+
+    def set_gain(self, db: float) -> float:
+        return self.inner.set_gain(db)
+
+    def capture(self) -> RawFrame:
+        return self.capturing.timed(self.inner.capture)
+
+
+@dataclass
+class PoseFigures:
+    wall_s: float
+    moving_s: float  # waiting for arrival and settling
+    capture_s: float
+    servo_transactions: int
+    modbus_transactions: int
+
+    @property
+    def overhead_s(self) -> float:
+        return self.wall_s - self.moving_s - self.capture_s
+
+
+@dataclass
+class AcquireFigures:
+    poses: list[PoseFigures] = field(default_factory=list)
+    frames: int = 0
+    total_s: float = 0.0
+    drain_s: float = 0.0  # after the last pose: storing the frames still queued
+    peak_rss_mb: float = 0.0
+
+    def median(self, attribute: str) -> float:
+        return statistics.median(getattr(p, attribute) for p in self.poses)
+
+
+def builtin_plan(rig: Rig) -> PlanFile:
+    """builtin:pebble planned on ``rig`` with the default settings, as ``hlr-lab plan`` would."""
+    mesh = builtin_object(BENCH_OBJECT).mesh
+    seg = segment(mesh)
+    to_turntable = placement(mesh)
+    result = plan_lights(mesh.transformed(to_turntable), seg, rig, PlanSettings())
+    return build_plan(
+        result,
+        seg,
+        mesh_ref=BENCH_OBJECT,
+        sha256=mesh.sha256 or "",
+        texture_ref=None,
+        mesh_to_turntable=to_turntable,
+        up="z",
+        scale=1.0,
+        exposures_s=rig.exposure_bracket_s,
+        rig_name=rig.name,
+    )
+
+
+def repeated_poses(plan: PlanFile, n: int) -> PlanFile:
+    """``n`` poses cycling through the plan's own (so each one moves the rig), with unique ids."""
+    poses = [plan.poses[i % len(plan.poses)].model_copy(update={"id": f"b{i:03d}"}) for i in range(n)]
+    return plan.model_copy(update={"poses": poses})
+
+
+def acquire_figures(*, poses: int, speed_factor: float) -> AcquireFigures:
+    """Acquire ``poses`` poses of builtin:pebble's plan (cycled) on the simulated rig into a scratch
+    session."""
+    rig = sim_rig()
+    plan = repeated_poses(builtin_plan(rig), poses)
+    targets = motion_targets(plan, rig)
+    waiting, capturing = _Stopwatch(), _Stopwatch()
+    figures = AcquireFigures()
+    scene = sim_scene(plan, Path.cwd(), None)  # a built-in object: no file is read
+    with (
+        SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor) as world,
+        tempfile.TemporaryDirectory(prefix="hlr-bench-acquire-") as scratch,
+    ):
+        e = world.endpoints
+        with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
+            devices.connect()
+            camera = NetworkCamera(e.camera)
+            try:
+                marks = [_mark(world, waiting, capturing)]
+
+                def on_step(step: Step) -> None:
+                    if step.action == "done":
+                        marks.append(_mark(world, waiting, capturing))
+
+                started = time.perf_counter()
+                outcome = acquire(
+                    plan,
+                    targets,
+                    Instruments(
+                        _TimedPositioner(devices.stage, waiting),
+                        _TimedPositioner(devices.gantry, waiting),
+                        _TimedCamera(camera, capturing),
+                        devices.lamp,
+                        (devices.gantry,),
+                    ),
+                    Path(scratch),
+                    progress=on_step,
+                )
+                figures.total_s = time.perf_counter() - started
+            finally:
+                camera.close()
+    figures.frames = outcome.taken
+    figures.drain_s = figures.total_s - (marks[-1][0] - started)
+    figures.poses = [
+        PoseFigures(*(b - a for a, b in zip(m0, m1, strict=True))) for m0, m1 in itertools.pairwise(marks)
+    ]
+    figures.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+    return figures
+
+
+def _mark(world: SimRig, waiting: _Stopwatch, capturing: _Stopwatch) -> tuple:
+    """Cumulative clocks and counters at a pose boundary (consecutive differences make a PoseFigures)."""
+    return (
+        time.perf_counter(),
+        waiting.seconds,
+        capturing.seconds,
+        world.bus.instructions,
+        world.turntable.requests,
+    )
