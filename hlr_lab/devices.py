@@ -1,4 +1,5 @@
-"""The rig's devices, opened from the rig file: the Dynamixel gantry, the Modbus turntable and the lamp relay.
+"""The rig's devices, opened from the rig file: the Dynamixel gantry, the Modbus turntable, the lamp relay
+and the camera.
 
 The drivers' limits come from the rig's angle limits through the kinematics, so every goal is checked
 twice: against the plan before the first move (:mod:`hlr_lab.motion`) and by the driver before sending.
@@ -13,6 +14,9 @@ from dataclasses import dataclass, replace
 from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
 from drivers.errors import DeviceError
 from drivers.modbus_stage import ModbusRelay, ModbusStage, StageConfig, StageMap
+from drivers.net_camera import NetworkCamera
+from drivers.opencv_camera import OpenCVCamera, OpenCVCameraConfig
+from drivers.protocols import Camera
 from hlr_lab.errors import InputError
 from hlr_lab.rig import Rig
 
@@ -115,6 +119,24 @@ class RigDevices:
 
     def __exit__(self, *exc) -> None:
         self.safe_state()
+
+
+def open_camera(rig: Rig, endpoint: str | None = None) -> Camera:
+    """The rig's camera: ``endpoint`` (the simulated rig's), the file's frame endpoint, or its OpenCV
+    camera ([camera.capture])."""
+    capture = rig.file.camera.capture
+    if endpoint is None and capture is not None:
+        c = capture.model_dump()
+        return OpenCVCamera(OpenCVCameraConfig(**{**c, "exposure_range_s": tuple(c["exposure_range_s"])}))
+    return NetworkCamera(
+        link(
+            rig,
+            "camera.address",
+            endpoint,
+            'set it to the camera\'s frame endpoint ("host:port"), or describe an OpenCV camera in '
+            "[camera.capture]",
+        )
+    )
 
 
 def open_devices(rig: Rig, *, gantry_port: str | None = None, stage_address: str | None = None) -> RigDevices:

@@ -14,7 +14,7 @@ from typing import Literal
 from drivers.dynamixel import DynamixelGantry, ServoReport
 from drivers.errors import DeviceTimeout, HlrLabError
 from drivers.modbus_stage import DriveReport, ModbusRelay, ModbusStage, StageConfig
-from hlr_lab.devices import gantry_config, stage_config
+from hlr_lab.devices import gantry_config, open_camera, stage_config
 from hlr_lab.kinematics import TurntableKinematics
 from hlr_lab.rig import Rig
 
@@ -30,10 +30,17 @@ class Finding:
 
 
 def examine_rig(
-    rig: Rig, *, gantry_port: str | None = None, stage_address: str | None = None
+    rig: Rig,
+    *,
+    gantry_port: str | None = None,
+    stage_address: str | None = None,
+    camera_endpoint: str | None = None,
+    camera: bool = True,
 ) -> list[Finding]:
-    """Every device of ``rig`` in turn; a device that cannot be reached is a finding, not an exception."""
-    return _examine_stage(rig, stage_address) + _examine_gantry(rig, gantry_port)
+    """Every device of ``rig`` in turn (the camera unless ``camera`` is False); a device that cannot be
+    reached is a finding, not an exception."""
+    found = _examine_stage(rig, stage_address) + _examine_gantry(rig, gantry_port)
+    return found + (_examine_camera(rig, camera_endpoint) if camera else [])
 
 
 def diagnose_servo(report: ServoReport) -> list[Finding]:
@@ -174,6 +181,16 @@ def _examine_gantry(rig: Rig, port: str | None) -> list[Finding]:
         return found
     finally:
         gantry.close(torque_off=False)  # leave the torque as it was: the doctor changes nothing
+
+
+def _examine_camera(rig: Rig, endpoint: str | None) -> list[Finding]:
+    """Opening is the check: it reaches the device and sets the frame format (no exposure is taken)."""
+    try:
+        camera = open_camera(rig, endpoint)
+    except HlrLabError as exc:
+        return [Finding("camera", "problem", str(exc))]
+    camera.close()
+    return [Finding("camera", "ok", "opens and takes the frame format")]
 
 
 def _ask(device: str, question: Callable[[], list[Finding]], silent: str | None = None) -> list[Finding]:

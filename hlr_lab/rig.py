@@ -37,6 +37,22 @@ class _Header(_Strict):
     name: str = "rig"
 
 
+class _CaptureSection(_Strict):
+    """A camera driven through OpenCV (drivers.opencv_camera): V4L2/UVC, manual exposure and gain."""
+
+    device: str  # "/dev/video0" or a camera index
+    backend: Literal["v4l2", "images", "any"] = "v4l2"
+    fourcc: Annotated[str, Field(min_length=4, max_length=4)] | None = None  # e.g. "Y16 "
+    bits: Literal[8, 10, 12, 16] = 8
+    msb_aligned: bool = False
+    exposure_unit_s: float = Field(default=1e-4, gt=0)
+    exposure_range_s: Annotated[list[Annotated[float, Field(gt=0)]], _PAIR] = [1e-4, 10.0]
+    manual_exposure: float = 1.0
+    gain_per_db: float = Field(default=1.0, gt=0)
+    max_gain_db: float = Field(default=24.0, ge=0)
+    stale_frames: int = Field(default=2, ge=0)
+
+
 class _CameraSection(_Strict):
     width: int = Field(gt=0)
     height: int = Field(gt=0)
@@ -46,8 +62,16 @@ class _CameraSection(_Strict):
     look_at_m: Vec3
     up: Vec3 = [0.0, 0.0, 1.0]
     exposure_bracket_s: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=1)] = [0.01]
-    # the camera's frame endpoint, "host:port" (drivers.net_camera); the simulated rig supplies its own
+    # how frames are taken: a frame endpoint "host:port" (drivers.net_camera), or [camera.capture] for a
+    # camera driven through OpenCV; the simulated rig supplies its own endpoint
     address: str | None = None
+    capture: _CaptureSection | None = None
+
+    @model_validator(mode="after")
+    def _one_way_to_the_camera(self):
+        if self.address and self.capture:
+            raise ValueError("give either address (a frame endpoint) or [camera.capture] (OpenCV), not both")
+        return self
 
 
 class _GantrySection(_Strict):

@@ -4,10 +4,12 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
-from hlr_lab.devices import gantry_config, open_devices, stage_config
+from drivers.opencv_camera import OpenCVCamera
+from hlr_lab.devices import gantry_config, open_camera, open_devices, stage_config
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.motion import ACCELERATION_UNIT_REV_S2, VELOCITY_UNIT_REV_S, motion_targets, trapezoid_s
@@ -96,6 +98,43 @@ def test_the_documented_real_rig_example_is_valid():
     stage = stage_config(rig)
     assert (stage.address, stage.min_steps, stage.max_steps) == ("192.168.0.30:502", -18000, 18000)
     assert (rig.file.lamp.device_id, rig.file.lamp.coil) == (2, 0)
+    capture = rig.file.camera.capture
+    assert (capture.device, capture.fourcc, capture.bits, capture.msb_aligned) == (
+        "/dev/video0",
+        "Y16 ",
+        12,
+        True,
+    )
+
+
+def _with_camera(tmp_path, snippet: str):
+    """The simulated rig's file with ``snippet`` (TOML) added to the end of its [camera] section."""
+    text = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    head, rest = text.split("[gantry]", 1)
+    path = tmp_path / "rig.toml"
+    path.write_text(f"{head}\n{snippet}\n\n[gantry]{rest}")
+    return load_rig(path)
+
+
+def test_the_camera_comes_from_camera_capture_through_opencv(tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "0000.png"), np.full((4, 6), 300, np.uint16))
+    pattern = str(frames / "%04d.png")
+    rig = _with_camera(tmp_path, f'[camera.capture]\ndevice = "{pattern}"\nbackend = "images"\nbits = 16')
+    camera = open_camera(rig)
+    try:
+        assert isinstance(camera, OpenCVCamera)
+        assert camera.capture().pixels.max() == 300
+    finally:
+        camera.close()
+
+
+def test_a_rig_without_a_frame_source_is_refused_and_two_are_refused(rig, tmp_path):
+    with pytest.raises(InputError, match=r"camera\.address.*\[camera\.capture\]"):
+        open_camera(rig)  # the simulated rig's file leaves the endpoint to the simulator
+    with pytest.raises(InputError, match=r"either address.*or \[camera\.capture\]"):
+        _with_camera(tmp_path, 'address = "localhost:1"\n[camera.capture]\ndevice = "/dev/video0"')
 
 
 def test_the_duration_estimate_matches_the_simulated_servo(rig):

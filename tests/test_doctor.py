@@ -17,7 +17,7 @@ from sim.turntable import register_map as rm
 def examine(sim, rig, **kw):
     e = sim.endpoints
     return examine_rig(
-        rig, gantry_port=kw.get("port", e.dynamixel), stage_address=kw.get("address", e.modbus)
+        rig, gantry_port=kw.get("port", e.dynamixel), stage_address=kw.get("address", e.modbus), camera=False
     )
 
 
@@ -108,18 +108,26 @@ def test_servo_diagnoses(change, level, words):
 def test_cli_exit_status(tmp_path, capsys):
     assert main(["doctor", "--sim"]) == 0
     assert "the rig is ready" in capsys.readouterr().err
-    # a rig file whose links lead nowhere: two problems, one line saying so, exit status 1
+    # a rig file whose links lead nowhere: three problems, one line saying so, exit status 1
     text = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    text = text.replace("[gantry]", 'address = "127.0.0.1:1"\n\n[gantry]')
     text = text.replace("[turntable]", 'port = "/dev/hlr-lab-no-such-port"\n\n[turntable]')
     text = text.replace("[lamp]", 'address = "127.0.0.1:1"\n\n[lamp]')
     rig_file = tmp_path / "rig.toml"
     rig_file.write_text(text)
     assert main(["doctor", "--rig", str(rig_file)]) == 1
-    assert "2 problem(s)" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "3 problem(s)" in err
+    assert "camera on 127.0.0.1:1: cannot connect" in err
 
 
 def test_a_port_that_does_not_open_is_one_finding(rig):
     findings = examine_rig(rig, gantry_port="/dev/hlr-lab-no-such-port", stage_address="127.0.0.1:1")
-    assert [(f.device, f.level) for f in findings] == [("turntable", "problem"), ("gantry", "problem")]
+    assert [(f.device, f.level) for f in findings] == [
+        ("turntable", "problem"),
+        ("gantry", "problem"),
+        ("camera", "problem"),
+    ]
+    assert "no address" in findings[2].message
     assert "cannot open the port" in findings[1].message
     assert "/dev/hlr-lab-no-such-port" in findings[1].message

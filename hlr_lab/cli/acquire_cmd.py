@@ -13,10 +13,9 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import Bracketing, Instruments, Outcome, Step, acquire
 from hlr_lab.cli.common import console, resolve_rig, speed_factor_option
-from hlr_lab.devices import link, open_devices
+from hlr_lab.devices import open_camera, open_devices
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.mesh import file_sha256
@@ -97,9 +96,9 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
         devices = stack.enter_context(
             open_devices(rig, gantry_port=links.get("gantry"), stage_address=links.get("stage"))
         )
-        devices.connect()
-        camera = NetworkCamera(links["camera"])
+        camera = open_camera(rig, links.get("camera"))  # before anything is energised
         stack.callback(camera.close)
+        devices.connect()
         # only now, with every device answering, does the session directory come into being
         resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
         stack.enter_context(_session_log(session / LOG))
@@ -186,11 +185,7 @@ def _terminate_as_interrupt(signum, _frame) -> None:
 
 def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> dict:
     if not sim:
-        return {
-            "camera": link(
-                rig, "camera.address", None, 'set it to the camera\'s frame endpoint ("host:port")'
-            )
-        }
+        return {}  # every device as the rig file says
     # the simulator is reached only from the command line (the composition root)
     from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
     from sim.rig import SimRig

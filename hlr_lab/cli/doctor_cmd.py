@@ -38,7 +38,8 @@ def doctor(rig_path: Path | None, sim: bool) -> None:
 
             with SimRig() as world:
                 e = world.endpoints
-                findings = examine_rig(rig, gantry_port=e.dynamixel, stage_address=e.modbus)
+                # no scene, so no camera: the simulated camera is exercised by acquire --sim
+                findings = examine_rig(rig, gantry_port=e.dynamixel, stage_address=e.modbus, camera=False)
         else:
             findings = examine_rig(rig)
     console.print(_table(rig.name, findings))
