@@ -23,6 +23,7 @@ import numpy as np
 
 from drivers.errors import RETRY, ChecksumError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
+from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
 from hlr_lab.session.frames import frame_problem
@@ -103,15 +104,20 @@ def acquire(
     settle_timeout_s: float = 60.0,
     bracket: Bracketing = Bracketing(),
     progress: Callable[[Step], None] = lambda _: None,
+    object_window: Callable[[float], np.ndarray] | None = None,
 ) -> Outcome:
-    """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``."""
+    """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``.
+
+    object_window: turntable angle (°) → (H, W) bool, where the object may appear: clipped pixels are
+    counted there only (:mod:`hlr_lab.silhouette`); None counts the whole frame.
+    """
     outcome, started = Outcome(), time.monotonic()
     with Journal(session / JOURNAL) as journal, _RetryJournal(journal) as retries:
         done = _intact_frames(session, journal.events, outcome.retaken)
         journal.append({"event": "run_start", "at": time.time(), "frames_done": sum(map(len, done.values()))})
         try:
             with FrameWriter(session, journal) as writer:
-                run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket)
+                run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket, object_window)
                 for i, (pose, target) in enumerate(zip(plan.poses, targets, strict=True)):
                     retries.pose = pose.id
                     have = done.get(pose.id, {})
@@ -175,6 +181,7 @@ class _Run:
     writer: FrameWriter
     settle_timeout_s: float
     bracket: Bracketing
+    object_window: Callable[[float], np.ndarray] | None
 
     def take_pose(
         self,
@@ -203,33 +210,45 @@ class _Run:
         measured = _move(instruments, target, self.settle_timeout_s)
         temperatures = {k: v for t in instruments.thermometers for k, v in t.temperatures().items()}
         state = {**_positions(target, measured), "temperatures_c": temperatures}
+        window = None if self.object_window is None else self.object_window(target.turntable_deg)
         self.journal.append({"event": "pose", "pose": pose.id, **state})
         log.info("%s: settled at %s, %s", pose.id, measured, temperatures)
         instruments.lamp.set(True)
         for k in planned:
             lit[k] = pose.exposures_s[k]
-            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, "planned", progress)))
+            shortest = min(
+                shortest, (lit[k], self._capture(pose, k, lit[k], state, window, "planned", progress))
+            )
         k = max(len(pose.exposures_s), max(lit) + 1)
         while self.bracket.wants_shorter(shortest[1], k - len(pose.exposures_s)):
             lit[k] = shortest[0] / self.bracket.factor
-            shortest = min(shortest, (lit[k], self._capture(pose, k, lit[k], state, "adaptive", progress)))
+            shortest = min(
+                shortest, (lit[k], self._capture(pose, k, lit[k], state, window, "adaptive", progress))
+            )
             k += 1
         instruments.lamp.set(False)
         dark = sorted(set(lit) - darks) if self.bracket.dark_frames else []
         for k in dark:  # same pose and exposure, lamp off: the ambient light to subtract
-            self._capture(pose, k, lit[k], state, "dark", progress)
+            self._capture(pose, k, lit[k], state, window, "dark", progress)
         return len(lit) - (len(have) - len(darks)) + len(dark)
 
     def _capture(
-        self, pose: PlanPose, k: int, exposure: float, state: dict, kind: str, progress: Callable[[str], None]
+        self,
+        pose: PlanPose,
+        k: int,
+        exposure: float,
+        state: dict,
+        window: np.ndarray | None,
+        kind: str,
+        progress: Callable[[str], None],
     ) -> int:
-        """One frame, handed to the writer; returns its clipped-pixel count. ``kind`` is "planned",
-        "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
+        """One frame, handed to the writer; returns its clipped-pixel count (inside ``window`` when
+        given). ``kind`` is "planned", "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
         progress(f"exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
         adaptive, dark = kind == "adaptive", kind == "dark"
         self.instruments.camera.set_exposure(exposure)
         frame = _retry_capture(self.instruments.camera)
-        clipped = _clipped(frame.pixels, frame.bits)
+        clipped = _clipped(frame.pixels, frame.bits, window)
         sidecar = {
             "pose": pose.id,
             "exposure_index": k,
@@ -240,6 +259,7 @@ class _Run:
             "bits": frame.bits,
             "captured_at": frame.captured_at,
             "clipped_pixels": clipped,
+            "clipped_counted_in": "frame" if window is None else "object window",
             **state,
             "camera": frame.meta,
         }
@@ -258,12 +278,21 @@ class _Run:
         return clipped
 
 
-def _clipped(pixels: np.ndarray, bits: int) -> int:
-    """Pixels with any channel at the top code: their true value is unknown."""
+def _clipped(pixels: np.ndarray, bits: int, window: np.ndarray | None) -> int:
+    """Pixels (inside ``window``, (H, W) bool, when given) with any channel at the top code: their true
+    value is unknown. pixels: (H, W, C) or (H, W)."""
+    if window is not None and window.shape != pixels.shape[:2]:
+        raise InputError(
+            f"the camera delivers {pixels.shape[1]}×{pixels.shape[0]} frames, the rig file says "
+            f"{window.shape[1]}×{window.shape[0]}: correct camera.width and camera.height (and calibrate "
+            "at the camera's resolution)",
+            field="camera.width",
+        )
     top = (1 << bits) - 1
     if pixels.max() < top:  # the usual case, and 5× faster than counting
         return 0
-    return int((pixels >= top).any(axis=-1).sum() if pixels.ndim == 3 else (pixels >= top).sum())
+    at_top = (pixels >= top).any(axis=-1) if pixels.ndim == 3 else pixels >= top
+    return int((at_top & window).sum() if window is not None else at_top.sum())
 
 
 def _retry_capture(camera: Camera) -> RawFrame:

@@ -2,6 +2,7 @@
 
 import contextlib
 import json
+import random
 import re
 import signal
 import subprocess
@@ -17,6 +18,7 @@ from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import JOURNAL, Bracketing, Instruments, acquire
 from hlr_lab.cli.main import main
 from hlr_lab.devices import open_devices
+from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.motion import motion_targets
 from hlr_lab.segment import segment
@@ -56,7 +58,7 @@ def sim_world(plan_file):
         yield world
 
 
-def run(world, rig, plan, session, bracket=None, progress=None):
+def run(world, rig, plan, session, bracket=None, progress=None, object_window=None):
     targets = motion_targets(plan, rig)
     e = world.endpoints
     with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
@@ -70,6 +72,7 @@ def run(world, rig, plan, session, bracket=None, progress=None):
                 session,
                 bracket=bracket or Bracketing(),
                 progress=progress or (lambda _: None),
+                object_window=object_window,
             )
         finally:
             camera.close()
@@ -200,6 +203,41 @@ def test_a_killed_run_stops_safely_and_resumes_without_repeats(builtin_plan, tmp
     assert sorted(keys) == sorted((p.id, k) for p in plan.poses for k in range(len(p.exposures_s)))
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_kill_9_at_a_random_point_resumes_to_the_same_frames_without_duplicates(
+    builtin_plan, tmp_path, seed
+):
+    """SIGKILL (no handler runs) once the journal has a random number of lines; the same command again
+    ends with every planned frame journaled exactly once, each intact."""
+    session = tmp_path / "session"
+    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session)]
+    plan = read_plan(builtin_plan)
+    expected = sorted((p.id, k) for p in plan.poses for k in range(len(p.exposures_s)))
+    # run_start, then a pose line and its frames per pose: kill somewhere before the last frame
+    lines = random.Random(seed).randint(1, len(expected) + len(plan.poses))
+    child = subprocess.Popen(
+        [sys.executable, "-m", "hlr_lab.cli.main", *command, "--speed-factor", "5"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not (session / JOURNAL).exists() or len(read_journal(session / JOURNAL)) < lines:
+            assert child.poll() is None
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        child.send_signal(signal.SIGKILL)
+        assert child.wait(timeout=30) == -signal.SIGKILL
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert main([*command, "--speed-factor", "40"]) == 0
+    frames = [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"]
+    assert sorted((e["pose"], e["exposure_index"]) for e in frames) == expected
+    assert all(load_frame(session, e) is not None for e in frames)
+
+
 def test_adaptive_bracketing_adds_shorter_frames_until_nothing_clips(plan_file, rig, tmp_path):
     """A lamp bright enough to clip the highlight even in the shortest planned exposure."""
     plan = read_plan(plan_file[0])
@@ -220,6 +258,21 @@ def test_adaptive_bracketing_adds_shorter_frames_until_nothing_clips(plan_file, 
         # complete: a resumed run neither moves nor captures
         again = run(world, rig, plan, tmp_path)
         assert (again.taken, again.already_done) == (0, planned + len(extra))
+
+
+def test_clipping_counts_only_inside_the_object_window(plan_file, rig, tmp_path):
+    """The same clipping lamp, but the window says the object is elsewhere (as if the clipped pixels were
+    a bright background): no shorter frames. A window of another size than the frames is refused."""
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    with world_of(plan_file, power=300.0) as world:
+        elsewhere = np.zeros((480, 640), bool)
+        outcome = run(world, rig, plan, tmp_path / "a", object_window=lambda _: elsewhere)
+        assert outcome.taken == len(plan.poses[0].exposures_s)
+        frames = [e for e in read_journal(tmp_path / "a" / JOURNAL) if e["event"] == "frame"]
+        assert all(e["clipped_pixels"] == 0 for e in frames)
+        with pytest.raises(InputError, match=r"delivers 640×480 frames, the rig file says 1280×960"):
+            run(world, rig, plan, tmp_path / "b", object_window=lambda _: np.ones((960, 1280), bool))
 
 
 def test_adaptive_bracketing_stops_at_its_limit(plan_file, rig, tmp_path):

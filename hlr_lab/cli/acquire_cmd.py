@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import click
+import numpy as np
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
@@ -20,8 +22,10 @@ from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
+from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.rig import Rig
 from hlr_lab.session.metadata import start_or_resume
+from hlr_lab.silhouette import object_window
 
 log = logging.getLogger(__name__)
 LOG = "acquire.log"
@@ -88,6 +92,7 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
     if rig.file.lamp is None:
         raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
+    object_windows = _object_windows(rig, plan, plan_path)
     with contextlib.ExitStack() as stack:  # unwinds in reverse: camera, devices (safe state), simulator
         # `kill` (SIGTERM) stops the run like Ctrl-C: the journal says so and the rig ends safe
         previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
@@ -112,6 +117,7 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
                     session,
                     bracket=Bracketing(dark_frames=dark_frames),
                     progress=show,
+                    object_window=object_windows,
                 )
         except BaseException:
             console.print(
@@ -122,6 +128,13 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
             raise
         log.info("run summary: %s", outcome.summary())
     console.print(_summary_table(outcome, session))
+
+
+def _object_windows(rig: Rig, plan: PlanFile, plan_path: Path) -> Callable[[float], np.ndarray]:
+    """Turntable angle → where the object may appear in a frame (computed once per angle): adaptive
+    bracketing looks for clipped pixels there, not on a background that may have bright spots."""
+    vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
+    return functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
 
 
 @contextlib.contextmanager

@@ -16,8 +16,8 @@ import numpy as np
 from hlr_lab.colour import srgb8_to_linear
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
-from hlr_lab.mesh import file_sha256, load_mesh
-from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
+from hlr_lab.mesh import file_sha256
+from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.rig import Rig
 from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
@@ -31,21 +31,10 @@ def sim_camera_spec(rig: Rig) -> CameraSpec:
 
 
 def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> SceneSpec:
-    placement = np.array(plan.object.mesh_to_turntable or np.eye(4))
+    placement = mesh_to_turntable(plan)
     if scene_path is not None:
         return replace(_scene_file(plan, scene_path), mesh_to_turntable=placement)
-    ref = plan.object.mesh
-    if ref.startswith(BUILTIN_PREFIX):
-        mesh = builtin_object(ref).mesh
-    else:
-        texture = None if plan.object.texture is None else plan_path.parent / plan.object.texture
-        mesh = load_mesh(plan_path.parent / ref, texture)
-    if mesh.sha256 != plan.object.sha256:
-        raise InputError(
-            f"the mesh {ref} has changed since the plan was made (sha256 differs); plan again",
-            path=plan_path,
-            field="object.sha256",
-        )
+    mesh = load_planned_mesh(plan, plan_path)
     if mesh.vertex_colours is None:
         raise InputError(
             "a textured mesh needs its simulated world as a scene file: give --scene FILE", field="--scene"
