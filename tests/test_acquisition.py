@@ -115,6 +115,29 @@ def test_acquire_then_resume(sim_world, rig, plan_file, tmp_path):
     assert events[-1]["event"] == "run_end"
 
 
+def test_no_goal_outside_the_limits_ever_reaches_the_devices(sim_world, rig, plan_file, tmp_path):
+    """Every goal the simulated servos and stage received during a whole run (the final stop included) lies
+    within the rig's limits; a plan with a pose outside them sends nothing at all."""
+    plan = read_plan(plan_file[0])
+    run(sim_world, rig, plan, tmp_path / "a")
+    (az_lo, az_hi), (el_lo, el_hi) = rig.gantry.servo_limits
+    limits = dict(zip(rig.gantry.servo_ids, [(az_lo, az_hi), (el_lo, el_hi)], strict=True))
+    goals = sim_world.bus.goals
+    assert len(goals) >= 2 * len(plan.poses)
+    assert all(limits[g.servo_id][0] <= g.goal <= limits[g.servo_id][1] for g in goals)
+    steps = sorted(rig.turntable_kinematics.steps_for(d) for d in rig.turntable_limits_deg)
+    moves = sim_world.turntable.stage.moves
+    assert len(moves) == len(plan.poses)
+    assert all(steps[0] <= m <= steps[1] for m in moves)
+
+    beyond = plan.poses[0].model_copy(update={"turntable_deg": rig.turntable_limits_deg[1] + 5.0})
+    bad = plan.model_copy(update={"poses": [plan.poses[0], beyond]})
+    sent = (len(goals), len(moves))  # both lists grow in place
+    with pytest.raises(InputError, match=r"poses\[1\]\.turntable_deg"):
+        run(sim_world, rig, bad, tmp_path / "b")
+    assert (len(sim_world.bus.goals), len(sim_world.turntable.stage.moves)) == sent
+
+
 @pytest.fixture(scope="module")
 def builtin_plan(tmp_path_factory):
     """A plan of builtin:pebble, the object the default simulated world is made of."""
