@@ -247,3 +247,37 @@ def nearest_neighbour_spacing_deg(directions: np.ndarray) -> float:
 
     d, _ = cKDTree(directions).query(directions, k=2)
     return float(np.degrees(2 * np.arcsin(d[:, 1].max() / 2)))
+
+
+@dataclass
+class SessionFitFigures:
+    views: int
+    pixels_per_frame: int
+    regions_measured: int
+    seconds: float
+    stages: dict[str, float]
+    peak_rss_mb: float
+
+
+def _session_fit_case(session: str) -> SessionFitFigures:
+    from hlr_lab.reflectance.session_fit import fit_session, open_session
+
+    s = open_session(Path(session))
+    rss = _PeakRss()
+    with rss:
+        t = time.perf_counter()
+        result = fit_session(s)
+        elapsed = time.perf_counter() - t
+    return SessionFitFigures(
+        len(s.views),
+        s.rig.camera.width * s.rig.camera.height,
+        len(result.fits),
+        elapsed,
+        result.seconds,
+        rss.peak / 2**20,
+    )
+
+
+def run_session_fit_case(session: Path) -> SessionFitFigures:
+    """``hlr-lab fit``'s work on ``session`` in a fresh process: time, per-stage time, peak memory."""
+    return in_fresh_process(_session_fit_case, str(session))

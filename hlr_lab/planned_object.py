@@ -12,6 +12,7 @@ from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.mesh import ColouredMesh, load_mesh
 from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
+from hlr_lab.raycast import PixelSurface
 
 
 def load_planned_mesh(plan: PlanFile, plan_path: Path) -> ColouredMesh:
@@ -34,3 +35,46 @@ def load_planned_mesh(plan: PlanFile, plan_path: Path) -> ColouredMesh:
 def mesh_to_turntable(plan: PlanFile) -> np.ndarray:
     """4×4: the plan's placement of the mesh on the turntable (identity for old plans without one)."""
     return np.array(plan.object.mesh_to_turntable or np.eye(4), dtype=np.float64)
+
+
+def region_ids(plan: PlanFile) -> np.ndarray:
+    """(R,) the plan's region ids, in the order of :func:`palette`."""
+    return np.array([r.id for r in plan.object.regions], np.int64)
+
+
+def palette(plan: PlanFile) -> np.ndarray:
+    """(R, 3) float64 the plan's region colours (8-bit sRGB)."""
+    return np.array([r.color for r in plan.object.regions], np.float64)
+
+
+def nearest_region(plan: PlanFile, colours: np.ndarray) -> np.ndarray:
+    """(N, 3) sRGB8 colours → (N,) the id of the plan region whose colour is nearest."""
+    p = palette(plan)
+    d2 = ((np.asarray(colours, np.float64)[:, None, :] - p[None]) ** 2).sum(axis=2)
+    return region_ids(plan)[np.argmin(d2, axis=1)]
+
+
+def face_regions(plan: PlanFile, mesh: ColouredMesh) -> np.ndarray:
+    """(F,) region id per face of a vertex-coloured mesh (its mean corner colour's nearest region)."""
+    if mesh.vertex_colours is None:
+        raise InputError("face regions need vertex colours; a textured mesh has regions per texel")
+    return nearest_region(plan, mesh.vertex_colours[mesh.faces].astype(np.float64).mean(axis=1))
+
+
+def surface_regions(plan: PlanFile, mesh: ColouredMesh, surface: PixelSurface) -> np.ndarray:
+    """(N,) region id at each hit of ``surface`` (−1 on a miss): from the texture at the hit's UV when
+    the mesh is textured (region borders may cross faces), else from the face's colour."""
+    out = np.full(len(surface.face), -1, np.int64)
+    hit = surface.hit
+    if not hit.any():
+        return out
+    face = surface.face[hit]
+    if mesh.texture is None or mesh.corner_uv is None:
+        out[hit] = face_regions(plan, mesh)[face]
+        return out
+    uv = np.einsum("ij,ijk->ik", surface.barycentric[hit], mesh.corner_uv[face])
+    h, w = mesh.texture.shape[:2]
+    col = np.clip((uv[:, 0] % 1.0) * w, 0, w - 1).astype(np.int64)
+    row = np.clip((1.0 - uv[:, 1] % 1.0) * h, 0, h - 1).astype(np.int64)  # row 0 is the top (v = 1)
+    out[hit] = nearest_region(plan, mesh.texture[row, col])
+    return out

@@ -89,28 +89,48 @@ class RayCaster:
 
     def gbuffer(self, camera: Camera) -> GBuffer:
         """Cast one ray per pixel centre of ``camera`` (expressed in the mesh frame)."""
-        origins, dirs = camera.pixel_rays(camera.pixel_grid())
+        h, w = camera.height, camera.width
+        s = self.surface(camera, camera.pixel_grid())
+        depth = np.full(h * w, np.inf)
+        depth[s.hit] = camera.to_camera(s.point[s.hit])[:, 2]
+        return GBuffer(
+            s.face.reshape(h, w),
+            s.point.reshape(h, w, 3),
+            s.normal.reshape(h, w, 3),
+            depth.reshape(h, w),
+            s.barycentric.reshape(h, w, 3),
+        )
+
+    def surface(self, camera: Camera, pixels: np.ndarray) -> PixelSurface:
+        """What the rays through ``pixels`` (N, 2) of ``camera`` (mesh frame) hit first."""
+        origins, dirs = camera.pixel_rays(pixels)
         face, dist = self.first_hit(origins, dirs)
         hit = face >= 0
-        h, w = camera.height, camera.width
-        point = np.full((h * w, 3), np.nan)
+        n = len(face)
+        point = np.full((n, 3), np.nan)
         point[hit] = origins[hit] + dirs[hit] * dist[hit, None]
-        bary = np.full((h * w, 3), np.nan)
-        normal = np.full((h * w, 3), np.nan)
+        bary = np.full((n, 3), np.nan)
+        normal = np.full((n, 3), np.nan)
         if hit.any():
             corners = self.mesh.faces[face[hit]]
             bary[hit] = trimesh.triangles.points_to_barycentric(self.mesh.vertices[corners], point[hit])
-            n = np.einsum("ij,ijk->ik", bary[hit], self.mesh.vertex_normals[corners])
-            normal[hit] = n / np.linalg.norm(n, axis=1, keepdims=True)
-        depth = np.full(h * w, np.inf)
-        depth[hit] = camera.to_camera(point[hit])[:, 2]
-        return GBuffer(
-            face.reshape(h, w),
-            point.reshape(h, w, 3),
-            normal.reshape(h, w, 3),
-            depth.reshape(h, w),
-            bary.reshape(h, w, 3),
-        )
+            nrm = np.einsum("ij,ijk->ik", bary[hit], self.mesh.vertex_normals[corners])
+            normal[hit] = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+        return PixelSurface(face, point, normal, bary)
+
+
+@dataclass(frozen=True, eq=False)
+class PixelSurface:
+    """First hits of N pixel rays: face (N,) (−1 on a miss), point, normal (unit), barycentric (N, 3)."""
+
+    face: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    barycentric: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        return self.face >= 0
 
 
 def facing(

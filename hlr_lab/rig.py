@@ -164,12 +164,29 @@ class _LampSection(_Strict):
     coil: int = Field(default=0, ge=0)
 
 
+class _LightSection(_Strict):
+    """The lamp as a light source (DESIGN §3): irradiance Φ/d² at distance d for a point light."""
+
+    type: Literal["point"] = "point"
+    power: float = Field(default=1.0, gt=0)  # Φ, in the unit the fitted reflectances are relative to
+
+
+class _SensorSection(_Strict):
+    """The camera's radiometric response: linear, DN = sensitivity · radiance · t · gain + black level."""
+
+    sensitivity: float = Field(default=4095.0, gt=0)  # DN per (radiance unit · second) at 0 dB
+    black_level_dn: float = Field(default=0.0, ge=0)
+    read_noise_dn: float = Field(default=1.5, ge=0)  # below a few of these a value is dark-noise dominated
+
+
 class RigFile(_Strict):
     rig: _Header
     camera: _CameraSection
     gantry: _GantrySection
     turntable: _TurntableSection
     lamp: _LampSection | None = None
+    light: _LightSection = _LightSection()
+    sensor: _SensorSection = _SensorSection()
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,6 +222,11 @@ def load_rig(path: str | Path) -> Rig:
     data = read_toml(path)
     check_header(data, path, RIG_FORMAT, {1}, header="rig")
     return _build(validate(RigFile, data, path), str(path))
+
+
+def rig_of_snapshot(snapshot: dict, source: str) -> Rig:
+    """The rig recorded in a session (``session.json``), validated as a rig file is."""
+    return _build(validate(RigFile, snapshot, Path(source)), source)
 
 
 def sim_rig() -> Rig:

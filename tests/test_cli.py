@@ -131,6 +131,8 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
         ["bench", "fit"],
         ["bench", "sim"],
         ["bench", "acquire"],
+        ["bench", "session-fit"],
+        ["fit"],
         ["sim", "serve"],
         ["acquire"],
         ["doctor"],
@@ -191,6 +193,16 @@ def test_acquire_benchmark_prints_figures(capsys):
     # a move and its settling take several servo sync reads, and the stage a write, START and status reads
     assert int(counts[1]) >= 3
     assert int(counts[2]) >= 4
+
+
+def test_session_fit_benchmark_prints_figures(capsys):
+    require_renderer()
+    code, out, err = run(capsys, "bench", "session-fit", "--poses", "2")
+    assert code == 0, err
+    assert "session: 2 poses, 6 frames" in out
+    assert re.search(r"fit \(target .*\): [\d.]+ s, peak RSS \d+ MB; 4 regions measured", out)
+    for stage in ("hdr", "g-buffer", "selection", "shadows", "fitting"):
+        assert f"{stage} " in out
 
 
 @pytest.mark.slow

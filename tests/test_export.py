@@ -24,6 +24,7 @@ from hlr_lab.formats.materials import (
     unmeasured_entry,
     write_materials,
 )
+from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.procedural import pebble
 from hlr_lab.segment import segment
 
@@ -39,12 +40,13 @@ def pebble_materials(tmp_path_factory):
     obj = pebble()  # the mesh behind builtin:pebble
     seg = segment(obj.mesh)
     entries = []
-    for region, truth in zip(seg.regions, TRUTHS, strict=False):
+    regions = [RegionEntry.of(r) for r in seg.regions]
+    for region, truth in zip(regions, TRUTHS, strict=False):
         r = synthetic_region(
             truth, shape="sphere", pixels=8000, bits=12, read_noise_dn=2, full_scale=1.5, seed=region.id
         )
         entries.append(measured_entry(region, fit_region(r.intensity, r.irradiance, r.cos_alpha, r.cos_beta)))
-    last = seg.regions[-1]  # its highlight was never photographed
+    last = regions[-1]  # its highlight was never photographed
     entries.append(
         unmeasured_entry(
             last,

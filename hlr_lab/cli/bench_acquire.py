@@ -25,13 +25,15 @@ from drivers.protocols import Camera, Positioner, RawFrame
 from hlr_lab.acquisition import Instruments, Step, acquire
 from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
 from hlr_lab.devices import open_devices
-from hlr_lab.formats.plan import PlanFile, build_plan
+from hlr_lab.formats.plan import PlanFile, build_plan, write_plan
+from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import motion_targets
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.procedural import builtin_object
 from hlr_lab.rig import Rig, sim_rig
 from hlr_lab.segment import segment
+from hlr_lab.session.metadata import start_or_resume
 from sim.rig import SimRig
 
 BENCH_OBJECT = "builtin:pebble"
@@ -137,9 +139,9 @@ def repeated_poses(plan: PlanFile, n: int) -> PlanFile:
     return plan.model_copy(update={"poses": poses})
 
 
-def acquire_figures(*, poses: int, speed_factor: float) -> AcquireFigures:
+def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None) -> AcquireFigures:
     """Acquire ``poses`` poses of builtin:pebble's plan (cycled) on the simulated rig into a scratch
-    session."""
+    session, or into ``keep``/session (a whole session: its plan.json beside it, for ``fit``)."""
     rig = sim_rig()
     plan = repeated_poses(builtin_plan(rig), poses)
     targets = motion_targets(plan, rig)
@@ -150,6 +152,11 @@ def acquire_figures(*, poses: int, speed_factor: float) -> AcquireFigures:
         SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor) as world,
         tempfile.TemporaryDirectory(prefix="hlr-bench-acquire-") as scratch,
     ):
+        session = Path(scratch) if keep is None else keep / "session"
+        if keep is not None:
+            plan_path = keep / "plan.json"
+            write_plan(plan_path, plan)
+            start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
         e = world.endpoints
         with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
             devices.connect()
@@ -172,7 +179,7 @@ def acquire_figures(*, poses: int, speed_factor: float) -> AcquireFigures:
                         devices.lamp,
                         (devices.gantry,),
                     ),
-                    Path(scratch),
+                    session,
                     progress=on_step,
                 )
                 figures.total_s = time.perf_counter() - started

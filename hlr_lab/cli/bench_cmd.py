@@ -228,3 +228,37 @@ def bench_acquire(poses, speed_factor) -> None:
     ]
     for line in lines:
         out.print(line, markup=False, soft_wrap=True)
+
+
+@bench.command("session-fit")
+@click.option("--poses", type=click.IntRange(2, 1000), default=20, show_default=True)
+def bench_session_fit(poses) -> None:
+    """End-to-end ``hlr-lab fit`` on a simulated session: total time, time per stage (HDR, G-buffer,
+    selection, shadows, fitting) and peak memory, the fit in a fresh process.
+
+    The session is builtin:pebble's plan, its poses cycled to the count asked for, acquired on the
+    simulated rig at 1280×960 with 3-frame brackets into a scratch directory removed afterwards.
+    Targets (2 cores, 20 poses): ≤ 30 s and ≤ 1.5 GB peak.
+
+    \b
+    Example:
+      hlr-lab bench session-fit --poses 20
+    """
+    import tempfile
+
+    from hlr_lab.bench import run_session_fit_case
+    from hlr_lab.cli.bench_acquire import acquire_figures  # builds the simulated rig: CLI only
+
+    with tempfile.TemporaryDirectory(prefix="hlr-bench-fit-") as scratch:
+        with console.status(f"acquiring {poses} poses on the simulated rig…"):
+            acquired = acquire_figures(poses=poses, speed_factor=1000.0, keep=Path(scratch))
+        with console.status("fitting (fresh process)…"):
+            f = run_session_fit_case(Path(scratch) / "session")
+    stages = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in f.stages.items())
+    for line in (
+        f"session: {f.views} poses, {acquired.frames} frames of {f.pixels_per_frame:,} pixels",
+        f"fit (target ≤ 30 s, ≤ 1.5 GB): {f.seconds:.1f} s, peak RSS {f.peak_rss_mb:.0f} MB; "
+        f"{f.regions_measured} regions measured",
+        f"  per stage: {stages}",
+    ):
+        out.print(line, markup=False, soft_wrap=True)

@@ -13,6 +13,7 @@ from hlr_lab.cli.bench_cmd import bench
 from hlr_lab.cli.common import console
 from hlr_lab.cli.doctor_cmd import doctor
 from hlr_lab.cli.export_cmd import export
+from hlr_lab.cli.fit_cmd import fit
 from hlr_lab.cli.plan_cmd import plan
 from hlr_lab.cli.segment_cmd import segment
 from hlr_lab.cli.sim_cmd import sim
@@ -43,6 +44,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
 cli.add_command(segment)
 cli.add_command(plan)
 cli.add_command(acquire_cmd)
+cli.add_command(fit)
 cli.add_command(export)
 cli.add_command(bench)
 cli.add_command(sim)

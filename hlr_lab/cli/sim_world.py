@@ -17,7 +17,7 @@ from hlr_lab.colour import srgb8_to_linear
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.mesh import file_sha256
-from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.planned_object import face_regions, load_planned_mesh, mesh_to_turntable, palette, region_ids
 from hlr_lab.rig import Rig
 from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
@@ -39,10 +39,10 @@ def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> Scene
         raise InputError(
             "a textured mesh needs its simulated world as a scene file: give --scene FILE", field="--scene"
         )
-    palette = np.array([r.color for r in plan.object.regions], np.float64)  # (R, 3) sRGB8
-    face_colour = mesh.vertex_colours[mesh.faces].astype(np.float64).mean(axis=1)  # (F, 3)
-    region = np.argmin(((face_colour[:, None] - palette[None]) ** 2).sum(axis=2), axis=1)
-    rd = srgb8_to_linear(palette) * RD_SCALE
+    # scene materials are indexed by position in the plan's region list
+    order = {rid: i for i, rid in enumerate(region_ids(plan))}
+    region = np.vectorize(order.__getitem__, otypes=[np.int64])(face_regions(plan, mesh))
+    rd = srgb8_to_linear(palette(plan)) * RD_SCALE
     materials = [Material(tuple(map(float, c)), DEFAULT_RS, DEFAULT_N) for c in rd]
     return SceneSpec(mesh.vertices, mesh.faces, region, materials, placement)
 

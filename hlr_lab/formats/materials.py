@@ -23,8 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from hlr_lab.errors import InputError
 from hlr_lab.fitting import RegionFit
 from hlr_lab.formats.io import read_format, write_json
-from hlr_lab.formats.regions import Colour8
-from hlr_lab.segment import Region
+from hlr_lab.formats.regions import Colour8, RegionEntry
 
 MATERIALS_FORMAT = "hlr-lab.materials"
 EQUATION = "I = L (rd cos α + rs cos^n β), β between the normal and the half vector"
@@ -77,10 +76,10 @@ class MaterialsFile(BaseModel):
     regions: list[MaterialEntry]
 
 
-def measured_entry(region: Region, fit: RegionFit) -> MaterialEntry:
+def measured_entry(region: RegionEntry, fit: RegionFit) -> MaterialEntry:
     return MaterialEntry(
         id=region.id,
-        color=list(region.colour),
+        color=list(region.color),
         vertices=region.vertices,
         rd=_v(fit.rd),
         rd_se=_v(fit.rd_se),
@@ -97,7 +96,7 @@ def measured_entry(region: Region, fit: RegionFit) -> MaterialEntry:
 
 
 def unmeasured_entry(
-    region: Region,
+    region: RegionEntry,
     rd,
     rd_se,
     *,
@@ -109,7 +108,7 @@ def unmeasured_entry(
 ) -> MaterialEntry:
     return MaterialEntry(
         id=region.id,
-        color=list(region.colour),
+        color=list(region.color),
         vertices=region.vertices,
         rd=_v(rd),
         rd_se=_v(rd_se),

@@ -1,0 +1,94 @@
+"""``hlr-lab fit``: a session → materials.json (per-region Rd, Rs, n with standard errors) and diagnostics."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from rich.markup import escape
+from rich.table import Table
+
+from hlr_lab.cli.common import console
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.formats.materials import MaterialsFile, write_materials
+from hlr_lab.reflectance.session_fit import fit_session, open_session
+
+DIAGNOSTICS = "fit-diagnostics.json"
+
+
+def _theta_c(value: str) -> float | str:
+    if value == "auto":
+        return value
+    try:
+        degrees = float(value)
+    except ValueError:
+        raise click.BadParameter("a number of degrees or 'auto'") from None
+    if not 0 < degrees < 90:
+        raise click.BadParameter("θc lies between 0 and 90 degrees")
+    return degrees
+
+
+@click.command("fit")
+@click.argument("session", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--theta-c",
+    "theta_c",
+    default="auto",
+    show_default=True,
+    callback=lambda _c, _p, v: _theta_c(v),
+    help="Highlight cone half-angle θc in degrees, or 'auto' (chosen per region from the data).",
+)
+@click.option("--method", type=click.Choice(["robust", "paper"]), default="robust", show_default=True)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="materials.json to write (default: SESSION/materials.json); diagnostics go beside it.",
+)
+def fit(session: Path, theta_c, method: str, output: Path | None) -> None:
+    """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
+
+    Each pose's bracket is merged into linear radiance (no clipped or noise-dominated value used, dark
+    frames subtracted), every pixel gets its geometry from the calibrated camera, the measured turntable
+    angle and the measured lamp position, and lit, visible, non-grazing pixels away from silhouettes and
+    region borders are pooled per region over all poses. A region without enough highlight pixels gets
+    its diffuse colour and "specular": "unmeasured" with the reason.
+
+    \b
+    Examples:
+      hlr-lab fit plan-session
+      hlr-lab fit sessions/bunny-1 --theta-c 10 --method paper -o bunny-materials.json
+    """
+    s = open_session(session)
+    if not s.views:
+        raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
+    output = output or session / "materials.json"
+    with console.status("fitting…") as status:
+        result = fit_session(
+            s, theta_c_deg=theta_c, method=method, progress=lambda what: status.update(escape(what))
+        )
+    write_materials(output, result.materials)
+    diagnostics = output.with_name(DIAGNOSTICS)
+    atomic_write_text(diagnostics, json.dumps(result.diagnostics, indent=1) + "\n")
+    console.print(_table(result.materials))
+    unseen = [d["id"] for d in result.diagnostics["regions"] if d.get("samples") == 0]
+    if unseen:
+        console.print(f"[yellow]regions not seen in any usable pixel:[/] {unseen} (no entry written)")
+    console.print(f"wrote {escape(str(output))} and {escape(str(diagnostics))}")
+
+
+def _table(materials: MaterialsFile) -> Table:
+    t = Table(title="fitted materials (± standard error)", title_justify="left")
+    for column in ("region", "Rd (linear RGB)", "Rs", "n", "θc", "pixels diffuse / highlight"):
+        t.add_column(column, justify="right")
+    for e in materials.regions:
+        rd = " ".join(f"{v:.4f}±{s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
+        if e.specular == "measured":
+            rs = " ".join(f"{v:.4f}" for v in e.rs)
+            n = f"{e.n:.1f}±{e.n_se:.1f}"
+        else:
+            rs, n = "unmeasured", escape(e.reason or "")
+        t.add_row(str(e.id), rd, rs, n, f"{e.theta_c_deg:.1f}°", f"{e.pixels.diffuse} / {e.pixels.highlight}")
+    return t

@@ -1,0 +1,276 @@
+"""``hlr-lab fit``: a session directory → per-region materials and diagnostics.
+
+Streams pose by pose: one bracket's frames are read, merged into radiance, turned into samples and
+dropped, so memory is bounded by a few frames plus the samples kept (tens of bytes each). The frames of
+one pose taken in different runs (a resumed session) can have slightly different measured positions:
+they form separate views, each with its own geometry.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from hlr_lab.errors import InputError
+from hlr_lab.fitting import DegenerateSamples, InsufficientSamples, RegionFit, fit_region
+from hlr_lab.formats.materials import (
+    MaterialEntry,
+    PixelCounts,
+    materials_file,
+    measured_entry,
+    unmeasured_entry,
+)
+from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.raycast import RayCaster
+from hlr_lab.reflectance.hdr import BracketFrame, merge_bracket
+from hlr_lab.reflectance.views import (
+    DEFAULT_SELECTION,
+    PoseGeometry,
+    PoseSamples,
+    Selection,
+    StageTimes,
+    pose_samples,
+)
+from hlr_lab.rig import Rig, rig_of_snapshot
+from hlr_lab.session.frames import load_frame
+from hlr_lab.session.journal import read_journal
+from hlr_lab.session.metadata import SESSION
+
+JOURNAL = "journal.jsonl"
+DIFFUSE_ONLY_BETA_DEG = 20.0  # a region without a measurable highlight: Rd from pixels beyond this β
+SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """One pose's bracket as taken: its frames' journal lines and the measured positions they share."""
+
+    pose: str
+    measured: dict
+    frames: list[dict]  # journal lines, lit frames
+    darks: dict[int, dict]  # exposure index → journal line of the dark frame
+
+
+@dataclass(frozen=True, eq=False)
+class Session:
+    path: Path
+    plan: PlanFile
+    plan_path: Path
+    rig: Rig
+    views: list[View]
+
+
+@dataclass
+class _Pooled:
+    """One region's samples over all views, and how many came from each view."""
+
+    parts: list[PoseSamples] = field(default_factory=list)
+    per_view: dict[str, int] = field(default_factory=dict)
+
+    def stacked(self, name: str) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in self.parts])
+
+
+@dataclass(frozen=True)
+class FitResult:
+    materials: object  # MaterialsFile
+    diagnostics: dict
+    fits: dict[int, RegionFit]  # the regions whose specular was measured
+    seconds: dict[str, float]  # per stage: hdr, g-buffer, selection, shadows, fitting
+
+
+def open_session(path: Path) -> Session:
+    """Read ``session.json`` and the journal: the plan, the rig as recorded, and the views."""
+    record_path = path / SESSION
+    if not record_path.is_file():
+        raise InputError(
+            "not a session directory (no session.json); give the --out of hlr-lab acquire", path=path
+        )
+    record = json.loads(record_path.read_text())
+    plan_path = Path(record["plan"]["path"])
+    if not plan_path.is_file():
+        raise InputError(
+            f"the session's plan {plan_path} is gone; restore it to fit this session", path=record_path
+        )
+    plan = read_plan(plan_path)
+    rig = rig_of_snapshot(record["rig"]["snapshot"], f"{record_path} (rig snapshot)")
+    return Session(path, plan, plan_path, rig, _views(path, read_journal(path / JOURNAL)))
+
+
+def _views(path: Path, events: list[dict]) -> list[View]:
+    groups: dict[tuple[str, str], View] = {}
+    for e in events:
+        if e.get("event") != "frame":
+            continue
+        sidecar = json.loads((path / e["sidecar"]).read_text())
+        key = (e["pose"], json.dumps(sidecar["measured"], sort_keys=True))
+        view = groups.setdefault(key, View(e["pose"], sidecar["measured"], [], {}))
+        if e.get("dark"):
+            view.darks[e["exposure_index"]] = e
+        else:
+            view.frames.append(e)
+    return [v for v in groups.values() if v.frames]
+
+
+def fit_session(
+    session: Session,
+    *,
+    theta_c_deg: float | Literal["auto"] = "auto",
+    method: Literal["robust", "paper"] = "robust",
+    selection: Selection = DEFAULT_SELECTION,
+    progress: Callable[[str], None] = lambda _: None,
+) -> FitResult:
+    rig, plan = session.rig, session.plan
+    mesh = load_planned_mesh(plan, session.plan_path).transformed(mesh_to_turntable(plan))
+    caster = RayCaster(mesh)
+    pooled: dict[int, _Pooled] = defaultdict(_Pooled)
+    times = StageTimes()
+    for i, view in enumerate(session.views):
+        progress(f"pose {view.pose} ({i + 1}/{len(session.views)}): HDR, geometry, selection")
+        with times("hdr"):
+            radiance = merge_bracket(
+                [_bracket_frame(session.path, e, view.darks.get(e["exposure_index"])) for e in view.frames],
+                sensitivity=rig.file.sensor.sensitivity,
+                black_level_dn=rig.file.sensor.black_level_dn,
+                read_noise_dn=rig.file.sensor.read_noise_dn,
+            )
+        geometry = PoseGeometry(
+            rig.turntable_kinematics.degrees_for(view.measured["turntable_steps"]),
+            rig.gantry.kinematics.light_position(tuple(view.measured["gantry_ticks"])),
+            rig.file.light.power,
+        )
+        samples, _ = pose_samples(plan, mesh, caster, rig.camera, geometry, radiance, selection, times)
+        for rid in np.unique(samples.region):
+            part = _subset(samples, samples.region == rid)
+            pooled[int(rid)].parts.append(part)
+            pooled[int(rid)].per_view[view.pose] = pooled[int(rid)].per_view.get(view.pose, 0) + len(
+                part.region
+            )
+
+    entries: list[MaterialEntry] = []
+    diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": []}
+    fits: dict[int, RegionFit] = {}
+    for region in plan.object.regions:
+        progress(f"region {region.id}: fitting")
+        p = pooled.get(region.id)
+        if p is None:
+            diagnostics["regions"].append(
+                {"id": region.id, "samples": 0, "note": "not seen in any usable pixel"}
+            )
+            continue
+        with times("fitting"):
+            entry, diag, fit = _fit_one(region, p, theta_c_deg, method)
+        entries.append(entry)
+        diagnostics["regions"].append(diag)
+        if fit is not None:
+            fits[region.id] = fit
+    materials = materials_file(entries, mesh=plan.object.mesh, sha256=plan.object.sha256)
+    return FitResult(materials, diagnostics, fits, dict(times))
+
+
+def _fit_one(
+    region: RegionEntry, p: _Pooled, theta_c_deg, method
+) -> tuple[MaterialEntry, dict, RegionFit | None]:
+    intensity, irradiance = p.stacked("intensity"), p.stacked("irradiance")
+    cos_alpha, cos_beta = p.stacked("cos_alpha"), p.stacked("cos_beta")
+    diag = {"id": region.id, "samples": len(cos_beta), "samples_per_pose": p.per_view}
+    try:
+        fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=theta_c_deg, method=method)
+    except (InsufficientSamples, DegenerateSamples) as exc:
+        entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, str(exc), method)
+        diag["specular"] = f"unmeasured: {exc}"
+        return entry, diag, None
+    rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
+    if rs < SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
+        reason = (
+            f"no significant highlight in {fit.n_highlight} pixels within θc = {fit.theta_c_deg:.3g}° "
+            f"(Rs = {rs:.2g} ± {rs_se:.2g}); plan a light whose highlight falls on this region"
+        )
+        entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, reason, method)
+        diag["specular"] = f"unmeasured: {reason}"
+        return entry, diag, None
+    diag["residual_rms"] = fit.residual_rms
+    diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
+    return measured_entry(region, fit), diag, fit
+
+
+def _diffuse_only(
+    region, intensity, irradiance, cos_alpha, cos_beta, reason: str, method: str
+) -> MaterialEntry:
+    """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE."""
+    far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    x = irradiance[far] * cos_alpha[far]  # (M,)
+    if len(x) < 3:
+        raise InputError(f"region {region.id}: too few pixels for even a diffuse fit ({len(x)})")
+    y = intensity[far]  # (M, C)
+    rd = (x[:, None] * y).sum(axis=0) / (x @ x)
+    resid = y - x[:, None] * rd
+    sigma2 = (resid**2).sum(axis=0) / max(len(x) - 1, 1)
+    rd_se = np.sqrt(sigma2 / (x @ x))
+    return unmeasured_entry(
+        region,
+        rd,
+        rd_se,
+        reason=reason,
+        theta_c_deg=DIFFUSE_ONLY_BETA_DEG,
+        pixels=PixelCounts(diffuse=int(far.sum()), highlight=0),
+        residual_rms=float(np.sqrt((resid**2).mean())),
+        estimator=method,
+    )
+
+
+def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins: int = 40) -> dict:
+    """Mean specular part Is = I/L − Rd cos α (grey) in β bins up to 2 θc, with the fitted lobe."""
+    beta = np.degrees(np.arccos(np.clip(cos_beta, 0, 1)))
+    top = min(90.0, 2 * fit.theta_c_deg)
+    edges = np.linspace(0.0, top, bins + 1)
+    spec = (intensity / irradiance[:, None] - cos_alpha[:, None] * fit.rd).mean(axis=1)
+    which = np.digitize(beta, edges) - 1
+    inside = (which >= 0) & (which < bins)
+    count = np.bincount(which[inside], minlength=bins)
+    total = np.bincount(which[inside], weights=spec[inside], minlength=bins)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / count, np.nan)
+    lobe = float(np.mean(fit.rs)) * np.cos(np.radians(centres)) ** fit.n
+    return {
+        "beta_deg": centres.round(3).tolist(),
+        "mean_is": [None if not np.isfinite(m) else float(m) for m in mean],
+        "count": count.tolist(),
+        "fitted_lobe": lobe.tolist(),
+    }
+
+
+def _subset(s: PoseSamples, mask: np.ndarray) -> PoseSamples:
+    return PoseSamples(
+        s.region[mask],
+        s.intensity[mask],
+        s.irradiance[mask],
+        s.cos_alpha[mask],
+        s.cos_beta[mask],
+        s.pixel[mask],
+    )
+
+
+def _bracket_frame(session: Path, event: dict, dark: dict | None) -> BracketFrame:
+    sidecar = json.loads((session / event["sidecar"]).read_text())
+    pixels = load_frame(session, event)
+    return BracketFrame(
+        pixels if pixels.ndim == 3 else pixels[..., None],
+        float(sidecar["exposure_s"]),
+        float(sidecar["gain_db"]),
+        int(sidecar["bits"]),
+        None if dark is None else _channels(load_frame(session, dark)),
+    )
+
+
+def _channels(pixels: np.ndarray) -> np.ndarray:
+    return pixels if pixels.ndim == 3 else pixels[..., None]

@@ -1,0 +1,138 @@
+"""One pose's pixels as fitting samples: what each pixel sees (ray cast from the calibrated camera at the
+measured turntable angle), under which light (from the measured servo positions), and whether it can be
+trusted.
+
+Everything is computed in the turntable frame, where the mesh sits still. A pixel becomes a sample when
+its radiance is usable (some unclipped frame), it sees the object, is lit (not in shadow, α below
+``max_alpha_deg``), not seen grazing (view angle below ``max_view_deg``), and lies at least
+``border_px`` pixels from a silhouette or a region border (mixed pixels there belong to neither side).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from hlr_lab.camera import Camera
+from hlr_lab.formats.plan import PlanFile
+from hlr_lab.mesh import ColouredMesh
+from hlr_lab.planned_object import surface_regions
+from hlr_lab.raycast import RayCaster
+from hlr_lab.reflectance.hdr import Radiance
+from hlr_lab.silhouette import object_window
+from hlr_lab.sphere import rotation_z
+
+
+class StageTimes(dict):
+    """Seconds per named stage, accumulated: ``with times("shadows"): …``."""
+
+    @contextlib.contextmanager
+    def __call__(self, stage: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self[stage] = self.get(stage, 0.0) + time.perf_counter() - t0
+
+
+@dataclass(frozen=True)
+class Selection:
+    max_alpha_deg: float = 80.0
+    max_view_deg: float = 75.0
+    border_px: int = 2
+
+
+DEFAULT_SELECTION = Selection()
+
+
+@dataclass(frozen=True, eq=False)
+class PoseSamples:
+    """N samples of one pose; arrays are (N, …)."""
+
+    region: np.ndarray  # (N,) region id
+    intensity: np.ndarray  # (N, C) linear radiance
+    irradiance: np.ndarray  # (N,) Φ/d²
+    cos_alpha: np.ndarray  # (N,)
+    cos_beta: np.ndarray  # (N,) β between the normal and the half vector
+    pixel: np.ndarray  # (N, 2) int (x, y)
+
+
+@dataclass(frozen=True)
+class PoseGeometry:
+    turntable_deg: float
+    light_world: np.ndarray  # (3,) the lamp where the servos measured it, world frame
+    power: float  # Φ
+
+
+def pose_samples(
+    plan: PlanFile,
+    mesh: ColouredMesh,
+    caster: RayCaster,
+    camera: Camera,
+    pose: PoseGeometry,
+    radiance: Radiance,
+    selection: Selection = DEFAULT_SELECTION,
+    timer: StageTimes | None = None,
+) -> tuple[PoseSamples, np.ndarray]:
+    """The pose's samples and its label image ((H, W) int, −1 off the object), for diagnostics.
+
+    mesh and caster: the object in the turntable frame; camera: the rig's calibrated camera (world).
+    timer: adds the seconds of the "g-buffer", "selection" and "shadows" stages.
+    """
+    timer = timer if timer is not None else StageTimes()
+    world_from_tt = rotation_z(np.radians(pose.turntable_deg))
+    cam = camera.in_frame(world_from_tt)  # the camera seen from the turntable
+    light = world_from_tt[:3, :3].T @ (pose.light_world - world_from_tt[:3, 3])
+    h, w = camera.height, camera.width
+    with timer("g-buffer"):
+        window = object_window(camera, mesh.vertices, pose.turntable_deg) & radiance.usable
+        ys, xs = np.nonzero(window)
+        pixels = np.stack([xs, ys], axis=1)
+        surface = caster.surface(cam, pixels.astype(np.float64))
+    with timer("selection"):
+        labels = np.full((h, w), -1, np.int64)
+        labels[ys, xs] = surface_regions(plan, mesh, surface)
+        interior = _interior(labels, selection.border_px)[ys, xs]
+
+    hit = surface.hit & interior
+    point, normal = surface.point[hit], surface.normal[hit]
+    to_light = light - point
+    d2 = np.einsum("ij,ij->i", to_light, to_light)
+    l_dir = to_light / np.sqrt(d2)[:, None]
+    v_dir = cam.centre - point
+    v_dir /= np.linalg.norm(v_dir, axis=1, keepdims=True)
+    half = l_dir + v_dir
+    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    cos_alpha = np.einsum("ij,ij->i", normal, l_dir)
+    cos_view = np.einsum("ij,ij->i", normal, v_dir)
+    cos_beta = np.clip(np.einsum("ij,ij->i", normal, half), 0.0, 1.0)
+    keep = (cos_alpha >= np.cos(np.radians(selection.max_alpha_deg))) & (
+        cos_view >= np.cos(np.radians(selection.max_view_deg))
+    )
+    with timer("shadows"):
+        keep[keep] = ~caster.shadowed(point[keep], normal[keep], light)
+
+    px = pixels[hit][keep]
+    samples = PoseSamples(
+        region=labels[px[:, 1], px[:, 0]],
+        intensity=radiance.value[px[:, 1], px[:, 0]].astype(np.float64),
+        irradiance=pose.power / d2[keep],
+        cos_alpha=cos_alpha[keep],
+        cos_beta=cos_beta[keep],
+        pixel=px,
+    )
+    return samples, labels
+
+
+def _interior(labels: np.ndarray, border_px: int) -> np.ndarray:
+    """(H, W) bool: every pixel within ``border_px`` has the same label (off-object counts as a label)."""
+    if border_px <= 0:
+        return np.ones(labels.shape, bool)
+    kernel = np.ones((2 * border_px + 1, 2 * border_px + 1), np.uint8)
+    f = labels.astype(np.float32)  # region ids are small integers: exact in float32
+    return cv2.erode(f, kernel) == cv2.dilate(f, kernel)

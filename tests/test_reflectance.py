@@ -1,0 +1,135 @@
+"""From frames to materials: the HDR merge against a seeded sensor, and ``hlr-lab fit`` end to end on a
+session acquired from the simulated rig, against the simulated world's true materials."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hlr_lab.cli.main import main
+from hlr_lab.cli.sim_world import sim_scene
+from hlr_lab.fitting.synthetic import Truth, synthetic_region
+from hlr_lab.formats.materials import read_materials
+from hlr_lab.formats.plan import read_plan
+from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.reflectance.hdr import BracketFrame, merge_bracket
+from hlr_lab.reflectance.session_fit import _fit_one, _Pooled
+from hlr_lab.reflectance.views import PoseSamples
+
+SENSITIVITY, READ_NOISE, BITS = 4095.0, 1.5, 12
+
+
+def expose(radiance, t, rng, *, dark=0.0):
+    """A linear 12-bit sensor as the simulator models it: read noise, rounding, clipping at 0 and the top."""
+    dn = (radiance + dark) * t * SENSITIVITY + rng.normal(0.0, READ_NOISE, radiance.shape)
+    return np.clip(np.round(dn), 0, (1 << BITS) - 1).astype(np.uint16)
+
+
+def test_the_merge_is_unbiased_from_the_noise_floor_to_past_saturation():
+    """Radiance spanning 4000:1 across a 3-frame bracket (×4 steps), from 10 DN in the longest frame to
+    past saturation in all but the shortest. The mean of 20 000 pixels per level must be within 0.3 %
+    (3× its standard error at the darkest level); choosing values by their own noise was ~1 % high near
+    the floor; clipped values never enter."""
+    rng = np.random.default_rng(3)
+    levels = np.geomspace(0.12, 500.0, 8)  # radiance; the frames clip above 50, 200 and 800
+    radiance = np.repeat(levels, 20_000).reshape(-1, 1, 1) * np.ones((1, 1, 3))
+    bracket = [BracketFrame(expose(radiance, t, rng), t, 0.0, BITS) for t in (0.02, 0.005, 0.00125)]
+    merged = merge_bracket(bracket, sensitivity=SENSITIVITY, read_noise_dn=READ_NOISE)
+    assert merged.usable.all()
+    means = merged.value.reshape(len(levels), -1, 3).mean(axis=1)
+    np.testing.assert_allclose(means, levels[:, None] * np.ones(3), rtol=3e-3)
+    assert merged.frames_used.reshape(len(levels), -1)[-1].max() == 1  # only the shortest frame, unclipped
+
+
+def test_a_pixel_clipped_in_every_frame_is_not_usable_and_dark_frames_are_subtracted():
+    """Ambient light 2/3 of the lamp's contribution, removed by the dark frames: the mean of 4 000 pixels
+    within 0.5 % (the per-pixel noise is ~8 %, so its mean's SE is ~0.13 %)."""
+    rng = np.random.default_rng(4)
+    radiance = np.full((1, 4001, 3), 0.3)
+    radiance[0, -1] = 1000.0  # clips even at 5 ms
+    ambient = 0.2
+    frames = [
+        BracketFrame(
+            expose(radiance, t, rng, dark=ambient),
+            t,
+            0.0,
+            BITS,
+            dark=expose(0 * radiance, t, rng, dark=ambient),
+        )
+        for t in (0.02, 0.005)
+    ]
+    merged = merge_bracket(frames, sensitivity=SENSITIVITY, read_noise_dn=READ_NOISE)
+    assert merged.usable[0, :-1].all()
+    assert not merged.usable[0, -1]
+    assert np.isnan(merged.value[0, -1]).all()
+    np.testing.assert_allclose(merged.value[0, :-1].mean(axis=0), 0.3, rtol=5e-3)
+
+
+def test_a_region_without_highlight_pixels_gets_its_diffuse_colour_and_a_reason():
+    truth = Truth(np.array([0.5, 0.3, 0.2]), np.array([0.3, 0.3, 0.3]), 60.0)
+    r = synthetic_region(truth, shape="sphere", pixels=6000, bits=12, read_noise_dn=1, full_scale=1.5, seed=2)
+    far = r.cos_beta < np.cos(np.radians(40))  # the highlight was never photographed
+    n = int(far.sum())
+    part = PoseSamples(
+        np.zeros(n, int),
+        r.intensity[far],
+        r.irradiance[far],
+        r.cos_alpha[far],
+        r.cos_beta[far],
+        np.zeros((n, 2), int),
+    )
+    pooled = _Pooled([part], {"p000": n})
+    entry, diag, fit = _fit_one(
+        RegionEntry(id=0, color=[200, 120, 90], vertices=10), pooled, "auto", "robust"
+    )
+    assert fit is None
+    assert entry.specular == "unmeasured"
+    assert "highlight" in entry.reason
+    assert entry.rs is None
+    assert entry.n is None
+    # the lobe's tail beyond 40° adds < 0.3·cos⁶⁰(40°) ≈ 1e-8: Rd to the noise level
+    np.testing.assert_allclose(entry.rd, truth.rd, rtol=5e-3)
+    assert diag["samples_per_pose"] == {"p000": n}
+
+
+@pytest.fixture(scope="module")
+def acquired(tmp_path_factory):
+    """builtin:pebble planned and acquired on the simulated rig (the default world: the plan's regions
+    with known default materials)."""
+    from tests.renderer_guard import require_renderer
+
+    require_renderer()
+    root = tmp_path_factory.mktemp("fit")
+    plan = root / "plan.json"
+    assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(plan)]) == 0
+    session = root / "session"
+    assert main(["acquire", "--plan", str(plan), "--sim", "--out", str(session), "--speed-factor", "40"]) == 0
+    return plan, session
+
+
+def test_fit_recovers_the_simulated_materials(acquired, capsys):
+    """Targets of the issue, per region: Rd within 1 % (as |ΔRd| / |Rd|), Rs within 5 %, n within 5 %.
+    Measured here: Rd ≤ 0.3 %, Rs ≤ 0.6 %, n ≤ 0.5 % (2 poses, 1280×960, 12-bit, 3-frame brackets)."""
+    plan_path, session = acquired
+    assert main(["fit", str(session)]) == 0
+    assert "fitted materials" in capsys.readouterr().err
+    plan = read_plan(plan_path)
+    scene = sim_scene(plan, plan_path, None)
+    materials = {e.id: e for e in read_materials(session / "materials.json").regions}
+    assert set(materials) == {r.id for r in plan.object.regions}
+    for i, region in enumerate(plan.object.regions):
+        truth, got = scene.materials[i], materials[region.id]
+        assert got.specular == "measured"
+        rd = np.array(truth.rd)
+        assert np.linalg.norm(np.array(got.rd) - rd) / np.linalg.norm(rd) < 0.01
+        np.testing.assert_allclose(got.rs, truth.rs, rtol=0.05)
+        assert got.n == pytest.approx(truth.n, rel=0.05)
+    diagnostics = json.loads((session / "fit-diagnostics.json").read_text())
+    curve = diagnostics["regions"][0]["beta_curve"]
+    assert len(curve["beta_deg"]) == len(curve["mean_is"]) == len(curve["fitted_lobe"])
+    assert sum(curve["count"]) > 100
+
+
+def test_fit_refuses_what_is_not_a_session(tmp_path, capsys):
+    assert main(["fit", str(tmp_path)]) == 1
+    assert "not a session directory" in capsys.readouterr().err
