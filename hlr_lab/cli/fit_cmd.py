@@ -13,9 +13,7 @@ from hlr_lab.cli.common import console
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import atomic_write_text
 from hlr_lab.formats.materials import MaterialsFile, write_materials
-from hlr_lab.reflectance.session_fit import fit_session, open_session
-
-DIAGNOSTICS = "fit-diagnostics.json"
+from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, fit_session, open_session
 
 
 def _theta_c(value: str) -> float | str:
@@ -64,7 +62,7 @@ def fit(session: Path, theta_c, method: str, output: Path | None) -> None:
     s = open_session(session)
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
-    output = output or session / "materials.json"
+    output = output or session / MATERIALS
     with console.status("fitting…") as status:
         result = fit_session(
             s, theta_c_deg=theta_c, method=method, progress=lambda what: status.update(escape(what))

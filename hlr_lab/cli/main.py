@@ -15,6 +15,7 @@ from hlr_lab.cli.doctor_cmd import doctor
 from hlr_lab.cli.export_cmd import export
 from hlr_lab.cli.fit_cmd import fit
 from hlr_lab.cli.plan_cmd import plan
+from hlr_lab.cli.report_cmd import report
 from hlr_lab.cli.segment_cmd import segment
 from hlr_lab.cli.sim_cmd import sim
 from hlr_lab.errors import HlrLabError
@@ -45,6 +46,7 @@ cli.add_command(segment)
 cli.add_command(plan)
 cli.add_command(acquire_cmd)
 cli.add_command(fit)
+cli.add_command(report)
 cli.add_command(export)
 cli.add_command(bench)
 cli.add_command(sim)

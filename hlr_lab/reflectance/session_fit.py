@@ -28,9 +28,10 @@ from hlr_lab.formats.materials import (
 )
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.mesh import ColouredMesh
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.raycast import RayCaster
-from hlr_lab.reflectance.hdr import BracketFrame, merge_bracket
+from hlr_lab.reflectance.hdr import BracketFrame, Radiance, merge_bracket
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
     PoseGeometry,
@@ -45,6 +46,7 @@ from hlr_lab.session.journal import read_journal
 from hlr_lab.session.metadata import SESSION
 
 JOURNAL = "journal.jsonl"
+MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 DIFFUSE_ONLY_BETA_DEG = 20.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
 
@@ -120,6 +122,32 @@ def _views(path: Path, events: list[dict]) -> list[View]:
     return [v for v in groups.values() if v.frames]
 
 
+def view_radiance(session: Session, view: View) -> Radiance:
+    """The view's bracket merged into linear radiance with the rig's radiometric calibration."""
+    sensor = session.rig.file.sensor
+    return merge_bracket(
+        [_bracket_frame(session.path, e, view.darks.get(e["exposure_index"])) for e in view.frames],
+        sensitivity=sensor.sensitivity,
+        black_level_dn=sensor.black_level_dn,
+        read_noise_dn=sensor.read_noise_dn,
+    )
+
+
+def view_pose(session: Session, view: View) -> PoseGeometry:
+    """The turntable angle and lamp position the axes measured for this view."""
+    rig = session.rig
+    return PoseGeometry(
+        rig.turntable_kinematics.degrees_for(view.measured["turntable_steps"]),
+        rig.gantry.kinematics.light_position(tuple(view.measured["gantry_ticks"])),
+        rig.file.light.power,
+    )
+
+
+def placed_mesh(session: Session) -> ColouredMesh:
+    """The plan's mesh (checked by sha256) in the turntable frame."""
+    return load_planned_mesh(session.plan, session.plan_path).transformed(mesh_to_turntable(session.plan))
+
+
 def fit_session(
     session: Session,
     *,
@@ -129,25 +157,17 @@ def fit_session(
     progress: Callable[[str], None] = lambda _: None,
 ) -> FitResult:
     rig, plan = session.rig, session.plan
-    mesh = load_planned_mesh(plan, session.plan_path).transformed(mesh_to_turntable(plan))
+    mesh = placed_mesh(session)
     caster = RayCaster(mesh)
     pooled: dict[int, _Pooled] = defaultdict(_Pooled)
     times = StageTimes()
     for i, view in enumerate(session.views):
         progress(f"pose {view.pose} ({i + 1}/{len(session.views)}): HDR, geometry, selection")
         with times("hdr"):
-            radiance = merge_bracket(
-                [_bracket_frame(session.path, e, view.darks.get(e["exposure_index"])) for e in view.frames],
-                sensitivity=rig.file.sensor.sensitivity,
-                black_level_dn=rig.file.sensor.black_level_dn,
-                read_noise_dn=rig.file.sensor.read_noise_dn,
-            )
-        geometry = PoseGeometry(
-            rig.turntable_kinematics.degrees_for(view.measured["turntable_steps"]),
-            rig.gantry.kinematics.light_position(tuple(view.measured["gantry_ticks"])),
-            rig.file.light.power,
+            radiance = view_radiance(session, view)
+        samples = pose_samples(
+            plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection, times
         )
-        samples, _ = pose_samples(plan, mesh, caster, rig.camera, geometry, radiance, selection, times)
         for rid in np.unique(samples.region):
             part = _subset(samples, samples.region == rid)
             pooled[int(rid)].parts.append(part)

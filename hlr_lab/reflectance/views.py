@@ -69,37 +69,45 @@ class PoseGeometry:
     power: float  # Φ
 
 
-def pose_samples(
+@dataclass(frozen=True, eq=False)
+class PixelGeometry:
+    """Every pixel of a pose where the object is seen; arrays are (N, …)."""
+
+    pixel: np.ndarray  # (N, 2) int (x, y)
+    region: np.ndarray  # (N,) region id
+    irradiance: np.ndarray  # (N,) Φ/d²
+    cos_alpha: np.ndarray  # (N,) may be ≤ 0: facing away from the lamp
+    cos_view: np.ndarray  # (N,)
+    cos_beta: np.ndarray  # (N,) β between the normal and the half vector
+    lit: np.ndarray  # (N,) bool: faces the lamp and nothing lies between
+    labels: np.ndarray  # (H, W) region id per pixel, −1 off the object
+
+
+def pose_geometry(
     plan: PlanFile,
     mesh: ColouredMesh,
     caster: RayCaster,
     camera: Camera,
     pose: PoseGeometry,
-    radiance: Radiance,
-    selection: Selection = DEFAULT_SELECTION,
+    within: np.ndarray | None = None,
     timer: StageTimes | None = None,
-) -> tuple[PoseSamples, np.ndarray]:
-    """The pose's samples and its label image ((H, W) int, −1 off the object), for diagnostics.
+) -> PixelGeometry:
+    """What each pixel sees at this pose, under which light (``within``: (H, W) bool, pixels to consider).
 
     mesh and caster: the object in the turntable frame; camera: the rig's calibrated camera (world).
-    timer: adds the seconds of the "g-buffer", "selection" and "shadows" stages.
+    timer: adds the seconds of the "g-buffer" and "shadows" stages.
     """
     timer = timer if timer is not None else StageTimes()
     world_from_tt = rotation_z(np.radians(pose.turntable_deg))
     cam = camera.in_frame(world_from_tt)  # the camera seen from the turntable
     light = world_from_tt[:3, :3].T @ (pose.light_world - world_from_tt[:3, 3])
-    h, w = camera.height, camera.width
     with timer("g-buffer"):
-        window = object_window(camera, mesh.vertices, pose.turntable_deg) & radiance.usable
-        ys, xs = np.nonzero(window)
-        pixels = np.stack([xs, ys], axis=1)
-        surface = caster.surface(cam, pixels.astype(np.float64))
-    with timer("selection"):
-        labels = np.full((h, w), -1, np.int64)
+        window = object_window(camera, mesh.vertices, pose.turntable_deg)
+        ys, xs = np.nonzero(window if within is None else window & within)
+        surface = caster.surface(cam, np.stack([xs, ys], axis=1).astype(np.float64))
+        labels = np.full((camera.height, camera.width), -1, np.int64)
         labels[ys, xs] = surface_regions(plan, mesh, surface)
-        interior = _interior(labels, selection.border_px)[ys, xs]
-
-    hit = surface.hit & interior
+    hit = surface.hit
     point, normal = surface.point[hit], surface.normal[hit]
     to_light = light - point
     d2 = np.einsum("ij,ij->i", to_light, to_light)
@@ -109,24 +117,53 @@ def pose_samples(
     half = l_dir + v_dir
     half /= np.linalg.norm(half, axis=1, keepdims=True)
     cos_alpha = np.einsum("ij,ij->i", normal, l_dir)
-    cos_view = np.einsum("ij,ij->i", normal, v_dir)
-    cos_beta = np.clip(np.einsum("ij,ij->i", normal, half), 0.0, 1.0)
-    keep = (cos_alpha >= np.cos(np.radians(selection.max_alpha_deg))) & (
-        cos_view >= np.cos(np.radians(selection.max_view_deg))
-    )
+    lit = cos_alpha > 0
     with timer("shadows"):
-        keep[keep] = ~caster.shadowed(point[keep], normal[keep], light)
-
-    px = pixels[hit][keep]
-    samples = PoseSamples(
-        region=labels[px[:, 1], px[:, 0]],
-        intensity=radiance.value[px[:, 1], px[:, 0]].astype(np.float64),
-        irradiance=pose.power / d2[keep],
-        cos_alpha=cos_alpha[keep],
-        cos_beta=cos_beta[keep],
-        pixel=px,
+        lit[lit] = ~caster.shadowed(point[lit], normal[lit], light)
+    return PixelGeometry(
+        pixel=np.stack([xs[hit], ys[hit]], axis=1),
+        region=labels[ys[hit], xs[hit]],
+        irradiance=pose.power / d2,
+        cos_alpha=cos_alpha,
+        cos_view=np.einsum("ij,ij->i", normal, v_dir),
+        cos_beta=np.clip(np.einsum("ij,ij->i", normal, half), 0.0, 1.0),
+        lit=lit,
+        labels=labels,
     )
-    return samples, labels
+
+
+def pose_samples(
+    plan: PlanFile,
+    mesh: ColouredMesh,
+    caster: RayCaster,
+    camera: Camera,
+    pose: PoseGeometry,
+    radiance: Radiance,
+    selection: Selection = DEFAULT_SELECTION,
+    timer: StageTimes | None = None,
+) -> PoseSamples:
+    """The pose's samples: lit, visible, not grazing, usable radiance, away from borders.
+
+    timer: adds the seconds of the "g-buffer", "shadows" and "selection" stages.
+    """
+    timer = timer if timer is not None else StageTimes()
+    g = pose_geometry(plan, mesh, caster, camera, pose, radiance.usable, timer)
+    with timer("selection"):
+        x, y = g.pixel[:, 0], g.pixel[:, 1]
+        keep = (
+            g.lit
+            & _interior(g.labels, selection.border_px)[y, x]
+            & (g.cos_alpha >= np.cos(np.radians(selection.max_alpha_deg)))
+            & (g.cos_view >= np.cos(np.radians(selection.max_view_deg)))
+        )
+        return PoseSamples(
+            region=g.region[keep],
+            intensity=radiance.value[y[keep], x[keep]].astype(np.float64),
+            irradiance=g.irradiance[keep],
+            cos_alpha=g.cos_alpha[keep],
+            cos_beta=g.cos_beta[keep],
+            pixel=g.pixel[keep],
+        )
 
 
 def _interior(labels: np.ndarray, border_px: int) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""``hlr-lab report``: one self-contained HTML page per session (images embedded, no network)."""

@@ -1,0 +1,252 @@
+"""Assemble the report of a fitted session: the plan, the materials with their standard errors, the β–Is
+curves with the fitted lobes, each pose's photograph beside the fitted materials rendered back with an
+error map and PSNR, and the run summary from the journal."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from hlr_lab import __version__
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.formats.materials import MaterialsFile, read_materials
+from hlr_lab.raycast import RayCaster
+from hlr_lab.reflectance.session_fit import (
+    DIAGNOSTICS,
+    MATERIALS,
+    Session,
+    placed_mesh,
+    view_pose,
+    view_radiance,
+)
+from hlr_lab.reflectance.views import pose_geometry
+from hlr_lab.report import html as h
+from hlr_lab.report.rerender import compare, rerender
+from hlr_lab.session.journal import read_journal
+
+MAX_IMAGE_WIDTH = 330  # px per image in the page (three side by side)
+CROP_MARGIN_PX = 12
+# after the page loads, the body says how many images decoded (a headless browser's DOM dump shows it)
+LOAD_CHECK = (
+    "<script>addEventListener('load', () => { document.body.dataset.imagesLoaded ="
+    " [...document.images].filter(i => i.complete && i.naturalWidth > 0).length; });</script>"
+)
+
+
+@dataclass
+class ReportFigures:
+    psnr_db: dict[str, float] = field(default_factory=dict)  # per view (pose id)
+
+
+def build_report(session: Session, progress=lambda _: None) -> tuple[str, ReportFigures]:
+    materials_path = session.path / MATERIALS
+    if not materials_path.is_file():
+        raise InputError("no materials.json in the session: run hlr-lab fit on it first", path=session.path)
+    materials = read_materials(materials_path)
+    diagnostics_path = session.path / DIAGNOSTICS
+    diagnostics = json.loads(diagnostics_path.read_text()) if diagnostics_path.is_file() else {"regions": []}
+    figures = ReportFigures()
+    poses_html = _poses(session, materials, figures, progress)
+    record = json.loads((session.path / "session.json").read_text())
+    body = [
+        f"<h1>hlr-lab report: {h.escape(session.path.name)}</h1>",
+        _meta(session, record),
+        "<h2>Materials</h2>",
+        _materials(session, materials),
+        "<h2>Highlights: β against the specular part, with the fitted lobe</h2>",
+        _curves(diagnostics),
+        "<h2>Photographs and the fitted materials rendered back</h2>",
+        '<p class="note">Left: the captured bracket merged to linear radiance. Middle: the fitted materials '
+        "rendered from the same geometry (measured turntable angle and lamp position, calibrated camera). "
+        "Right: |difference|, black = 0, yellow = 10 % of the display white. PSNR over the object's pixels, "
+        "peak = the brightest captured value.</p>",
+        poses_html,
+        "<h2>The plan</h2>",
+        _plan(session),
+        "<h2>Runs</h2>",
+        _runs(session),
+    ]
+    page = (
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+        f"<title>hlr-lab report: {h.escape(session.path.name)}</title><style>{h.STYLE}</style></head>"
+        f"<body>{''.join(body)}{LOAD_CHECK}</body></html>"
+    )
+    return page, figures
+
+
+def _meta(session: Session, record: dict) -> str:
+    started = dt.datetime.fromtimestamp(record.get("started_at", 0), dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    rows = [
+        ["session", h.escape(session.path)],
+        ["plan", h.escape(session.plan_path)],
+        ["object", h.escape(session.plan.object.mesh)],
+        ["rig", h.escape(session.rig.name)],
+        ["started", started],
+        ["report by", f"hlr-lab {h.escape(__version__)}"],
+    ]
+    return h.table(["", ""], rows, numeric_from=2)
+
+
+def _materials(session: Session, materials: MaterialsFile) -> str:
+    rows = []
+    for e in materials.regions:
+        rd = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
+        if e.specular == "measured":
+            rs = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rs, e.rs_se, strict=True))
+            n = f"{e.n:.2f} ± {e.n_se:.2f}"
+        else:
+            rs, n = f"unmeasured: {h.escape(e.reason)}", "—"
+        rows.append(
+            [
+                f"{e.id} {h.swatch(e.color)}",
+                rd,
+                rs,
+                n,
+                f"{e.theta_c_deg:.1f}°",
+                f"{e.pixels.diffuse} / {e.pixels.highlight}",
+                f"{e.residual_rms:.3g}",
+            ]
+        )
+    seen = {e.id for e in materials.regions}
+    missing = [r.id for r in session.plan.object.regions if r.id not in seen]
+    note = f'<p class="note">Regions not seen in any usable pixel: {missing}.</p>' if missing else ""
+    headers = ["region", "Rd (linear)", "Rs", "n", "θc", "pixels diffuse / highlight", "residual RMS"]
+    return h.table(headers, rows) + note
+
+
+def _curves(diagnostics: dict) -> str:
+    charts = []
+    for d in diagnostics.get("regions", []):
+        curve = d.get("beta_curve")
+        if not curve:
+            continue
+        beta, mean, lobe = curve["beta_deg"], curve["mean_is"], curve["fitted_lobe"]
+        points = [(b, m, "") for b, m in zip(beta, mean, strict=True) if m is not None]
+        top = max([m for _, m, _ in points] + lobe + [1e-9])
+        bottom = min([0.0] + [m for _, m, _ in points])
+        bottom = 0.0 if bottom > -0.02 * top else bottom  # noise about zero: keep the axis at 0
+        charts.append(
+            h.scatter_svg(
+                points,
+                x_range=(0.0, max(beta[-1], 1.0)),
+                y_range=(bottom, top * 1.05),
+                x_label="β (degrees)",
+                y_label="Is = I/L − Rd cos α",
+                title=f"region {d['id']}",
+                line=list(zip(beta, lobe, strict=True)),
+            )
+        )
+    return (
+        f'<div class="charts">{"".join(charts)}</div>'
+        if charts
+        else '<p class="note">No measured highlights.</p>'
+    )
+
+
+def _poses(session: Session, materials: MaterialsFile, figures: ReportFigures, progress) -> str:
+    mesh = placed_mesh(session)
+    caster = RayCaster(mesh)
+    rows = []
+    for i, view in enumerate(session.views):
+        progress(f"pose {view.pose} ({i + 1}/{len(session.views)}): rendering the fit back")
+        radiance = view_radiance(session, view)
+        geometry = pose_geometry(session.plan, mesh, caster, session.rig.camera, view_pose(session, view))
+        rendered = rerender(geometry, materials, radiance.value.shape)
+        c = compare(radiance.value, rendered)
+        figures.psnr_db[view.pose] = c.psnr_db
+        if not c.mask.any():
+            rows.append(f"<p>{h.escape(view.pose)}: no object pixel with usable radiance.</p>")
+            continue
+        white = float(np.percentile(radiance.value[c.mask], 99.5))
+        crop = _crop(c.mask)
+        images = [
+            h.tone_map(radiance.value[crop], white),
+            h.tone_map(np.where(c.mask[..., None], rendered, 0.0)[crop], white),
+            h.error_map(radiance.value[crop], rendered[crop], c.mask[crop], 0.1 * white),
+        ]
+        images = [_fit_width(im) for im in images]
+        captions = [f"{view.pose}: captured", "fitted materials rendered", f"error (PSNR {c.psnr_db:.1f} dB)"]
+        rows.append(
+            "<div>" + "".join(h.figure(im, cap) for im, cap in zip(images, captions, strict=True)) + "</div>"
+        )
+    return "".join(rows)
+
+
+def _crop(mask: np.ndarray) -> tuple[slice, slice]:
+    ys, xs = np.nonzero(mask)
+    y0, y1 = max(ys.min() - CROP_MARGIN_PX, 0), min(ys.max() + CROP_MARGIN_PX + 1, mask.shape[0])
+    x0, x1 = max(xs.min() - CROP_MARGIN_PX, 0), min(xs.max() + CROP_MARGIN_PX + 1, mask.shape[1])
+    return slice(y0, y1), slice(x0, x1)
+
+
+def _fit_width(rgb: np.ndarray) -> np.ndarray:
+    if rgb.shape[1] <= MAX_IMAGE_WIDTH:
+        return rgb
+    height = round(rgb.shape[0] * MAX_IMAGE_WIDTH / rgb.shape[1])
+    return cv2.resize(rgb, (MAX_IMAGE_WIDTH, height), interpolation=cv2.INTER_AREA)
+
+
+def _plan(session: Session) -> str:
+    plan = session.plan
+    points = [(p.light.azimuth_deg, p.light.elevation_deg, p.id) for p in plan.poses]
+    chart = h.scatter_svg(
+        points,
+        x_range=(-180.0, 180.0),
+        y_range=(-10.0, 90.0),
+        x_label="azimuth (degrees)",
+        y_label="elevation (degrees)",
+        title="planned light positions on the sphere (turntable frame)",
+        size=(560, 260),
+    )
+    rows = [
+        [
+            h.escape(p.id),
+            f"{p.turntable_deg:g}°",
+            f"{p.light.azimuth_deg:.1f}°",
+            f"{p.light.elevation_deg:.1f}°",
+            h.escape(
+                ", ".join(f"{k}: {v}" for k, v in sorted(p.expected.items(), key=lambda kv: int(kv[0])))
+            ),
+        ]
+        for p in plan.poses
+    ]
+    return chart + h.table(["pose", "turntable", "azimuth", "elevation", "expected samples by region"], rows)
+
+
+def _runs(session: Session) -> str:
+    events = read_journal(session.path / "journal.jsonl")
+    rows = []
+    for e in events:
+        if e.get("event") in ("run_end", "stopped"):
+            when = dt.datetime.fromtimestamp(e["at"], dt.UTC).strftime("%Y-%m-%d %H:%M:%S")
+            outcome = "finished" if e["event"] == "run_end" else f"stopped: {h.escape(e.get('reason', ''))}"
+            rows.append(
+                [
+                    when,
+                    outcome,
+                    str(e.get("frames_taken", e.get("taken", "?"))),
+                    str(e.get("poses_moved", "?")),
+                    str(e.get("retries", "?")),
+                    f"{e.get('duration_s', float('nan')):.1f} s",
+                ]
+            )
+    retries = [e for e in events if e.get("event") == "retry"]
+    listing = "".join(f"<li>{h.escape(e.get('pose'))}: {h.escape(e.get('error'))}</li>" for e in retries[:50])
+    more = (
+        f"<p>Retries ({len(retries)}):</p><ul>{listing}</ul>"
+        if retries
+        else "<p>No device exchange was retried.</p>"
+    )
+    return (
+        h.table(["ended", "outcome", "frames taken", "poses moved to", "retries", "duration"], rows, 2) + more
+    )
+
+
+def write_report(path: Path, page: str) -> None:
+    atomic_write_text(path, page)
