@@ -11,6 +11,7 @@ from hlr_lab import __version__
 from hlr_lab.cli.acquire_cmd import acquire_cmd
 from hlr_lab.cli.bench_cmd import bench
 from hlr_lab.cli.common import console
+from hlr_lab.cli.demo_cmd import demo
 from hlr_lab.cli.doctor_cmd import doctor
 from hlr_lab.cli.export_cmd import export
 from hlr_lab.cli.fit_cmd import fit
@@ -51,6 +52,7 @@ cli.add_command(export)
 cli.add_command(bench)
 cli.add_command(sim)
 cli.add_command(doctor)
+cli.add_command(demo)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -92,7 +92,7 @@ def scatter_svg(
         return h - bottom - (y - y0) / (y1 - y0 or 1) * (h - top - bottom)
 
     parts = [
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" role="img" aria-label="{escape(title)}">',
+        f'<svg width="{w}" height="{h}" role="img" aria-label="{escape(title)}">',
         f'<text x="{w / 2}" y="16" text-anchor="middle" font-size="13">{escape(title)}</text>',
         f'<line x1="{left}" y1="{h - bottom}" x2="{w - right}" y2="{h - bottom}" stroke="#888"/>',
         f'<line x1="{left}" y1="{top}" x2="{left}" y2="{h - bottom}" stroke="#888"/>',
