@@ -19,6 +19,8 @@ from PIL import Image
 
 from hlr_lab.errors import InputError
 
+CREASE_DEG = 60.0  # faces meeting at a sharper angle than this do not share a shading normal
+
 # trimesh gives an OBJ that has UVs but no material a 2×2 grey placeholder image; anything this
 # small is not a real texture.
 _PLACEHOLDER_TEXELS = 4
@@ -69,6 +71,45 @@ class ColouredMesh:
             np.add.at(acc, self.faces[:, corner], cross)
         norm = np.linalg.norm(acc, axis=1, keepdims=True)
         return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
+
+    @cached_property
+    def corner_normals(self) -> np.ndarray:
+        """(F, 3, 3) the shading normal at each face corner: the area-weighted mean over the faces around
+        the vertex that meet this face at less than ``CREASE_DEG``. Smooth across gentle bends, sharp
+        across creases (a cylinder's rim, a box's edge), where one welded vertex normal would tilt the
+        whole of the adjoining faces. Only vertices with a face more than half the crease angle off their
+        smooth normal are worked out pair by pair; everywhere else this is ``vertex_normals``.
+        """
+        out = self.vertex_normals[self.faces].copy()
+        fn = self.face_normals
+        cos_off = np.einsum("fk,fck->fc", fn, out)  # (F, 3) each face against its corners' smooth normals
+        worst = np.ones(len(self.vertices))
+        np.minimum.at(worst, self.faces.ravel(), cos_off.ravel())
+        crease_vertex = worst < np.cos(np.radians(CREASE_DEG / 2))
+        corner_f, corner_c = np.nonzero(crease_vertex[self.faces])  # the corners to work out
+        if len(corner_f) == 0:
+            return out
+        # pairs (corner, face around the corner's vertex) through the vertex → face incidence
+        incidence = sp.csr_matrix(
+            (np.ones(self.faces.size, bool), (self.faces.ravel(), np.repeat(np.arange(len(self.faces)), 3))),
+            shape=(len(self.vertices), len(self.faces)),
+        )
+        v = self.faces[corner_f, corner_c]
+        counts = np.diff(incidence.indptr)[v]  # faces around each corner's vertex
+        pair_corner = np.repeat(np.arange(len(v)), counts)
+        rank = np.arange(len(pair_corner)) - np.repeat(
+            np.cumsum(counts) - counts, counts
+        )  # 0, 1, … per corner
+        pair_face = incidence.indices[np.repeat(incidence.indptr[v], counts) + rank]
+        near = np.einsum("pk,pk->p", fn[corner_f[pair_corner]], fn[pair_face]) >= np.cos(
+            np.radians(CREASE_DEG)
+        )
+        weighted = fn[pair_face] * (2 * self.face_areas[pair_face] * near)[:, None]
+        acc = np.zeros((len(v), 3))
+        np.add.at(acc, pair_corner, weighted)
+        norm = np.linalg.norm(acc, axis=1, keepdims=True)
+        out[corner_f, corner_c] = np.divide(acc, norm, out=fn[corner_f].copy(), where=norm > 0)
+        return out
 
     @cached_property
     def face_areas(self) -> np.ndarray:

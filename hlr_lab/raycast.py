@@ -32,8 +32,8 @@ _RAY_CHUNK = 1 << 18
 class GBuffer:
     """Per-pixel geometry of one view; arrays are (H, W, …), pixels without a hit have face −1.
 
-    face (H, W) int64; point (H, W, 3) mesh-frame hit point; normal (H, W, 3) interpolated vertex
-    normal (unit); depth (H, W) camera-frame z (inf on a miss); barycentric (H, W, 3).
+    face (H, W) int64; point (H, W, 3) mesh-frame hit point; normal (H, W, 3) interpolated corner
+    normal (unit, sharp across creases); depth (H, W) camera-frame z (inf on a miss); barycentric (H, W, 3).
     """
 
     face: np.ndarray
@@ -114,7 +114,7 @@ class RayCaster:
         if hit.any():
             corners = self.mesh.faces[face[hit]]
             bary[hit] = trimesh.triangles.points_to_barycentric(self.mesh.vertices[corners], point[hit])
-            nrm = np.einsum("ij,ijk->ik", bary[hit], self.mesh.vertex_normals[corners])
+            nrm = np.einsum("ij,ijk->ik", bary[hit], self.mesh.corner_normals[face[hit]])
             normal[hit] = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
         return PixelSurface(face, point, normal, bary)
 

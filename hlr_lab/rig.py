@@ -165,9 +165,11 @@ class _LampSection(_Strict):
 
 
 class _LightSection(_Strict):
-    """The lamp as a light source (DESIGN §3): irradiance Φ/d² at distance d for a point light."""
+    """The lamp as a light source (DESIGN §3): irradiance Φ/d² at distance d for a point light; a
+    directional light (a distant lamp) shines from the lamp's direction seen from the gantry centre with
+    irradiance Φ."""
 
-    type: Literal["point"] = "point"
+    type: Literal["point", "directional"] = "point"
     power: float = Field(default=1.0, gt=0)  # Φ, in the unit the fitted reflectances are relative to
 
 

@@ -6,7 +6,7 @@ import trimesh
 from PIL import Image
 
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import load_mesh, sample_texture
+from hlr_lab.mesh import ColouredMesh, load_mesh, sample_texture
 from hlr_lab.procedural import pebble
 
 
@@ -111,3 +111,21 @@ def test_texture_without_uvs_is_refused(tmp_path):
     _, png = write_textured_quad(tmp_path)
     with pytest.raises(InputError, match="no texture coordinates"):
         load_mesh(tmp_path / "p.ply", png)
+
+
+def test_corner_normals_are_sharp_across_creases_and_smooth_elsewhere():
+    """A welded cylinder (one vertex per rim point, as a scan would give): side corners keep the side's
+    horizontal normal and cap corners point straight up or down, where one vertex normal per rim point
+    would tilt both; on a smooth sphere the corner normals are the vertex normals."""
+    cyl = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=64)
+    cyl.merge_vertices()
+    mesh = ColouredMesh(np.asarray(cyl.vertices), np.asarray(cyl.faces, np.int64))
+    normals = mesh.corner_normals  # (F, 3, 3)
+    cap = np.abs(mesh.face_normals[:, 2]) > 0.99
+    np.testing.assert_allclose(np.abs(normals[cap][..., 2]), 1.0, atol=1e-9)
+    assert np.abs(normals[~cap][..., 2]).max() < 1e-9  # horizontal on the side
+    assert np.abs(mesh.vertex_normals[mesh.faces][~cap][..., 2]).max() > 0.2  # welding alone tilts them 12°
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    smooth = ColouredMesh(np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int64))
+    np.testing.assert_array_equal(smooth.corner_normals, smooth.vertex_normals[smooth.faces])

@@ -71,9 +71,9 @@ def fit(session: Path, theta_c, method: str, output: Path | None) -> None:
     diagnostics = output.with_name(DIAGNOSTICS)
     atomic_write_text(diagnostics, json.dumps(result.diagnostics, indent=1) + "\n")
     console.print(_table(result.materials))
-    unseen = [d["id"] for d in result.diagnostics["regions"] if d.get("samples") == 0]
-    if unseen:
-        console.print(f"[yellow]regions not seen in any usable pixel:[/] {unseen} (no entry written)")
+    for d in result.diagnostics["regions"]:
+        if "note" in d:
+            console.print(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")
     console.print(f"wrote {escape(str(output))} and {escape(str(diagnostics))}")
 
 

@@ -133,7 +133,11 @@ def _auto_theta_c(s: Samples, estimator, refit: bool) -> tuple[float, Estimate]:
     ``refit=False`` for an estimator that uses every pixel whatever θc (robust): θc then only splits the
     pixels for the counts, and one fit serves every iteration.
     """
-    theta = AUTO_START_DEG
+    # start wide, but not so wide that too few pixels are left beyond θc to tell the diffuse part (a
+    # small region seen only near its highlight)
+    keep_diffuse = min(len(s), 5 * MIN_DIFFUSE)
+    widest = 0.999 * float(np.degrees(np.arccos(np.sort(s.cos_beta)[keep_diffuse - 1])))
+    theta = min(AUTO_START_DEG, max(widest, AUTO_LIMITS_DEG[0]))
     irradiance = float(np.median(s.irradiance))
     # a poor first fit (the paper's estimator at a wide θc) may ask for a θc that holds no pixels at all
     keep = min(len(s), max(5 * MIN_HIGHLIGHT, int(AUTO_MIN_HIGHLIGHT_FRACTION * len(s))))

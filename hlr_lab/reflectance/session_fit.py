@@ -19,6 +19,7 @@ import numpy as np
 
 from hlr_lab.errors import InputError
 from hlr_lab.fitting import DegenerateSamples, InsufficientSamples, RegionFit, fit_region
+from hlr_lab.fitting.inputs import MIN_DIFFUSE
 from hlr_lab.formats.materials import (
     MaterialEntry,
     PixelCounts,
@@ -47,7 +48,7 @@ from hlr_lab.session.metadata import SESSION
 
 JOURNAL = "journal.jsonl"
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
-DIFFUSE_ONLY_BETA_DEG = 20.0  # a region without a measurable highlight: Rd from pixels beyond this β
+DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
 
 
@@ -140,6 +141,7 @@ def view_pose(session: Session, view: View) -> PoseGeometry:
         rig.turntable_kinematics.degrees_for(view.measured["turntable_steps"]),
         rig.gantry.kinematics.light_position(tuple(view.measured["gantry_ticks"])),
         rig.file.light.power,
+        rig.gantry.centre if rig.file.light.type == "directional" else None,
     )
 
 
@@ -188,7 +190,8 @@ def fit_session(
             continue
         with times("fitting"):
             entry, diag, fit = _fit_one(region, p, theta_c_deg, method)
-        entries.append(entry)
+        if entry is not None:
+            entries.append(entry)
         diagnostics["regions"].append(diag)
         if fit is not None:
             fits[region.id] = fit
@@ -198,7 +201,9 @@ def fit_session(
 
 def _fit_one(
     region: RegionEntry, p: _Pooled, theta_c_deg, method
-) -> tuple[MaterialEntry, dict, RegionFit | None]:
+) -> tuple[MaterialEntry | None, dict, RegionFit | None]:
+    """The region's entry (None when not even its diffuse colour can be told), diagnostics, and the fit
+    when its specular was measured."""
     intensity, irradiance = p.stacked("intensity"), p.stacked("irradiance")
     cos_alpha, cos_beta = p.stacked("cos_alpha"), p.stacked("cos_beta")
     diag = {"id": region.id, "samples": len(cos_beta), "samples_per_pose": p.per_view}
@@ -207,6 +212,8 @@ def _fit_one(
     except (InsufficientSamples, DegenerateSamples) as exc:
         entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, str(exc), method)
         diag["specular"] = f"unmeasured: {exc}"
+        if entry is None:
+            diag["note"] = f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
         return entry, diag, None
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
     if rs < SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
@@ -216,6 +223,8 @@ def _fit_one(
         )
         entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, reason, method)
         diag["specular"] = f"unmeasured: {reason}"
+        if entry is None:
+            diag["note"] = f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
         return entry, diag, None
     diag["residual_rms"] = fit.residual_rms
     diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
@@ -224,12 +233,13 @@ def _fit_one(
 
 def _diffuse_only(
     region, intensity, irradiance, cos_alpha, cos_beta, reason: str, method: str
-) -> MaterialEntry:
-    """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE."""
+) -> MaterialEntry | None:
+    """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE; None
+    when there are too few such pixels."""
     far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
     x = irradiance[far] * cos_alpha[far]  # (M,)
-    if len(x) < 3:
-        raise InputError(f"region {region.id}: too few pixels for even a diffuse fit ({len(x)})")
+    if len(x) < MIN_DIFFUSE:
+        return None
     y = intensity[far]  # (M, C)
     rd = (x[:, None] * y).sum(axis=0) / (x @ x)
     resid = y - x[:, None] * rd

@@ -20,9 +20,9 @@ import numpy as np
 
 from hlr_lab.camera import Camera
 from hlr_lab.formats.plan import PlanFile
-from hlr_lab.mesh import ColouredMesh
+from hlr_lab.mesh import CREASE_DEG, ColouredMesh
 from hlr_lab.planned_object import surface_regions
-from hlr_lab.raycast import RayCaster
+from hlr_lab.raycast import SURFACE_OFFSET, RayCaster
 from hlr_lab.reflectance.hdr import Radiance
 from hlr_lab.silhouette import object_window
 from hlr_lab.sphere import rotation_z
@@ -67,6 +67,8 @@ class PoseGeometry:
     turntable_deg: float
     light_world: np.ndarray  # (3,) the lamp where the servos measured it, world frame
     power: float  # Φ
+    # a distant lamp: light travels from the lamp toward the gantry centre, irradiance Φ everywhere
+    directional_from: np.ndarray | None = None  # (3,) the gantry centre (world) for a directional light
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,6 +83,13 @@ class PixelGeometry:
     cos_beta: np.ndarray  # (N,) β between the normal and the half vector
     lit: np.ndarray  # (N,) bool: faces the lamp and nothing lies between
     labels: np.ndarray  # (H, W) region id per pixel, −1 off the object
+    normals: np.ndarray  # (H, W, 3) shading normal per pixel, NaN off the object
+
+    def interior(self, border_px: int) -> np.ndarray:
+        """(N,) bool: at least ``border_px`` pixels from a silhouette, a region border or a crease, where a
+        pixel mixes surfaces that the pixel-centre geometry does not describe."""
+        x, y = self.pixel[:, 0], self.pixel[:, 1]
+        return _interior(self.labels, border_px)[y, x] & ~_near_crease(self.normals, border_px)[y, x]
 
 
 def pose_geometry(
@@ -100,7 +109,8 @@ def pose_geometry(
     timer = timer if timer is not None else StageTimes()
     world_from_tt = rotation_z(np.radians(pose.turntable_deg))
     cam = camera.in_frame(world_from_tt)  # the camera seen from the turntable
-    light = world_from_tt[:3, :3].T @ (pose.light_world - world_from_tt[:3, 3])
+    to_tt = world_from_tt[:3, :3].T  # world → turntable (a rotation about the table's axis)
+    light = to_tt @ (pose.light_world - world_from_tt[:3, 3])
     with timer("g-buffer"):
         window = object_window(camera, mesh.vertices, pose.turntable_deg)
         ys, xs = np.nonzero(window if within is None else window & within)
@@ -109,9 +119,15 @@ def pose_geometry(
         labels[ys, xs] = surface_regions(plan, mesh, surface)
     hit = surface.hit
     point, normal = surface.point[hit], surface.normal[hit]
-    to_light = light - point
-    d2 = np.einsum("ij,ij->i", to_light, to_light)
-    l_dir = to_light / np.sqrt(d2)[:, None]
+    if pose.directional_from is None:
+        to_light = light - point
+        d2 = np.einsum("ij,ij->i", to_light, to_light)
+        l_dir = to_light / np.sqrt(d2)[:, None]
+        irradiance = pose.power / d2
+    else:
+        towards = to_tt @ (pose.light_world - pose.directional_from)
+        l_dir = np.broadcast_to(towards / np.linalg.norm(towards), point.shape)
+        irradiance = np.full(len(point), pose.power)
     v_dir = cam.centre - point
     v_dir /= np.linalg.norm(v_dir, axis=1, keepdims=True)
     half = l_dir + v_dir
@@ -119,16 +135,23 @@ def pose_geometry(
     cos_alpha = np.einsum("ij,ij->i", normal, l_dir)
     lit = cos_alpha > 0
     with timer("shadows"):
-        lit[lit] = ~caster.shadowed(point[lit], normal[lit], light)
+        if pose.directional_from is None:
+            lit[lit] = ~caster.shadowed(point[lit], normal[lit], light)
+        else:  # toward a point far beyond the object along the light
+            far = point[lit] + l_dir[lit] * (100 * caster.scale)
+            lit[lit] = ~caster.segment_blocked(
+                point[lit] + normal[lit] * (SURFACE_OFFSET * caster.scale), far
+            )
     return PixelGeometry(
         pixel=np.stack([xs[hit], ys[hit]], axis=1),
         region=labels[ys[hit], xs[hit]],
-        irradiance=pose.power / d2,
+        irradiance=irradiance,
         cos_alpha=cos_alpha,
         cos_view=np.einsum("ij,ij->i", normal, v_dir),
         cos_beta=np.clip(np.einsum("ij,ij->i", normal, half), 0.0, 1.0),
         lit=lit,
         labels=labels,
+        normals=_normal_image(labels.shape, xs[hit], ys[hit], normal),
     )
 
 
@@ -152,7 +175,7 @@ def pose_samples(
         x, y = g.pixel[:, 0], g.pixel[:, 1]
         keep = (
             g.lit
-            & _interior(g.labels, selection.border_px)[y, x]
+            & g.interior(selection.border_px)
             & (g.cos_alpha >= np.cos(np.radians(selection.max_alpha_deg)))
             & (g.cos_view >= np.cos(np.radians(selection.max_view_deg)))
         )
@@ -164,6 +187,29 @@ def pose_samples(
             cos_beta=g.cos_beta[keep],
             pixel=g.pixel[keep],
         )
+
+
+def _normal_image(shape: tuple[int, int], xs: np.ndarray, ys: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    image = np.full((*shape, 3), np.nan, np.float32)
+    image[ys, xs] = normal
+    return image
+
+
+def _near_crease(normals: np.ndarray, border_px: int) -> np.ndarray:
+    """(H, W) bool: within ``border_px`` of two neighbouring pixels whose normals differ by more than
+    ``CREASE_DEG`` / 2 (a sharp edge crosses between them)."""
+    limit = np.cos(np.radians(CREASE_DEG / 2))
+    edge = np.zeros(normals.shape[:2], np.uint8)
+    with np.errstate(invalid="ignore"):
+        across = (normals[:, 1:] * normals[:, :-1]).sum(axis=-1) < limit  # NaN (off the object): no edge
+        down = (normals[1:] * normals[:-1]).sum(axis=-1) < limit
+    edge[:, 1:] |= across
+    edge[:, :-1] |= across
+    edge[1:] |= down
+    edge[:-1] |= down
+    if border_px > 0:
+        edge = cv2.dilate(edge, np.ones((2 * border_px + 1, 2 * border_px + 1), np.uint8))
+    return edge.astype(bool)
 
 
 def _interior(labels: np.ndarray, border_px: int) -> np.ndarray:

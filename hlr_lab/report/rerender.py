@@ -46,9 +46,12 @@ def rerender(geometry: PixelGeometry, materials: MaterialsFile, shape: tuple[int
     return out
 
 
-def compare(captured: np.ndarray, rendered: np.ndarray) -> Comparison:
-    """PSNR over the object's pixels where both exist, peak = the brightest captured value there."""
+def compare(captured: np.ndarray, rendered: np.ndarray, within: np.ndarray | None = None) -> Comparison:
+    """PSNR over the object's pixels where both exist (and ``within``, (H, W) bool, when given), peak =
+    the brightest captured value there."""
     mask = np.isfinite(captured).all(axis=-1) & np.isfinite(rendered).all(axis=-1)
+    if within is not None:
+        mask &= within
     if not mask.any():
         return Comparison(captured, rendered, mask, float("nan"))
     a, b = captured[mask].astype(np.float64), rendered[mask]
