@@ -105,6 +105,8 @@ def test_the_documented_real_rig_example_is_valid():
         12,
         True,
     )
+    assert (rig.file.light.type, rig.file.light.power) == ("point", 0.85)
+    assert (rig.file.sensor.sensitivity, rig.file.sensor.black_level_dn) == (52000.0, 64.0)
 
 
 def _with_camera(tmp_path, snippet: str):

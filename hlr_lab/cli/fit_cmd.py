@@ -7,13 +7,14 @@ from pathlib import Path
 
 import click
 from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn
 from rich.table import Table
 
 from hlr_lab.cli.common import console
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import atomic_write_text
 from hlr_lab.formats.materials import MaterialsFile, write_materials
-from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, fit_session, open_session
+from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, FitStep, fit_session, open_session
 
 
 def _theta_c(value: str) -> float | str:
@@ -63,10 +64,24 @@ def fit(session: Path, theta_c, method: str, output: Path | None) -> None:
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
     output = output or session / MATERIALS
-    with console.status("fitting…") as status:
-        result = fit_session(
-            s, theta_c_deg=theta_c, method=method, progress=lambda what: status.update(escape(what))
-        )
+    columns = (
+        TextColumn("{task.fields[stage]:8}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.description}"),
+    )
+    with Progress(*columns, console=console, transient=True) as bar:
+        tasks: dict[str, TaskID] = {}
+
+        def show(step: FitStep) -> None:
+            if step.stage not in tasks:
+                tasks[step.stage] = bar.add_task("", total=step.total, stage=step.stage)
+            for stage, task in tasks.items():  # an earlier stage is complete once a later one starts
+                if stage != step.stage:
+                    bar.update(task, completed=bar.tasks[task].total)
+            bar.update(tasks[step.stage], completed=step.index, description=escape(step.label))
+
+        result = fit_session(s, theta_c_deg=theta_c, method=method, progress=show)
     write_materials(output, result.materials)
     diagnostics = output.with_name(DIAGNOSTICS)
     atomic_write_text(diagnostics, json.dumps(result.diagnostics, indent=1) + "\n")

@@ -83,6 +83,16 @@ class _Pooled:
 
 
 @dataclass(frozen=True)
+class FitStep:
+    """Progress: item ``index`` of ``total`` in ``stage`` ("poses", then "regions") is being worked on."""
+
+    stage: str
+    index: int
+    total: int
+    label: str
+
+
+@dataclass(frozen=True)
 class FitResult:
     materials: object  # MaterialsFile
     diagnostics: dict
@@ -156,7 +166,7 @@ def fit_session(
     theta_c_deg: float | Literal["auto"] = "auto",
     method: Literal["robust", "paper"] = "robust",
     selection: Selection = DEFAULT_SELECTION,
-    progress: Callable[[str], None] = lambda _: None,
+    progress: Callable[[FitStep], None] = lambda _: None,
 ) -> FitResult:
     rig, plan = session.rig, session.plan
     mesh = placed_mesh(session)
@@ -164,7 +174,7 @@ def fit_session(
     pooled: dict[int, _Pooled] = defaultdict(_Pooled)
     times = StageTimes()
     for i, view in enumerate(session.views):
-        progress(f"pose {view.pose} ({i + 1}/{len(session.views)}): HDR, geometry, selection")
+        progress(FitStep("poses", i, len(session.views), f"pose {view.pose}: HDR, geometry, selection"))
         with times("hdr"):
             radiance = view_radiance(session, view)
         samples = pose_samples(
@@ -180,8 +190,8 @@ def fit_session(
     entries: list[MaterialEntry] = []
     diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": []}
     fits: dict[int, RegionFit] = {}
-    for region in plan.object.regions:
-        progress(f"region {region.id}: fitting")
+    for i, region in enumerate(plan.object.regions):
+        progress(FitStep("regions", i, len(plan.object.regions), f"region {region.id}: fitting"))
         p = pooled.get(region.id)
         if p is None:
             diagnostics["regions"].append(
