@@ -341,7 +341,7 @@ def test_a_dropping_camera_link_is_retried_and_journaled(plan_file, rig, tmp_pat
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
 
 
-def _inject_on_second_pose(plan, inject):
+def _inject_on_second_pose(inject):
     """A progress callback that injects a fault as the rig starts moving to the second pose."""
 
     def progress(step):
@@ -368,9 +368,7 @@ def test_a_link_fault_is_retried_journaled_and_the_run_completes(fault, plan_fil
     plan = plan.model_copy(update={"poses": plan.poses[:2]})
     targets = motion_targets(plan, rig)
     with world_of(plan_file) as world:
-        outcome = run(
-            world, rig, plan, tmp_path, progress=_inject_on_second_pose(plan, lambda: inject(world))
-        )
+        outcome = run(world, rig, plan, tmp_path, progress=_inject_on_second_pose(lambda: inject(world)))
         assert world.turntable.stage.moves == [t.turntable_steps for t in targets]
     assert outcome.taken == sum(len(p.exposures_s) for p in plan.poses)
     events = read_journal(tmp_path / JOURNAL)
@@ -387,7 +385,7 @@ def test_a_modbus_exception_stops_the_run_safely(plan_file, rig, tmp_path):
     the drive named, lamp off and torque off, and the first pose's frames are kept."""
     plan = read_plan(plan_file[0])
     with world_of(plan_file) as world:
-        inject = _inject_on_second_pose(plan, lambda: setattr(world.turntable.faults, "exception", 1))
+        inject = _inject_on_second_pose(lambda: setattr(world.turntable.faults, "exception", 1))
         with pytest.raises(DeviceFault, match=r"turntable on .*exception 4"):
             run(world, rig, plan, tmp_path, progress=inject)
         assert not world.turntable.stage.lamp
@@ -405,13 +403,9 @@ def test_a_servo_fault_mid_run_stops_safely(plan_file, rig, tmp_path):
     plan = read_plan(plan_file[0])
     assert len(plan.poses) >= 2
     with world_of(plan_file) as world:
-
-        def fault_on_second_pose(step):
-            if (step.index, step.pose, step.action) == (1, plan.poses[1].id, "moving"):
-                world.bus.servo(2).hardware_fault(OVERLOAD)
-
+        inject = _inject_on_second_pose(lambda: world.bus.servo(2).hardware_fault(OVERLOAD))
         with pytest.raises(HardwareAlarm, match=r"elevation \(id 2\).*overload"):
-            run(world, rig, plan, tmp_path, progress=fault_on_second_pose)
+            run(world, rig, plan, tmp_path, progress=inject)
         assert not world.turntable.stage.lamp
         assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
     events = read_journal(tmp_path / JOURNAL)
