@@ -4,12 +4,24 @@ it (scripts/setup), so that there a missing browser fails instead of passing sil
 import os
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 import pytest
 
 NAMES = ("chromium", "chromium-browser", "google-chrome")
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--allow-file-access-from-files"]
+# headless, as root, and quiet on a closed network (no background connections, no first-run work)
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--hide-scrollbars",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 
 def chromium() -> str:
@@ -21,21 +33,21 @@ def chromium() -> str:
     return found
 
 
+def _run(*args: str) -> str:
+    with tempfile.TemporaryDirectory(prefix="hlr-chromium-") as profile:  # a new empty profile each time
+        return subprocess.run(
+            [chromium(), *FLAGS, f"--user-data-dir={profile}", *args],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        ).stdout
+
+
 def screenshot(page: Path, png: Path, size=(1200, 2400)) -> None:
-    subprocess.run(
-        [chromium(), *FLAGS, f"--window-size={size[0]},{size[1]}", f"--screenshot={png}", page.as_uri()],
-        check=True,
-        capture_output=True,
-        timeout=120,
-    )
+    _run(f"--window-size={size[0]},{size[1]}", f"--screenshot={png}", page.as_uri())
 
 
 def dom_after_load(page: Path) -> str:
     """The page's DOM once loaded and its scripts run (what the browser made of the file)."""
-    return subprocess.run(
-        [chromium(), *FLAGS, "--virtual-time-budget=5000", "--dump-dom", page.as_uri()],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    ).stdout
+    return _run("--virtual-time-budget=5000", "--dump-dom", page.as_uri())
