@@ -78,7 +78,8 @@ def test_a_region_without_highlight_pixels_gets_its_diffuse_colour_and_a_reason(
         r.cos_beta[far],
         np.zeros((n, 2), int),
     )
-    pooled = _Pooled([part], {"p000": n})
+    pooled = _Pooled()
+    pooled.add("p000", part, np.ones(n, bool))
     entry, diag, fit = _fit_one(
         RegionEntry(id=0, color=[200, 120, 90], vertices=10), pooled, "auto", "robust"
     )

@@ -73,13 +73,21 @@ class Session:
 
 @dataclass
 class _Pooled:
-    """One region's samples over all views, and how many came from each view."""
+    """One region's samples over all views, kept compact (float32: 24 bytes a sample, the fit's only
+    memory that grows with the session), and how many came from each view."""
 
-    parts: list[PoseSamples] = field(default_factory=list)
+    parts: list[dict[str, np.ndarray]] = field(default_factory=list)
     per_view: dict[str, int] = field(default_factory=dict)
 
+    def add(self, view: str, samples: PoseSamples, mask: np.ndarray) -> None:
+        self.parts.append({name: getattr(samples, name)[mask].astype(np.float32) for name in _KEPT})
+        self.per_view[view] = self.per_view.get(view, 0) + int(mask.sum())
+
     def stacked(self, name: str) -> np.ndarray:
-        return np.concatenate([getattr(p, name) for p in self.parts])
+        return np.concatenate([p[name] for p in self.parts]).astype(np.float64)
+
+
+_KEPT = ("intensity", "irradiance", "cos_alpha", "cos_beta")
 
 
 @dataclass(frozen=True)
@@ -181,11 +189,7 @@ def fit_session(
             plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection, times
         )
         for rid in np.unique(samples.region):
-            part = _subset(samples, samples.region == rid)
-            pooled[int(rid)].parts.append(part)
-            pooled[int(rid)].per_view[view.pose] = pooled[int(rid)].per_view.get(view.pose, 0) + len(
-                part.region
-            )
+            pooled[int(rid)].add(view.pose, samples, samples.region == rid)
 
     entries: list[MaterialEntry] = []
     diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": []}
@@ -287,17 +291,6 @@ def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins
         "count": count.tolist(),
         "fitted_lobe": lobe.tolist(),
     }
-
-
-def _subset(s: PoseSamples, mask: np.ndarray) -> PoseSamples:
-    return PoseSamples(
-        s.region[mask],
-        s.intensity[mask],
-        s.irradiance[mask],
-        s.cos_alpha[mask],
-        s.cos_beta[mask],
-        s.pixel[mask],
-    )
 
 
 def _bracket_frame(session: Path, event: dict, dark: dict | None) -> BracketFrame:
