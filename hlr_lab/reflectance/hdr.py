@@ -41,45 +41,52 @@ def merge_bracket(
     black_level_dn: float = 0.0,
     read_noise_dn: float = 1.5,
     noise_floor: float = NOISE_FLOOR,
+    within: np.ndarray | None = None,
 ) -> Radiance:
-    """Merge one pose's bracket; ``sensitivity`` in DN per (radiance · s) at 0 dB."""
+    """Merge one pose's bracket; ``sensitivity`` in DN per (radiance · s) at 0 dB. ``within`` (H, W) bool
+    limits the work to those pixels (the object's window): elsewhere the result is unusable."""
     by_length = sorted(frames, key=lambda f: f.exposure_s * 10 ** (f.gain_db / 20))  # shortest first
     shape = by_length[0].pixels.shape
     for f in by_length:
         if f.pixels.shape != shape:
             raise ValueError(f"frames of one bracket differ in size: {f.pixels.shape} and {shape}")
+    where = np.ones(shape[:2], bool) if within is None else within
     kts = [sensitivity * 10 ** (f.gain_db / 20) * f.exposure_s for f in by_length]
-    signals = [_signal(f, black_level_dn) for f in by_length]
+    signals = [_signal(f, black_level_dn, where) for f in by_length]  # (N, C) float32 each
     clipped = [
-        (f.pixels >= (1 << f.bits) - 1 - CLIP_MARGIN_DN).any(axis=-1, keepdims=True) for f in by_length
-    ]
+        (f.pixels[where] >= (1 << f.bits) - 1 - CLIP_MARGIN_DN).any(axis=-1) for f in by_length
+    ]  # (N,)
     # the longest unclipped frame is always used; a shorter one only where the longest predicts it above
     # the noise floor. Deciding from another frame's value, never from the value itself: thresholding a
     # noisy value on its own noise would bias the mean (upwards near the floor)
-    rough = np.full(shape, np.nan)
-    longest = np.full((*shape[:2], 1), -1)
-    for i in range(len(by_length)):
-        fresh = ~clipped[i]
-        rough = np.where(fresh, signals[i] / kts[i], rough)  # ends with the longest unclipped frame's value
-        longest = np.where(fresh, i, longest)
-    total_dn = np.zeros(shape, np.float64)
-    total_kt = np.zeros(shape, np.float64)
-    used = np.zeros(shape[:2], np.uint8)
+    longest = np.full(len(clipped[0]), -1)
+    for i, clip in enumerate(clipped):
+        longest[~clip] = i
+    rough = np.full(signals[0].shape, np.nan, np.float32)  # radiance from the longest unclipped frame
+    for i, (signal, kt) in enumerate(zip(signals, kts, strict=True)):
+        rough[longest == i] = signal[longest == i] / kt
+    total_dn = np.zeros(signals[0].shape, np.float32)
+    total_kt = np.zeros(signals[0].shape, np.float32)
+    used = np.zeros(len(longest), np.uint8)
     for i, (signal, kt, clip) in enumerate(zip(signals, kts, clipped, strict=True)):
         with np.errstate(invalid="ignore"):
-            take = ~clip & ((longest == i) | (rough * kt >= noise_floor * read_noise_dn))
-        total_dn += np.where(take, signal, 0.0)
-        total_kt += np.where(take, kt, 0.0)
+            take = ~clip[:, None] & ((longest == i)[:, None] | (rough * kt >= noise_floor * read_noise_dn))
+        total_dn += signal * take
+        total_kt += kt * take
         used += take.any(axis=-1)
-    usable = (total_kt > 0).all(axis=-1)
+    ok = (total_kt > 0).all(axis=-1)
+    value = np.full(shape, np.nan, np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
-        value = (total_dn / total_kt).astype(np.float32)
-    value[~usable] = np.nan
-    return Radiance(value, usable, used)
+        value[where] = np.where(ok[:, None], total_dn / total_kt, np.nan)
+    usable = np.zeros(shape[:2], bool)
+    usable[where] = ok
+    frames_used = np.zeros(shape[:2], np.uint8)
+    frames_used[where] = used
+    return Radiance(value, usable, frames_used)
 
 
-def _signal(f: BracketFrame, black_level_dn: float) -> np.ndarray:
-    signal = f.pixels.astype(np.float64) - black_level_dn
+def _signal(f: BracketFrame, black_level_dn: float, where: np.ndarray) -> np.ndarray:
+    signal = f.pixels[where].astype(np.float32) - np.float32(black_level_dn)
     if f.dark is not None:
-        signal -= f.dark.astype(np.float64) - black_level_dn
+        signal -= f.dark[where].astype(np.float32) - np.float32(black_level_dn)
     return signal

@@ -45,6 +45,7 @@ from hlr_lab.rig import Rig, rig_of_snapshot
 from hlr_lab.session.frames import load_frame
 from hlr_lab.session.journal import read_journal
 from hlr_lab.session.metadata import SESSION
+from hlr_lab.silhouette import object_window
 
 JOURNAL = "journal.jsonl"
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
@@ -141,14 +142,16 @@ def _views(path: Path, events: list[dict]) -> list[View]:
     return [v for v in groups.values() if v.frames]
 
 
-def view_radiance(session: Session, view: View) -> Radiance:
-    """The view's bracket merged into linear radiance with the rig's radiometric calibration."""
+def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
+    """The view's bracket merged into linear radiance with the rig's radiometric calibration, where the
+    object (``mesh``, turntable frame) may appear."""
     sensor = session.rig.file.sensor
     return merge_bracket(
         [_bracket_frame(session.path, e, view.darks.get(e["exposure_index"])) for e in view.frames],
         sensitivity=sensor.sensitivity,
         black_level_dn=sensor.black_level_dn,
         read_noise_dn=sensor.read_noise_dn,
+        within=object_window(session.rig.camera, mesh.vertices, view_pose(session, view).turntable_deg),
     )
 
 
@@ -184,7 +187,7 @@ def fit_session(
     for i, view in enumerate(session.views):
         progress(FitStep("poses", i, len(session.views), f"pose {view.pose}: HDR, geometry, selection"))
         with times("hdr"):
-            radiance = view_radiance(session, view)
+            radiance = view_radiance(session, view, mesh)
         samples = pose_samples(
             plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection, times
         )

@@ -156,7 +156,7 @@ def _poses(session: Session, materials: MaterialsFile, figures: ReportFigures, p
     rows = []
     for i, view in enumerate(session.views):
         progress(f"pose {view.pose} ({i + 1}/{len(session.views)}): rendering the fit back")
-        radiance = view_radiance(session, view)
+        radiance = view_radiance(session, view, mesh)
         geometry = pose_geometry(session.plan, mesh, caster, session.rig.camera, view_pose(session, view))
         rendered = rerender(geometry, materials, radiance.value.shape)
         # compared where the fit's samples come from: pixels that mix surfaces (at silhouettes, region
