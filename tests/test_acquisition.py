@@ -380,38 +380,39 @@ def test_a_link_fault_is_retried_journaled_and_the_run_completes(fault, plan_fil
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
 
 
-def test_a_modbus_exception_stops_the_run_safely(plan_file, rig, tmp_path):
-    """The drive answers exception 4 (device failure): not a link fault, so no retry; the run stops with
-    the drive named, lamp off and torque off, and the first pose's frames are kept."""
-    plan = read_plan(plan_file[0])
-    with world_of(plan_file) as world:
-        inject = _inject_on_second_pose(lambda: setattr(world.turntable.faults, "exception", 1))
-        with pytest.raises(DeviceFault, match=r"turntable on .*exception 4"):
-            run(world, rig, plan, tmp_path, progress=inject)
-        assert not world.turntable.stage.lamp
-        assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
-    events = read_journal(tmp_path / JOURNAL)
-    assert events[-1]["event"] == "stopped"
-    assert "exception 4" in events[-1]["reason"]
-    assert events[-1]["frames_taken"] == len(plan.poses[0].exposures_s)
-    assert not [e for e in events if e["event"] == "retry"]
+STOPPING_FAULTS = {  # fault → (how to inject it, the error raised, what the message and journal say)
+    "Modbus exception 4": (
+        lambda w: setattr(w.turntable.faults, "exception", 1),
+        DeviceFault,
+        r"turntable on .*exception 4",
+    ),
+    "servo overload": (
+        lambda w: w.bus.servo(2).hardware_fault(OVERLOAD),
+        HardwareAlarm,
+        r"elevation \(id 2\).*overload",
+    ),
+}
 
 
-def test_a_servo_fault_mid_run_stops_safely(plan_file, rig, tmp_path):
-    """Overload on the elevation servo while moving to the second pose: the run stops with the servo
-    named, the journal says why, the lamp is off and no servo holds torque."""
+@pytest.mark.parametrize("fault", STOPPING_FAULTS)
+def test_a_device_fault_mid_run_stops_safely(fault, plan_file, rig, tmp_path):
+    """While moving to the second pose the drive answers exception 4 (device failure), or the elevation
+    servo overloads: not link faults, so no retry. The run stops with the device named, the journal says
+    why, the lamp is off, no servo holds torque, and the first pose's frames are kept."""
+    inject, error, words = STOPPING_FAULTS[fault]
     plan = read_plan(plan_file[0])
     assert len(plan.poses) >= 2
     with world_of(plan_file) as world:
-        inject = _inject_on_second_pose(lambda: world.bus.servo(2).hardware_fault(OVERLOAD))
-        with pytest.raises(HardwareAlarm, match=r"elevation \(id 2\).*overload"):
-            run(world, rig, plan, tmp_path, progress=inject)
+        with pytest.raises(error, match=words):
+            run(world, rig, plan, tmp_path, progress=_inject_on_second_pose(lambda: inject(world)))
         assert not world.turntable.stage.lamp
         assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
     events = read_journal(tmp_path / JOURNAL)
     assert events[-1]["event"] == "stopped"
-    assert "overload" in events[-1]["reason"]
+    assert re.search(words, events[-1]["reason"])
+    assert events[-1]["frames_taken"] == len(plan.poses[0].exposures_s)
     assert {e["pose"] for e in events if e["event"] == "frame"} == {plan.poses[0].id}
+    assert not [e for e in events if e["event"] == "retry"]
 
 
 def test_a_rig_without_a_lamp_relay_is_refused_before_anything_opens(plan_file, tmp_path, capsys):
