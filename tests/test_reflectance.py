@@ -134,3 +134,21 @@ def test_fit_recovers_the_simulated_materials(acquired, capsys):
 def test_fit_refuses_what_is_not_a_session(tmp_path, capsys):
     assert main(["fit", str(tmp_path)]) == 1
     assert "not a session directory" in capsys.readouterr().err
+
+
+def test_a_lost_frame_is_refused_until_it_is_retaken(acquired, capsys):
+    """A frame deleted after acquisition: fit says which and what to do; once acquire has retaken it (under
+    a new name, the old journal line staying), fit uses the new copy."""
+    plan_path, session = acquired
+    frame = next(session.glob("frames/p001_e1.png"))
+    frame.unlink()
+    assert main(["fit", str(session), "-o", str(session / "m2.json")]) == 1
+    err = capsys.readouterr().err
+    assert "frames/p001_e1.png is missing" in err
+    assert "run hlr-lab acquire on this session again" in err
+    assert (
+        main(["acquire", "--plan", str(plan_path), "--sim", "--out", str(session), "--speed-factor", "40"])
+        == 0
+    )
+    assert (session / "frames" / "p001_e1_a2.png").is_file()
+    assert main(["fit", str(session), "-o", str(session / "m2.json")]) == 0

@@ -22,6 +22,7 @@ from hlr_lab.fitting import DegenerateSamples, InsufficientSamples, RegionFit, f
 from hlr_lab.fitting.inputs import MIN_DIFFUSE
 from hlr_lab.formats.materials import (
     MaterialEntry,
+    MaterialsFile,
     PixelCounts,
     materials_file,
     measured_entry,
@@ -42,7 +43,7 @@ from hlr_lab.reflectance.views import (
     pose_samples,
 )
 from hlr_lab.rig import Rig, rig_of_snapshot
-from hlr_lab.session.frames import load_frame
+from hlr_lab.session.frames import frame_problem, load_frame
 from hlr_lab.session.journal import read_journal
 from hlr_lab.session.metadata import SESSION
 from hlr_lab.silhouette import object_window
@@ -103,7 +104,7 @@ class FitStep:
 
 @dataclass(frozen=True)
 class FitResult:
-    materials: object  # MaterialsFile
+    materials: MaterialsFile
     diagnostics: dict
     fits: dict[int, RegionFit]  # the regions whose specular was measured
     seconds: dict[str, float]  # per stage: hdr, g-buffer, selection, shadows, fitting
@@ -128,15 +129,36 @@ def open_session(path: Path) -> Session:
 
 
 def _views(path: Path, events: list[dict]) -> list[View]:
-    groups: dict[tuple[str, str], View] = {}
+    """The journaled frames grouped into views. Of the journal lines for one frame (pose, exposure,
+    lamp), the last intact one counts (a resumed run retakes a lost frame under a new name); a frame with
+    no intact copy is an error: the fit would silently use less than was measured."""
+    latest: dict[tuple[str, int, bool], dict] = {}
+    broken: dict[tuple[str, int, bool], str] = {}
     for e in events:
         if e.get("event") != "frame":
             continue
+        key = (e["pose"], e["exposure_index"], bool(e.get("dark")))
+        problem = frame_problem(path, e)
+        if problem:
+            broken.setdefault(key, problem)
+        else:
+            latest[key] = e
+            broken.pop(key, None)
+    if broken:
+        first = next(iter(broken.values()))
+        raise InputError(
+            f"{first} ({len(broken)} frame(s) in all); run hlr-lab acquire on this session again to retake "
+            "them, then fit",
+            path=path,
+        )
+    groups: dict[tuple[str, str], View] = {}
+    for (pose, k, dark), e in latest.items():
         sidecar = json.loads((path / e["sidecar"]).read_text())
-        key = (e["pose"], json.dumps(sidecar["measured"], sort_keys=True))
-        view = groups.setdefault(key, View(e["pose"], sidecar["measured"], [], {}))
-        if e.get("dark"):
-            view.darks[e["exposure_index"]] = e
+        view = groups.setdefault(
+            (pose, json.dumps(sidecar["measured"], sort_keys=True)), View(pose, sidecar["measured"], [], {})
+        )
+        if dark:
+            view.darks[k] = e
         else:
             view.frames.append(e)
     return [v for v in groups.values() if v.frames]
