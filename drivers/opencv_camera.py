@@ -77,14 +77,16 @@ class OpenCVCamera:
         lo, hi = self.config.exposure_range_s
         if not lo <= seconds <= hi:
             raise LimitError(f"exposure {seconds:g} s is outside [{lo:g}, {hi:g}] s", device=self.name)
-        self._pending["exposure"] = float(seconds)
+        self._request(
+            "exposure", self._exposure_units(seconds) * self.config.exposure_unit_s, self.exposure_s
+        )
 
     def set_gain(self, gain_db: float) -> None:
         if not 0 <= gain_db <= self.config.max_gain_db:
             raise LimitError(
                 f"gain {gain_db:g} dB is outside [0, {self.config.max_gain_db:g}] dB", device=self.name
             )
-        self._pending["gain"] = float(gain_db)
+        self._request("gain", self._gain_units(gain_db) / self.config.gain_per_db, self.gain_db)
 
     def capture(self) -> RawFrame:
         """The next frame exposed with the current settings (pending ones applied and checked first)."""
@@ -130,15 +132,29 @@ class OpenCVCamera:
         if c.height:
             self._control("frame height", cv2.CAP_PROP_FRAME_HEIGHT, c.height)
 
+    def _request(self, control: str, value: float, applied: float | None) -> None:
+        """Remember a control change for the next capture; asking for what is set already changes nothing
+        (no frames are dropped for it)."""
+        if applied is not None and value == applied:
+            self._pending.pop(control, None)
+        else:
+            self._pending[control] = value
+
+    def _exposure_units(self, seconds: float) -> int:
+        return max(1, round(seconds / self.config.exposure_unit_s))
+
+    def _gain_units(self, gain_db: float) -> int:
+        return round(gain_db * self.config.gain_per_db)
+
     def _apply(self, pending: dict[str, float]) -> None:
         c = self.config
         if "exposure" in pending:
-            units = max(1, round(pending["exposure"] / c.exposure_unit_s))
+            units = self._exposure_units(pending["exposure"])
             self._control("manual exposure mode", cv2.CAP_PROP_AUTO_EXPOSURE, c.manual_exposure)
             self._control("exposure", cv2.CAP_PROP_EXPOSURE, units)
             self.exposure_s = units * c.exposure_unit_s
         if "gain" in pending:
-            units = round(pending["gain"] * c.gain_per_db)
+            units = self._gain_units(pending["gain"])
             self._control("gain", cv2.CAP_PROP_GAIN, units)
             self.gain_db = units / c.gain_per_db
 
