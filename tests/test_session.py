@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hlr_lab.errors import InputError
+from hlr_lab.formats.io import FILE_MODE
 from hlr_lab.session.frames import frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import Journal, read_journal
 from hlr_lab.session.metadata import SESSION, start_or_resume
@@ -156,3 +157,10 @@ def _submit_then_close(writer, names):
             writer.submit(name, np.ones((2, 2), np.uint16), {})
     finally:
         writer.close()
+
+
+def test_stored_files_get_the_mode_open_would_give(tmp_path):
+    """Not mkstemp's private 0600: a lab's colleagues (and its backup) can read a session."""
+    stored = store_frame(tmp_path, "f", np.zeros((2, 2), np.uint16), {})
+    for name in (stored.file, stored.sidecar):
+        assert (tmp_path / name).stat().st_mode & 0o777 == FILE_MODE

@@ -15,6 +15,11 @@ import pydantic
 from hlr_lab.errors import InputError
 
 Model = TypeVar("Model", bound=pydantic.BaseModel)
+# files get the mode an ordinary open() gives (mkstemp's temporaries are private: 0600); read once, at
+# import, because reading the umask means setting it
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+FILE_MODE = 0o666 & ~_UMASK
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -41,6 +46,7 @@ def _write_via_temporary(path: Path, data: bytes, publish) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), FILE_MODE)
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
