@@ -27,11 +27,10 @@ from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
 from hlr_lab.session.frames import frame_problem
-from hlr_lab.session.journal import Journal
+from hlr_lab.session.journal import JOURNAL, Journal
 from hlr_lab.session.writer import FrameWriter
 
 log = logging.getLogger(__name__)
-JOURNAL = "journal.jsonl"
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import pytest
 
 from drivers.errors import DeviceFault, HardwareAlarm
 from drivers.net_camera import NetworkCamera
-from hlr_lab.acquisition import JOURNAL, Bracketing, Instruments, acquire
+from hlr_lab.acquisition import Bracketing, Instruments, acquire
 from hlr_lab.cli.main import main
 from hlr_lab.devices import open_devices
 from hlr_lab.errors import InputError
@@ -23,7 +23,7 @@ from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.motion import motion_targets
 from hlr_lab.segment import segment
 from hlr_lab.session.frames import load_frame
-from hlr_lab.session.journal import read_journal
+from hlr_lab.session.journal import JOURNAL, read_journal
 from sim.camera import GantryGeometry
 from sim.dynamixel.servo import OVERLOAD
 from sim.render.camera import CameraSpec

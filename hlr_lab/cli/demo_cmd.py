@@ -20,6 +20,7 @@ from hlr_lab.cli.sim_world import sim_scene
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.reflectance.session_fit import MATERIALS
 
 DEFAULT_OBJECT = "builtin:pebble"
 EXIT_UNCOVERED = 3  # plan's status when some region cannot be covered: the demo goes on
@@ -70,10 +71,10 @@ def demo(scene_path: Path | None, out: Path, speed_factor: float) -> None:
     run("report", session)
     exports = out / "export"
     exports.mkdir()
-    common = ["--mesh", mesh, "--regions", regions]
-    run("export", session / "materials.json", *common, "--format", "obj", "-o", exports / "object.obj")
-    run("export", session / "materials.json", *common, "--format", "gltf", "-o", exports / "object.glb")
-    run("export", session / "materials.json", *common, "--format", "mitsuba", "-o", exports / "mitsuba")
+    common = [session / MATERIALS, "--mesh", mesh, "--regions", regions]
+    run("export", *common, "--format", "obj", "-o", exports / "object.obj")
+    run("export", *common, "--format", "gltf", "-o", exports / "object.glb")
+    run("export", *common, "--format", "mitsuba", "-o", exports / "mitsuba")
     plan = read_plan(plan_path)
     console.print(_truth_table(plan, plan_path, scene_path, session))
     console.print(f"report: [bold]{escape(str(session / 'report.html'))}[/] — open it in a browser")
@@ -108,7 +109,7 @@ def _truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, sessi
     """Fitted against true per region; a plan region takes the true material of the scene region whose
     colour is nearest (the default world: one material per plan region)."""
     scene = sim_scene(plan, plan_path, scene_path)
-    fitted = {e.id: e for e in read_materials(session / "materials.json").regions}
+    fitted = {e.id: e for e in read_materials(session / MATERIALS).regions}
     if scene_path is None:
         truth = dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))
     else:

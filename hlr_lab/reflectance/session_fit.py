@@ -30,7 +30,7 @@ from hlr_lab.formats.materials import (
 )
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.formats.regions import RegionEntry
-from hlr_lab.mesh import ColouredMesh
+from hlr_lab.mesh import ColouredMesh, file_sha256
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.raycast import RayCaster
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, merge_bracket
@@ -44,11 +44,10 @@ from hlr_lab.reflectance.views import (
 )
 from hlr_lab.rig import Rig, rig_of_snapshot
 from hlr_lab.session.frames import frame_problem, load_frame
-from hlr_lab.session.journal import read_journal
-from hlr_lab.session.metadata import SESSION
+from hlr_lab.session.journal import JOURNAL, read_journal
+from hlr_lab.session.metadata import SESSION, read_record
 from hlr_lab.silhouette import object_window
 
-JOURNAL = "journal.jsonl"
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
@@ -71,6 +70,7 @@ class Session:
     plan_path: Path
     rig: Rig
     views: list[View]
+    record: dict  # session.json
 
 
 @dataclass
@@ -112,20 +112,19 @@ class FitResult:
 
 def open_session(path: Path) -> Session:
     """Read ``session.json`` and the journal: the plan, the rig as recorded, and the views."""
-    record_path = path / SESSION
-    if not record_path.is_file():
-        raise InputError(
-            "not a session directory (no session.json); give the --out of hlr-lab acquire", path=path
-        )
-    record = json.loads(record_path.read_text())
+    record = read_record(path)
     plan_path = Path(record["plan"]["path"])
     if not plan_path.is_file():
+        raise InputError(f"the session's plan {plan_path} is gone; restore it to fit this session", path=path)
+    if file_sha256(plan_path) != record["plan"]["sha256"]:
         raise InputError(
-            f"the session's plan {plan_path} is gone; restore it to fit this session", path=record_path
+            f"the plan {plan_path} has changed since this session was acquired; restore the plan it was "
+            "acquired with",
+            path=path,
         )
     plan = read_plan(plan_path)
-    rig = rig_of_snapshot(record["rig"]["snapshot"], f"{record_path} (rig snapshot)")
-    return Session(path, plan, plan_path, rig, _views(path, read_journal(path / JOURNAL)))
+    rig = rig_of_snapshot(record["rig"]["snapshot"], f"{path / SESSION} (rig snapshot)")
+    return Session(path, plan, plan_path, rig, _views(path, read_journal(path / JOURNAL)), record)
 
 
 def _views(path: Path, events: list[dict]) -> list[View]:

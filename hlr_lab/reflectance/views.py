@@ -24,7 +24,6 @@ from hlr_lab.mesh import CREASE_DEG, ColouredMesh
 from hlr_lab.planned_object import surface_regions
 from hlr_lab.raycast import SURFACE_OFFSET, RayCaster
 from hlr_lab.reflectance.hdr import Radiance
-from hlr_lab.silhouette import object_window
 from hlr_lab.sphere import rotation_z
 
 
@@ -98,10 +97,11 @@ def pose_geometry(
     caster: RayCaster,
     camera: Camera,
     pose: PoseGeometry,
-    within: np.ndarray | None = None,
+    within: np.ndarray,
     timer: StageTimes | None = None,
 ) -> PixelGeometry:
-    """What each pixel sees at this pose, under which light (``within``: (H, W) bool, pixels to consider).
+    """What each pixel sees at this pose, under which light. ``within``: (H, W) bool, the pixels to
+    consider: those with usable radiance (``session_fit.view_radiance`` limits them to the object's window).
 
     mesh and caster: the object in the turntable frame; camera: the rig's calibrated camera (world).
     timer: adds the seconds of the "g-buffer" and "shadows" stages.
@@ -112,8 +112,7 @@ def pose_geometry(
     to_tt = world_from_tt[:3, :3].T  # world → turntable (a rotation about the table's axis)
     light = to_tt @ (pose.light_world - world_from_tt[:3, 3])
     with timer("g-buffer"):
-        window = object_window(camera, mesh.vertices, pose.turntable_deg)
-        ys, xs = np.nonzero(window if within is None else window & within)
+        ys, xs = np.nonzero(within)
         surface = caster.surface(cam, np.stack([xs, ys], axis=1).astype(np.float64))
         labels = np.full((camera.height, camera.width), -1, np.int64)
         labels[ys, xs] = surface_regions(plan, mesh, surface)

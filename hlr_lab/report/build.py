@@ -28,7 +28,7 @@ from hlr_lab.reflectance.session_fit import (
 from hlr_lab.reflectance.views import DEFAULT_SELECTION, pose_geometry
 from hlr_lab.report import html as h
 from hlr_lab.report.rerender import compare, rerender
-from hlr_lab.session.journal import read_journal
+from hlr_lab.session.journal import JOURNAL, read_journal
 
 MAX_IMAGE_WIDTH = 330  # px per image in the page (three side by side)
 CROP_MARGIN_PX = 12
@@ -53,10 +53,9 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
     diagnostics = json.loads(diagnostics_path.read_text()) if diagnostics_path.is_file() else {"regions": []}
     figures = ReportFigures()
     poses_html = _poses(session, materials, figures, progress)
-    record = json.loads((session.path / "session.json").read_text())
     body = [
         f"<h1>hlr-lab report: {h.escape(session.path.name)}</h1>",
-        _meta(session, record),
+        _meta(session),
         "<h2>Materials</h2>",
         _materials(session, materials),
         "<h2>Highlights: β against the specular part, with the fitted lobe</h2>",
@@ -81,8 +80,10 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
     return page, figures
 
 
-def _meta(session: Session, record: dict) -> str:
-    started = dt.datetime.fromtimestamp(record.get("started_at", 0), dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+def _meta(session: Session) -> str:
+    started = dt.datetime.fromtimestamp(session.record.get("started_at", 0), dt.UTC).strftime(
+        "%Y-%m-%d %H:%M UTC"
+    )
     rows = [
         ["session", h.escape(session.path)],
         ["plan", h.escape(session.plan_path)],
@@ -157,7 +158,8 @@ def _poses(session: Session, materials: MaterialsFile, figures: ReportFigures, p
     for i, view in enumerate(session.views):
         progress(f"pose {view.pose} ({i + 1}/{len(session.views)}): rendering the fit back")
         radiance = view_radiance(session, view, mesh)
-        geometry = pose_geometry(session.plan, mesh, caster, session.rig.camera, view_pose(session, view))
+        pose = view_pose(session, view)
+        geometry = pose_geometry(session.plan, mesh, caster, session.rig.camera, pose, radiance.usable)
         rendered = rerender(geometry, materials, radiance.value.shape)
         # compared where the fit's samples come from: pixels that mix surfaces (at silhouettes, region
         # borders, creases) are not described by pixel-centre geometry
@@ -225,7 +227,7 @@ def _plan(session: Session) -> str:
 
 
 def _runs(session: Session) -> str:
-    events = read_journal(session.path / "journal.jsonl")
+    events = read_journal(session.path / JOURNAL)
     rows = []
     for e in events:
         if e.get("event") in ("run_end", "stopped"):

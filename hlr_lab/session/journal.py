@@ -16,6 +16,8 @@ from pathlib import Path
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import fsync_directory
 
+JOURNAL = "journal.jsonl"  # the session directory's journal (DESIGN §4)
+
 
 class Journal:
     def __init__(self, path: str | Path):

@@ -17,6 +17,26 @@ SESSION = "session.json"
 SESSION_FORMAT = "hlr-lab.session"
 
 
+def read_record(session: Path) -> dict:
+    """``session.json``, checked: its header and the fields a resumed run and a fit rely on."""
+    path = session / SESSION
+    if not path.is_file():
+        raise InputError(
+            "not a session directory (no session.json); give the --out of hlr-lab acquire", path=session
+        )
+    record = read_json(path)
+    check_header(record, path, SESSION_FORMAT, {1})
+    try:
+        for section, key in (("plan", "path"), ("plan", "sha256"), ("rig", "sha256"), ("rig", "snapshot")):
+            record[section][key]
+    except (KeyError, TypeError) as exc:
+        raise InputError(
+            f"the session record is damaged (no {exc}); give a new --out to start a new session",
+            path=path,
+        ) from exc
+    return record
+
+
 def start_or_resume(session: Path, plan_path: Path, plan_sha256: str, rig: Rig, *, force: bool) -> bool:
     """Create ``session.json``, or check it against this plan and rig; True when resuming."""
     snapshot = rig.file.model_dump(mode="json")
@@ -33,15 +53,8 @@ def start_or_resume(session: Path, plan_path: Path, plan_sha256: str, rig: Rig, 
         }
         atomic_create_bytes(path, (dumps(record) + "\n").encode())
         return False
-    record = read_json(path)
-    check_header(record, path, SESSION_FORMAT, {1})
-    try:
-        started_with = {"plan": record["plan"]["sha256"], "rig": record["rig"]["sha256"]}
-    except (KeyError, TypeError) as exc:
-        raise InputError(
-            f"the session record is damaged (no {exc}); give a new --out to start a new session",
-            path=path,
-        ) from exc
+    record = read_record(session)
+    started_with = {"plan": record["plan"]["sha256"], "rig": record["rig"]["sha256"]}
     now = {"plan": plan_sha256, "rig": rig_sha256}
     changed = [what for what in ("plan", "rig") if started_with[what] != now[what]]
     if changed and not force:
