@@ -152,3 +152,15 @@ def test_a_lost_frame_is_refused_until_it_is_retaken(acquired, capsys):
     )
     assert (session / "frames" / "p001_e1_a2.png").is_file()
     assert main(["fit", str(session), "-o", str(session / "m2.json")]) == 0
+
+
+def test_fit_refuses_a_plan_changed_since_acquisition(acquired, capsys):
+    plan_path, session = acquired
+    original = plan_path.read_bytes()
+    plan_path.write_bytes(original + b"\n")
+    try:
+        assert main(["fit", str(session), "-o", str(session / "m3.json")]) == 1
+    finally:
+        plan_path.write_bytes(original)
+    assert "has changed since this session was acquired" in capsys.readouterr().err
+    assert not (session / "m3.json").exists()
