@@ -55,3 +55,32 @@ def test_the_report_opens_offline_with_its_images_and_tables(tmp_path):
     colourful = (shot.max(axis=-1).astype(int) - shot.min(axis=-1)) > 60  # the object's colours, not text
     assert colourful.mean() > 0.02
     assert shot.std() > 30
+
+
+def test_the_demo_on_a_scene_file_compares_with_its_materials(tmp_path, capsys):
+    """--scene: the scene's mesh is planned and measured, and the truth is the scene's own materials."""
+    import numpy as np
+    import trimesh
+
+    from hlr_lab.procedural import pebble
+
+    body = pebble().mesh
+    alpha = np.full((len(body.vertices), 1), 255, np.uint8)
+    trimesh.Trimesh(
+        body.vertices, body.faces, vertex_colors=np.hstack([body.vertex_colours, alpha]), process=False
+    ).export(tmp_path / "pebble.ply")
+    colours = np.unique(body.vertex_colours, axis=0)
+    regions = "".join(
+        f"\n[[region]]\ncolor = {[int(c) for c in colour]}\nrd = [0.5, 0.4, 0.3]\nrs = [0.2, 0.2, 0.2]\nn = 50.0\n"
+        for colour in colours
+    )
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f'[object]\nmesh = "pebble.ply"\n\n[light]\ntype = "point"\npower = 1.0\n{regions}')
+    out = tmp_path / "demo"
+    assert main(["demo", "--scene", str(scene), "--out", str(out), "--speed-factor", "40"]) == 0
+    printed = capsys.readouterr().err
+    table = printed[printed.index("fitted against the simulated truth") :]
+    rows = re.findall(r"│\s+(\d+) │[^│]+│[^│]+│\s+([\d.]+) │\s+([\d.]+) │[^│]+│\s+([\d.]+) │", table)
+    assert len(rows) == len(colours)
+    # against the scene's materials (not the default world's, which differ by far more than 1 %)
+    assert all(float(rd) < 1.0 and float(rs) < 5.0 for _, rd, rs, _ in rows)

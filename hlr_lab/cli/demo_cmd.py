@@ -7,7 +7,6 @@ place that reads the simulator's ground truth, to show the error.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import click
@@ -16,7 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from hlr_lab.cli.common import console
-from hlr_lab.cli.sim_world import sim_scene
+from hlr_lab.cli.sim_world import scene_file_object, sim_scene
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import PlanFile, read_plan
@@ -81,13 +80,7 @@ def demo(scene_path: Path | None, out: Path, speed_factor: float) -> None:
 
 
 def _object(scene_path: Path | None) -> str:
-    if scene_path is None:
-        return DEFAULT_OBJECT
-    try:
-        mesh = tomllib.loads(scene_path.read_text(encoding="utf-8"))["object"]["mesh"]
-    except (OSError, KeyError, tomllib.TOMLDecodeError) as exc:
-        raise InputError(f"cannot read the scene's object.mesh ({exc})", path=scene_path) from exc
-    return str(scene_path.parent / mesh)
+    return DEFAULT_OBJECT if scene_path is None else str(scene_file_object(scene_path).mesh)
 
 
 def _runner():
@@ -113,8 +106,7 @@ def _truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, sessi
     if scene_path is None:
         truth = dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))
     else:
-        colours = tomllib.loads(scene_path.read_text(encoding="utf-8"))["region"]
-        scene_regions = [c["color"] for c in colours]
+        scene_regions = scene_file_object(scene_path).region_colours
         truth = {
             r.id: scene.materials[
                 int(np.argmin([np.sum((np.array(c) - r.color) ** 2) for c in scene_regions]))

@@ -8,7 +8,7 @@ instrument; a scene file gives the true materials a fit is checked against.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -47,15 +47,36 @@ def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> Scene
     return SceneSpec(mesh.vertices, mesh.faces, region, materials, placement)
 
 
-def _scene_file(plan: PlanFile, scene_path: Path) -> SceneSpec:
+@dataclass(frozen=True)
+class SceneFileObject:
+    """What hlr-lab reads of a sim scene file itself: the mesh (to plan, and to check against a plan) and
+    the regions' colours, in the order of the scene's materials."""
+
+    mesh: Path
+    region_colours: list[tuple[int, int, int]]
+
+
+def scene_file_object(scene_path: Path) -> SceneFileObject:
     try:
-        mesh_name = tomllib.loads(scene_path.read_text(encoding="utf-8"))["object"]["mesh"]
-        spec = load_scene(scene_path)
-    except (OSError, KeyError, tomllib.TOMLDecodeError, SceneError) as exc:
-        raise InputError(f"cannot use the scene ({exc})", path=scene_path) from exc
-    if file_sha256(scene_path.parent / mesh_name) != plan.object.sha256:
+        data = tomllib.loads(scene_path.read_text(encoding="utf-8"))
+        mesh = scene_path.parent / data["object"]["mesh"]
+        colours = [tuple(int(c) for c in r["color"]) for r in data.get("region", [])]
+    except (OSError, KeyError, TypeError, ValueError, tomllib.TOMLDecodeError) as exc:
         raise InputError(
-            f"its mesh {mesh_name} is not the plan's (sha256 differs); give the scene of the planned object",
+            f"cannot read the scene's object.mesh and region colours ({exc})", path=scene_path
+        ) from exc
+    return SceneFileObject(mesh, colours)
+
+
+def _scene_file(plan: PlanFile, scene_path: Path) -> SceneSpec:
+    mesh = scene_file_object(scene_path).mesh
+    try:
+        spec = load_scene(scene_path)
+    except SceneError as exc:
+        raise InputError(f"cannot use the scene ({exc})", path=scene_path) from exc
+    if file_sha256(mesh) != plan.object.sha256:
+        raise InputError(
+            f"its mesh {mesh.name} is not the plan's (sha256 differs); give the scene of the planned object",
             path=scene_path,
             field="object.mesh",
         )
