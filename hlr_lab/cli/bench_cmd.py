@@ -16,7 +16,7 @@ from hlr_lab.bench import (
     run_plan_case,
     run_throughput_case,
 )
-from hlr_lab.cli.common import console, out
+from hlr_lab.cli.common import console, out, speed_factor_option
 from hlr_lab.sphere import directions_with_spacing
 
 
@@ -191,13 +191,7 @@ def bench_sim(transactions, frames) -> None:
 
 @bench.command("acquire")
 @click.option("--poses", type=click.IntRange(2, 10_000), default=20, show_default=True)
-@click.option(
-    "--speed-factor",
-    type=click.FloatRange(min=1.0),
-    default=1000.0,
-    show_default=True,
-    help="Simulated motion this much faster than real time (fast, so that waiting hides nothing).",
-)
+@speed_factor_option("Simulated", default=1000.0)  # fast: waiting for motion must hide nothing
 def bench_acquire(poses, speed_factor) -> None:
     """Acquisition on the simulated rig with the real drivers: software overhead per pose (wall time not
     spent waiting for the axes or the camera) and servo / Modbus transactions per pose.

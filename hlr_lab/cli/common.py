@@ -79,12 +79,12 @@ def region_table(regions: list[Region], title: str) -> Table:
     return t
 
 
-def speed_factor_option(subject: str):
+def speed_factor_option(subject: str, default: float = 1.0):
     """``--speed-factor`` for commands that run the simulated rig (tests and demos run it fast)."""
     return click.option(
         "--speed-factor",
         type=click.FloatRange(min=0.01),
-        default=1.0,
+        default=default,
         show_default=True,
         help=f"{subject} time runs this much faster than real time.",
     )

@@ -14,7 +14,7 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import console
+from hlr_lab.cli.common import console, speed_factor_option
 from hlr_lab.cli.sim_world import scene_file_object, sim_scene
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials
@@ -41,8 +41,7 @@ EXIT_UNCOVERED = 3  # plan's status when some region cannot be covered: the demo
     show_default=True,
     help="Folder for everything the demo writes (a new one: the demo never overwrites).",
 )
-@click.option("--speed-factor", type=click.FloatRange(min=1.0), default=20.0, show_default=True,
-              help="Simulated motion this much faster than real time.")  # fmt: skip
+@speed_factor_option("Simulated", default=20.0)
 def demo(scene_path: Path | None, out: Path, speed_factor: float) -> None:
     """Run the whole measurement on the simulated rig and compare the result with the truth.
 
