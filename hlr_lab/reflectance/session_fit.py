@@ -43,7 +43,7 @@ from hlr_lab.reflectance.views import (
     pose_samples,
 )
 from hlr_lab.rig import Rig, rig_of_snapshot
-from hlr_lab.session.frames import frame_problem, load_frame
+from hlr_lab.session.frames import load_frame
 from hlr_lab.session.journal import JOURNAL, read_journal
 from hlr_lab.session.metadata import SESSION, read_record
 from hlr_lab.silhouette import object_window
@@ -129,15 +129,18 @@ def open_session(path: Path) -> Session:
 
 def _views(path: Path, events: list[dict]) -> list[View]:
     """The journaled frames grouped into views. Of the journal lines for one frame (pose, exposure,
-    lamp), the last intact one counts (a resumed run retakes a lost frame under a new name); a frame with
-    no intact copy is an error: the fit would silently use less than was measured."""
+    lamp), the last whose files are there counts (a resumed run retakes a lost frame under a new name); a
+    frame with none is an error: the fit would silently use less than was measured. Checksums are
+    verified when the frame is read (:func:`load_frame`), not here as well."""
     latest: dict[tuple[str, int, bool], dict] = {}
     broken: dict[tuple[str, int, bool], str] = {}
     for e in events:
         if e.get("event") != "frame":
             continue
         key = (e["pose"], e["exposure_index"], bool(e.get("dark")))
-        problem = frame_problem(path, e)
+        problem = next(
+            (f"{e[k]} is missing" for k in ("file", "sidecar") if not (path / e[k]).is_file()), None
+        )
         if problem:
             broken.setdefault(key, problem)
         else:

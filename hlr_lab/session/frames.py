@@ -61,22 +61,31 @@ def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> 
 
 def frame_problem(session: Path, event: dict) -> str | None:
     """Why a journaled frame cannot be trusted (missing or changed file), or None when it is intact."""
-    for key, digest in (("file", "sha256"), ("sidecar", "sidecar_sha256")):
-        path = session / event[key]
-        if not path.is_file():
-            return f"{event[key]} is missing"
-        if _sha256(path.read_bytes()) != event[digest]:
-            return f"{event[key]} does not match its checksum in the journal"
-    return None
+    return _read_checked(session, event)[1]
 
 
 def load_frame(session: Path, event: dict) -> np.ndarray:
-    """The pixels of a journaled frame, checked against the journal first."""
-    problem = frame_problem(session, event)
+    """The pixels of a journaled frame, checked against the journal first (the image is read once)."""
+    image, problem = _read_checked(session, event)
     if problem:
         raise InputError(f"{problem}; run hlr-lab acquire again on this session to retake it", path=session)
-    pixels = cv2.imread(str(session / event["file"]), cv2.IMREAD_UNCHANGED)
+    pixels = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
     return pixels[..., ::-1] if pixels.ndim == 3 else pixels
+
+
+def _read_checked(session: Path, event: dict) -> tuple[bytes, str | None]:
+    """The image file's bytes, and why the frame cannot be trusted (None when both files check out)."""
+    image = b""
+    for key, digest in (("file", "sha256"), ("sidecar", "sidecar_sha256")):
+        path = session / event[key]
+        if not path.is_file():
+            return image, f"{event[key]} is missing"
+        data = path.read_bytes()
+        if _sha256(data) != event[digest]:
+            return image, f"{event[key]} does not match its checksum in the journal"
+        if key == "file":
+            image = data
+    return image, None
 
 
 def _sha256(data: bytes) -> str:
