@@ -164,3 +164,18 @@ def test_fit_refuses_a_plan_changed_since_acquisition(acquired, capsys):
         plan_path.write_bytes(original)
     assert "has changed since this session was acquired" in capsys.readouterr().err
     assert not (session / "m3.json").exists()
+
+
+def test_report_before_fit_says_to_fit_first(tmp_path, capsys):
+    """A session with frames but no materials yet: report names the missing step and writes nothing."""
+    from tests.renderer_guard import require_renderer
+
+    require_renderer()
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(plan)]) == 0
+    session = tmp_path / "session"
+    assert main(["acquire", "--plan", str(plan), "--sim", "--out", str(session), "--speed-factor", "40"]) == 0
+    capsys.readouterr()
+    assert main(["report", str(session)]) == 1
+    assert "run hlr-lab fit on it first" in capsys.readouterr().err
+    assert not (session / "report.html").exists()
