@@ -76,7 +76,6 @@ def test_a_region_without_highlight_pixels_gets_its_diffuse_colour_and_a_reason(
         r.irradiance[far],
         r.cos_alpha[far],
         r.cos_beta[far],
-        np.zeros((n, 2), int),
     )
     pooled = _Pooled()
     pooled.add("p000", part, np.ones(n, bool))

@@ -58,7 +58,6 @@ class PoseSamples:
     irradiance: np.ndarray  # (N,) Φ/d²
     cos_alpha: np.ndarray  # (N,)
     cos_beta: np.ndarray  # (N,) β between the normal and the half vector
-    pixel: np.ndarray  # (N, 2) int (x, y)
 
 
 @dataclass(frozen=True)
@@ -184,7 +183,6 @@ def pose_samples(
             irradiance=g.irradiance[keep],
             cos_alpha=g.cos_alpha[keep],
             cos_beta=g.cos_beta[keep],
-            pixel=g.pixel[keep],
         )
 
 
