@@ -11,13 +11,21 @@
   repeating one does what sending it once does) are retried a bounded number of times with backoff,
   each retry logged with ``RETRY``. The move itself is a broadcast without a reply, so it has nothing
   to retry on: a move that does not arrive ends in a settle timeout, never in a silent second move.
-* SDK result codes never leave this module: they become :mod:`drivers.errors` exceptions.
+* SDK result codes never leave this module: they become :mod:`drivers.errors` exceptions; so does a
+  link that disappears (an unplugged adapter, a dead simulator: pyserial's ``SerialException``/``OSError``).
+* The SDK is not thread-safe, and a transaction cut short (an exception raised in the middle of one)
+  leaves its PortHandler marked busy for good ("Port is in use!"). Every transaction therefore runs
+  under one lock, and a port left busy is cleared before the next one (:meth:`_transaction`).
+* :meth:`park` is the safe-state step: it retries the torque-off writes and reads them back, so it says
+  only what the servos confirmed.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import serial
@@ -145,6 +153,7 @@ class DynamixelGantry:
             )
         self.ph = PacketHandler(2.0)
         self._goal: tuple[int, ...] | None = None
+        self._lock = threading.RLock()  # one SDK transaction at a time, whichever thread asks
 
     @property
     def name(self) -> str:
@@ -157,7 +166,7 @@ class DynamixelGantry:
         for axis in self.config.axes:
             # a servo in alarm answers even a ping with the alert bit; the check below says what to do
             model = self._retry(
-                lambda a=axis: self._call(a, "ping", *self.ph.ping(self.port, a.servo_id), alert_ok=True)
+                lambda a=axis: self._call(a, "ping", *self._tx_rx(self.ph.ping, a.servo_id), alert_ok=True)
             )
             if model not in X_SERIES_MODELS:
                 raise DeviceFault(
@@ -189,7 +198,7 @@ class DynamixelGantry:
     def inspect(self, axis: Axis) -> ServoReport:
         """Read one servo's identity, limits and health; writes nothing, so it is safe on any rig state."""
         model = self._retry(
-            lambda: self._call(axis, "ping", *self.ph.ping(self.port, axis.servo_id), alert_ok=True)
+            lambda: self._call(axis, "ping", *self._tx_rx(self.ph.ping, axis.servo_id), alert_ok=True)
         )
 
         def read(address: int, size: int) -> int:  # a servo in alarm still answers; that is the point here
@@ -226,7 +235,7 @@ class DynamixelGantry:
                 status=status,
             )
         log.warning("%s: hardware error (%s); rebooting as allowed", self._device(axis), what)
-        self._call(axis, "reboot", None, *self.ph.reboot(self.port, axis.servo_id), alert_ok=True)
+        self._call(axis, "reboot", None, *self._tx_rx(self.ph.reboot, axis.servo_id), alert_ok=True)
         time.sleep(0.1)
 
     # -- motion -------------------------------------------------------------------------------------
@@ -243,7 +252,8 @@ class DynamixelGantry:
         writer = GroupSyncWrite(self.port, self.ph, GOAL_POSITION, 4)
         for axis, ticks in zip(self.config.axes, goal, strict=True):
             writer.addParam(axis.servo_id, list(int(ticks).to_bytes(4, "little", signed=True)))
-        result = writer.txPacket()
+        with self._transaction():
+            result = writer.txPacket()
         if result != COMM_SUCCESS:  # a sync write has no reply: only the transmission can fail here
             raise DeviceError(
                 f"the goal could not be sent ({self.ph.getTxRxResult(result)})", device=self.name
@@ -291,16 +301,52 @@ class DynamixelGantry:
             tuple(min(max(p, a.min_ticks), a.max_ticks) for p, a in zip(here, self.config.axes, strict=True))
         )
 
+    def park(self, *, torque_off: bool = True, attempts: int = 3) -> str:
+        """The safe state, confirmed by the servos: torque off on every axis (read back), or with
+        ``torque_off`` False the arm held where it is and seen not moving. Each axis is tried
+        ``attempts`` times; returns what was confirmed, raises :class:`DeviceError` naming every axis
+        that could not be made safe."""
+        failed = []
+        for axis in self.config.axes:
+            for attempt in range(1, attempts + 1):
+                try:
+                    if torque_off:
+                        self._write(axis, TORQUE_ENABLE, 0, 1)
+                        confirmed = self._read(axis, TORQUE_ENABLE, 1) == 0
+                    else:
+                        confirmed = self._read(axis, MOVING, 1) == 0
+                    if confirmed:
+                        break
+                    problem = "the servo still reports " + ("torque on" if torque_off else "moving")
+                except DeviceError as exc:
+                    problem = str(exc)
+                log.warning("%s: not safe yet (%s); attempt %d of %d", self._device(axis), problem, attempt,
+                            attempts)  # fmt: skip
+                time.sleep(0.05 * attempt)
+            else:
+                failed.append(f"{axis.label}: {problem}")
+        if failed:
+            raise DeviceError(
+                ("could not switch torque off" if torque_off else "the arm is not holding still")
+                + f" ({'; '.join(failed)})",
+                device=self.name,
+            )
+        return "torque off (read back)" if torque_off else "holding, not moving (read back)"
+
     def close(self, *, torque_off: bool = True) -> None:
-        """Leave the servos safe (torque off unless the park policy keeps it) and release the port."""
+        """Leave the servos safe (torque off unless the park policy keeps it) and release the port; a
+        failure to park is logged, the port is released anyway (use :meth:`park` to know)."""
         try:
             if torque_off:
-                for axis in self.config.axes:
-                    try:
-                        self._write(axis, TORQUE_ENABLE, 0, 1)
-                    except DeviceError as exc:
-                        log.error("could not switch torque off: %s", exc)
+                self.park(torque_off=True)
+        except DeviceError as exc:
+            log.error("%s", exc)
         finally:
+            self.release()
+
+    def release(self) -> None:
+        """Close the port (nothing is sent)."""
+        with self._lock:
             self.port.closePort()
 
     # -- transport ----------------------------------------------------------------------------------
@@ -320,23 +366,24 @@ class DynamixelGantry:
 
     def _sync_read(self, address: int, length: int, decode):
         ids = [a.servo_id for a in self.config.axes]
-        result = self.ph.syncReadTx(self.port, address, length, ids, len(ids), False)
-        if result != COMM_SUCCESS:
-            raise DeviceError(
-                f"sync read could not be sent ({self.ph.getTxRxResult(result)})", device=self.name
-            )
-        out = []
-        for axis in self.config.axes:
-            data, result, error = self.ph.readRx(self.port, axis.servo_id, length)
-            self._call(axis, "sync read", None, result, error)
-            out.append(decode(data))
-        return out
+        with self._transaction():
+            result = self.ph.syncReadTx(self.port, address, length, ids, len(ids), False)
+            if result != COMM_SUCCESS:
+                raise DeviceError(
+                    f"sync read could not be sent ({self.ph.getTxRxResult(result)})", device=self.name
+                )
+            out = []
+            for axis in self.config.axes:
+                data, result, error = self.ph.readRx(self.port, axis.servo_id, length)
+                self._call(axis, "sync read", None, result, error)
+                out.append(decode(data))
+            return out
 
     def _read(self, axis: Axis, address: int, size: int, *, alert_ok: bool = False) -> int:
         reader = {1: self.ph.read1ByteTxRx, 2: self.ph.read2ByteTxRx, 4: self.ph.read4ByteTxRx}[size]
         value = self._retry(
             lambda: self._call(
-                axis, f"read {address}", *reader(self.port, axis.servo_id, address), alert_ok=alert_ok
+                axis, f"read {address}", *self._tx_rx(reader, axis.servo_id, address), alert_ok=alert_ok
             )
         )
         return value - (1 << 32) if size == 4 and value >= 1 << 31 else value
@@ -346,9 +393,34 @@ class DynamixelGantry:
         raw = value & ((1 << (8 * size)) - 1)
         self._retry(
             lambda: self._call(
-                axis, f"write {address}", None, *writer(self.port, axis.servo_id, address, raw)
+                axis, f"write {address}", None, *self._tx_rx(writer, axis.servo_id, address, raw)
             )
         )
+
+    def _tx_rx(self, exchange, *args):
+        """One SDK request/reply exchange (``exchange(port, *args)``) under the port's lock."""
+        with self._transaction():
+            return exchange(self.port, *args)
+
+    @contextmanager
+    def _transaction(self):
+        """Hold the port for one SDK transaction. A port still marked busy was left so by a transaction
+        cut short (its reply may still be on the way): wait out a reply time, drop what arrived, and
+        free it. A vanished link becomes a :class:`DeviceError` naming the gantry."""
+        with self._lock:
+            if self.port.is_using:
+                log.warning("%s: the previous exchange was cut short; clearing the port", self.name)
+                time.sleep(0.04)  # longer than the SDK's reply timeout (2 × 16 + 2 ms)
+                self.port.clearPort()
+                self.port.is_using = False
+            try:
+                yield
+            except (serial.SerialException, OSError) as exc:
+                self.port.is_using = False
+                raise DeviceError(
+                    f"the link is lost ({exc}); check the adapter's cable and the servos' power",
+                    device=self.name,
+                ) from exc
 
     def _call(self, axis: Axis, what: str, value, result: int, error: int = 0, *, alert_ok: bool = False):
         """Turn an SDK result into a value or an exception."""
@@ -384,7 +456,8 @@ class DynamixelGantry:
                     raise
                 self.retried += 1
                 log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries, extra=RETRY)
-                self.port.clearPort()  # a late reply must not be taken for the next one
+                with self._lock:
+                    self.port.clearPort()  # a late reply must not be taken for the next one
                 time.sleep(self.config.backoff_s * 2**attempt)
         raise AssertionError("unreachable")
 

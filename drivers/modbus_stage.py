@@ -48,6 +48,7 @@ class StageMap:
     stop_bit: int = 0x20
     alarm_reset_bit: int = 0x80
     ready_bit: int = 0x01
+    move_bit: int = 0x02
     in_position_bit: int = 0x04
     alarm_bit: int = 0x80
     absolute: int = 1
@@ -170,6 +171,29 @@ class ModbusStage:
     def stop(self) -> None:
         self._command(self.config.map.stop_bit)
 
+    def halt(self, timeout_s: float = 5.0) -> str:
+        """The safe-state step: STOP, then wait until the drive reports it is not moving (MOVE clear).
+        Returns what the drive confirmed; raises :class:`DeviceError` when it did not."""
+        self.stop()
+        deadline = time.monotonic() + timeout_s
+        while True:
+            status, _, position = self._read_block(3)
+            if not status & self.config.map.move_bit:
+                return f"stopped at {position} steps (read back)"
+            if time.monotonic() > deadline:
+                raise SettleTimeout(
+                    f"still moving {timeout_s:g} s after STOP (at {position})", device=self.name
+                )
+            time.sleep(0.01)
+
+    def reconnect(self) -> None:
+        """A fresh link: nothing of an exchange cut short (a late reply) can be taken for the next one."""
+        self.client.close()
+        if not self.client.connect():
+            raise DeviceTimeout(
+                "cannot reconnect; check the cable and that the drive is powered", device=self.name
+            )
+
     def inspect(self) -> DriveReport:
         """The drive's status, alarm code and position; writes nothing (``hlr-lab doctor``)."""
         status, alarm, position = self._read_block(3)
@@ -242,7 +266,7 @@ class ModbusStage:
     def _io(self, call):
         try:
             return call()
-        except (ConnectionException, ConnectionError) as exc:  # pymodbus does not wrap every socket error
+        except (ConnectionException, OSError) as exc:  # pymodbus does not wrap every socket or serial error
             self.client.close()
             raise DeviceTimeout(f"the link dropped ({exc})", device=self.name) from exc
         except ModbusIOException as exc:
@@ -280,7 +304,23 @@ class ModbusRelay:
 
     def get(self) -> bool:
         stage = self.client_owner
-        rr = stage._check(
-            stage._io(lambda: stage.client.read_coils(self.coil, count=1, device_id=self.unit)), "lamp read"
+        rr = stage._retry(
+            lambda: stage._check(
+                stage._io(lambda: stage.client.read_coils(self.coil, count=1, device_id=self.unit)),
+                "lamp read",
+            )
         )
         return bool(rr.bits[0])
+
+    def switch_off(self) -> str:
+        """The safe-state step: coil off, then read back; raises :class:`DeviceError` if it stays on."""
+        self.set(False)
+        if self.get():
+            raise DeviceFault(
+                f"coil {self.coil} still reads on after switching it off", device=self.name, code=0
+            )
+        return "off (read back)"
+
+    @property
+    def name(self) -> str:
+        return f"lamp relay (device {self.unit}, coil {self.coil}) on {self.client_owner.config.address}"

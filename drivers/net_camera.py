@@ -19,18 +19,20 @@ from drivers.protocols import RawFrame
 
 
 class NetworkCamera:
-    def __init__(self, address: str, *, timeout_s: float = 60.0, max_gain_db: float = 24.0):
+    def __init__(self, address: str, *, reply_timeout_s: float = 20.0, max_gain_db: float = 24.0):
+        """reply_timeout_s: how long after its exposure a frame may take to arrive (reading out,
+        transferring; a simulated camera renders); past that the camera is taken as hung."""
         self.address = address
         self.max_gain_db = max_gain_db
         self.exposure_s = 0.01
         self.gain_db = 0.0
-        self.timeout_s = timeout_s
+        self.reply_timeout_s = reply_timeout_s
         self._connect()
 
     def _connect(self) -> None:
         host, _, port = self.address.rpartition(":")
         try:
-            self._conn = socket.create_connection((host, int(port)), timeout=self.timeout_s)
+            self._conn = socket.create_connection((host, int(port)), timeout=self.reply_timeout_s)
         except (OSError, ValueError) as exc:
             raise DeviceError(
                 f"cannot connect ({exc}); check the camera address and that its server runs", device=self.name
@@ -68,6 +70,7 @@ class NetworkCamera:
     def _exchange(self) -> RawFrame:
         request = {"exposure_s": self.exposure_s, "gain_db": self.gain_db}
         try:
+            self._conn.settimeout(self.reply_timeout_s + self.exposure_s)
             self._conn.sendall((json.dumps(request) + "\n").encode())
             header = json.loads(self._reply.readline() or b"null")
             if header is None:
@@ -80,7 +83,9 @@ class NetworkCamera:
             size = int(np.prod(shape)) * 2
             data = self._reply.read(size)
         except TimeoutError as exc:
-            raise DeviceTimeout("no frame within the timeout", device=self.name) from exc
+            raise DeviceTimeout(
+                f"no frame {self.reply_timeout_s:g} s after the exposure; is the camera hung?", device=self.name
+            ) from exc
         except OSError as exc:
             raise DeviceTimeout(f"the link dropped ({exc})", device=self.name) from exc
         if len(data) != size:

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.errors import RETRY, ChecksumError, DeviceTimeout
+from drivers.errors import RETRY, ChecksumError, DeviceError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.motion import PoseTarget
-from hlr_lab.session.frames import frame_problem
+from hlr_lab.session.frames import FRAMES, frame_problem
 from hlr_lab.session.journal import JOURNAL, Journal
 from hlr_lab.session.writer import FrameWriter
 
@@ -67,6 +67,19 @@ class Outcome:
 
 
 @dataclass(frozen=True)
+class Tolerance:
+    """How far an axis may be from its goal and count as there (the drivers' settle tolerances):
+    also how far it may move while a frame is exposed."""
+
+    turntable_steps: int = 1
+    gantry_ticks: int = 2
+
+
+class AxisMoved(DeviceError):
+    """An axis left its place during an exposure, again after the frame was retaken."""
+
+
+@dataclass(frozen=True)
 class Step:
     """Where the run is, for a progress display: pose ``index`` of ``poses`` and what happens now;
     ``action`` "done" closes each pose (also one that was complete already)."""
@@ -104,44 +117,67 @@ def acquire(
     bracket: Bracketing = Bracketing(),
     progress: Callable[[Step], None] = lambda _: None,
     object_window: Callable[[float], np.ndarray] | None = None,
+    tolerance: Tolerance = Tolerance(),
 ) -> Outcome:
-    """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``.
+    """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``, which
+    this process alone writes (:func:`hlr_lab.locks.hold_session`).
 
     object_window: turntable angle (°) → (H, W) bool, where the object may appear: clipped pixels are
     counted there only (:mod:`hlr_lab.silhouette`); None counts the whole frame.
+    tolerance: after each exposure the axes are read again; a frame during which one left its goal by
+    more than this is not kept but taken again after the rig settles (twice: :class:`AxisMoved`).
     """
     outcome, started = Outcome(), time.monotonic()
+    remove_temporaries(session)
     with Journal(session / JOURNAL) as journal, _RetryJournal(journal) as retries:
+        for damage in journal.damaged:
+            log.warning(
+                "%s: %s; set aside in journal.damaged, its frame is taken again", JOURNAL, damage.describe()
+            )
         done = _intact_frames(session, journal.events, outcome.retaken)
         journal.append({"event": "run_start", "at": time.time(), "frames_done": sum(map(len, done.values()))})
+        writer = FrameWriter(session, journal)
         try:
-            with FrameWriter(session, journal) as writer:
-                run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket, object_window)
+            with writer:
+                run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket, object_window,
+                           tolerance)  # fmt: skip
                 for i, (pose, target) in enumerate(zip(plan.poses, targets, strict=True)):
                     retries.pose = pose.id
                     have = done.get(pose.id, {})
                     outcome.already_done += len(have)
                     report = partial(_report, progress, i, len(targets), pose.id)
-                    taken = run.take_pose(pose, target, have, report)
-                    outcome.taken += taken
-                    outcome.poses_moved += taken > 0
+                    outcome.poses_moved += run.take_pose(pose, target, have, report) > 0
                     report("done")
         except BaseException as exc:  # an interrupt too: the journal says why the run ended
-            _finish(outcome, started, retries.count)
+            _finish(outcome, started, retries.count, writer.stored)
             reason = str(exc) or type(exc).__name__
-            journal.append({"event": "stopped", "at": time.time(), "reason": reason, **outcome.summary()})
+            journal.append_last(
+                {"event": "stopped", "at": time.time(), "reason": reason, **outcome.summary()}
+            )
             raise
-        _finish(outcome, started, retries.count)
-        journal.append({"event": "run_end", "at": time.time(), **outcome.summary()})
+        _finish(outcome, started, retries.count, writer.stored)
+        journal.append_last({"event": "run_end", "at": time.time(), **outcome.summary()})
     return outcome
+
+
+def remove_temporaries(session: Path) -> list[Path]:
+    """Delete the temporary files a killed run left while writing a frame or a record (``.NAME.*.tmp``:
+    never journaled, so never part of the session). Returns what was removed."""
+    found = [p for d in (session, session / FRAMES) if d.is_dir() for p in d.glob(".*.tmp")]
+    for p in found:
+        p.unlink(missing_ok=True)
+    if found:
+        log.info("removed %d temporary file(s) of an interrupted run", len(found))
+    return found
 
 
 def _report(progress: Callable[[Step], None], index: int, poses: int, pose: str, action: str) -> None:
     progress(Step(index, poses, pose, action))
 
 
-def _finish(outcome: Outcome, started: float, retries: int) -> None:
-    outcome.duration_s, outcome.retries = time.monotonic() - started, retries
+def _finish(outcome: Outcome, started: float, retries: int, stored: int) -> None:
+    """Close the account: only frames whose journal line is on disk count as taken."""
+    outcome.duration_s, outcome.retries, outcome.taken = time.monotonic() - started, retries, stored
 
 
 class _RetryJournal(logging.Handler):
@@ -181,6 +217,7 @@ class _Run:
     settle_timeout_s: float
     bracket: Bracketing
     object_window: Callable[[float], np.ndarray] | None
+    tolerance: Tolerance
 
     def take_pose(
         self,
@@ -206,48 +243,55 @@ class _Run:
             return 0
         instruments = self.instruments
         progress("moving")
-        measured = _move(instruments, target, self.settle_timeout_s)
-        temperatures = {k: v for t in instruments.thermometers for k, v in t.temperatures().items()}
-        state = {**_positions(target, measured), "temperatures_c": temperatures}
+        place = _Place(self, pose, target)
         window = None if self.object_window is None else self.object_window(target.turntable_deg)
-        self.journal.append({"event": "pose", "pose": pose.id, **state})
-        log.info("%s: settled at %s, %s", pose.id, measured, temperatures)
         instruments.lamp.set(True)
         for k in planned:
             lit[k] = pose.exposures_s[k]
-            shortest = min(
-                shortest, (lit[k], self._capture(pose, k, lit[k], state, window, "planned", progress))
-            )
+            shortest = min(shortest, (lit[k], self._capture(place, k, lit[k], window, "planned", progress)))
         k = max(len(pose.exposures_s), max(lit) + 1)
         while self.bracket.wants_shorter(shortest[1], k - len(pose.exposures_s)):
             lit[k] = shortest[0] / self.bracket.factor
-            shortest = min(
-                shortest, (lit[k], self._capture(pose, k, lit[k], state, window, "adaptive", progress))
-            )
+            shortest = min(shortest, (lit[k], self._capture(place, k, lit[k], window, "adaptive", progress)))
             k += 1
         instruments.lamp.set(False)
         dark = sorted(set(lit) - darks) if self.bracket.dark_frames else []
         for k in dark:  # same pose and exposure, lamp off: the ambient light to subtract
-            self._capture(pose, k, lit[k], state, window, "dark", progress)
+            self._capture(place, k, lit[k], window, "dark", progress)
         return len(lit) - (len(have) - len(darks)) + len(dark)
 
     def _capture(
         self,
-        pose: PlanPose,
+        place: _Place,
         k: int,
         exposure: float,
-        state: dict,
         window: np.ndarray | None,
         kind: str,
         progress: Callable[[str], None],
     ) -> int:
         """One frame, handed to the writer; returns its clipped-pixel count (inside ``window`` when
-        given). ``kind`` is "planned", "adaptive" (shorter, because of clipping) or "dark" (lamp off)."""
+        given). ``kind`` is "planned", "adaptive" (shorter, because of clipping) or "dark" (lamp off).
+        A frame during which an axis left its place is dropped and taken again once the rig has settled
+        there anew; if it happens again the run stops (:class:`AxisMoved`)."""
         progress(f"exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
-        adaptive, dark = kind == "adaptive", kind == "dark"
+        adaptive, dark, pose = kind == "adaptive", kind == "dark", place.pose
         self.instruments.camera.set_exposure(exposure)
-        frame = _retry_capture(self.instruments.camera)
+        for attempt in range(MOTION_RETAKES + 1):
+            frame = _retry_capture(self.instruments.camera)
+            moved = place.moved_during_exposure()
+            if not moved:
+                break
+            if attempt == MOTION_RETAKES:
+                raise AxisMoved(
+                    f"{moved} during the exposure of {pose.id} frame {k}, again after settling anew; "
+                    "check the axes for slipping couplings or an obstruction",
+                    device="rig",
+                )
+            log.warning("%s: %s during the exposure; frame %d is taken again", pose.id, moved, k, extra=RETRY)
+            progress("settling again")
+            place.settle(lamp=not dark)
         clipped = _clipped(frame.pixels, frame.bits, window)
+        state = place.state
         sidecar = {
             "pose": pose.id,
             "exposure_index": k,
@@ -269,7 +313,7 @@ class _Run:
             sidecar,
             pose=pose.id,
             exposure_index=k,
-            exposure_s=exposure,
+            exposure_s=frame.exposure_s,
             adaptive=adaptive,
             dark=dark,
             clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
@@ -306,6 +350,45 @@ def _retry_capture(camera: Camera) -> RawFrame:
             log.warning("%s; retrying (%d of %d)", exc, attempt + 1, CAPTURE_RETRIES, extra=RETRY)
             time.sleep(RETRY_BACKOFF_S * 2**attempt)
     raise AssertionError("unreachable")
+
+
+MOTION_RETAKES = 1  # a frame taken while an axis moved is retaken once; twice in a row stops the run
+
+
+class _Place:
+    """Where the rig stands for one pose: moved and settled on creation (journaled as a ``pose`` line),
+    checked after every exposure, settled anew when an axis left."""
+
+    def __init__(self, run: _Run, pose: PlanPose, target: PoseTarget):
+        self.run, self.pose, self.target = run, pose, target
+        self.state: dict = {}
+        self.settle(lamp=False)
+
+    def settle(self, *, lamp: bool) -> None:
+        """Move (again) to the target and wait for both axes; the lamp is off while the rig moves."""
+        i = self.run.instruments
+        if lamp:
+            i.lamp.set(False)
+        measured = _move(i, self.target, self.run.settle_timeout_s)
+        temperatures = {k: v for t in i.thermometers for k, v in t.temperatures().items()}
+        self.state = {**_positions(self.target, measured), "temperatures_c": temperatures}
+        self.run.journal.append({"event": "pose", "pose": self.pose.id, **self.state})
+        log.info("%s: settled at %s, %s", self.pose.id, measured, temperatures)
+        if lamp:
+            i.lamp.set(True)
+
+    def moved_during_exposure(self) -> str | None:
+        """Which axis is now farther from its goal than the settle tolerance (None: none is)."""
+        i, t, tol = self.run.instruments, self.target, self.run.tolerance
+        (steps,) = i.turntable.position()
+        ticks = i.gantry.position()
+        off = []
+        if abs(steps - t.turntable_steps) > tol.turntable_steps:
+            off.append(f"the turntable was at {steps} steps (goal {t.turntable_steps})")
+        for name, now, goal in zip(("azimuth", "elevation"), ticks, t.gantry_ticks, strict=False):
+            if abs(now - goal) > tol.gantry_ticks:
+                off.append(f"the {name} servo was at {now} ticks (goal {goal})")
+        return ", ".join(off) or None
 
 
 def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> dict:

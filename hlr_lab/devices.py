@@ -3,13 +3,14 @@ and the camera.
 
 The drivers' limits come from the rig's angle limits through the kinematics, so every goal is checked
 twice: against the plan before the first move (:mod:`hlr_lab.motion`) and by the driver before sending.
-:class:`RigDevices` always ends in a safe state: lamp off, turntable stopped, gantry torque off.
+:class:`RigDevices` always ends in a safe state: lamp off, turntable stopped, gantry torque off, each
+read back from the device, and says (:class:`SafeState`) which steps it could not confirm.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
 from drivers.errors import DeviceError
@@ -77,14 +78,54 @@ def stage_config(rig: Rig, address: str | None = None) -> StageConfig:
     )
 
 
+@dataclass(frozen=True)
+class SafeStep:
+    """One step of the safe state: ``device`` ("lamp", "turntable", "gantry"), whether the device
+    confirmed it, and what it confirmed (or why it could not)."""
+
+    device: str
+    ok: bool
+    detail: str
+
+
+@dataclass(frozen=True)
+class SafeState:
+    """What the safe state reached, device by device, as the devices themselves reported it."""
+
+    steps: tuple[SafeStep, ...]
+
+    @property
+    def ok(self) -> bool:
+        return all(step.ok for step in self.steps)
+
+    def sentence(self) -> str:
+        """One line for the operator: what was confirmed, or which steps failed and why."""
+        if self.ok:
+            return "; ".join(f"{s.device} {s.detail}" for s in self.steps)
+        failed = [s for s in self.steps if not s.ok]
+        done = [s.device for s in self.steps if s.ok]
+        return (
+            "NOT SAFE: "
+            + "; ".join(f"{s.device}: {s.detail}" for s in failed)
+            + (f" (confirmed safe: {', '.join(done)})" if done else "")
+            + " — make the rig safe by hand (lamp power, drive and servo power)"
+        )
+
+    def as_event(self) -> dict:
+        """The journal's ``safe_state`` line."""
+        return {"event": "safe_state", "ok": self.ok, "steps": [asdict(s) for s in self.steps]}
+
+
 @dataclass
 class RigDevices:
-    """The opened devices; use as a context manager so that every exit leaves the rig safe."""
+    """The opened devices; use as a context manager so that every exit leaves the rig safe. What the
+    safe state reached is kept in :attr:`safe` once the block is left."""
 
     gantry: DynamixelGantry
     stage: ModbusStage
     lamp: ModbusRelay | None
     park: str = "torque_off"  # the rig file's gantry.park
+    safe: SafeState | None = None
 
     def connect(self) -> dict[str, str]:
         """Configure and energise everything; returns a plain description of what answered."""
@@ -97,22 +138,38 @@ class RigDevices:
             found[f"lamp relay (device {self.lamp.unit}, coil {self.lamp.coil})"] = "off"
         return found
 
-    def safe_state(self) -> None:
-        """Lamp off, turntable stopped, gantry parked (torque off unless the rig says hold), links closed;
-        each step is tried even if an earlier one fails."""
-        steps = [
-            ("switch the lamp off", (lambda: self.lamp.set(False)) if self.lamp else None),
-            ("stop the turntable", self.stage.stop),
-            ("park the gantry", lambda: self.gantry.close(torque_off=self.park == "torque_off")),
-            ("close the turntable link", self.stage.close),
-        ]
-        for what, step in steps:
+    def safe_state(self) -> SafeState:
+        """Lamp off, turntable stopped, gantry parked (torque off unless the rig says hold), links closed.
+        Every step is tried whatever happened before, each is read back from the device, and the
+        report says what was confirmed. The Modbus link is opened afresh first: the exchange that was
+        running when the run stopped may have been cut short."""
+        hold = self.park != "torque_off"
+        try:
+            self.stage.reconnect()
+        except DeviceError as exc:
+            log.error("%s", exc)  # every Modbus step below will fail and say so
+
+        def park() -> str:
+            if hold:
+                self.gantry.stop()
+            return self.gantry.park(torque_off=not hold)
+
+        steps = [("lamp", self.lamp.switch_off if self.lamp else None), ("turntable", self.stage.halt),
+                 ("gantry", park)]  # fmt: skip
+        done = []
+        for device, step in steps:
             if step is None:
                 continue
             try:
-                step()
-            except DeviceError as exc:  # the rest must still run; the operator reads the log
-                log.error("could not %s: %s", what, exc)
+                done.append(SafeStep(device, True, step()))
+            except DeviceError as exc:  # the rest must still run
+                log.error("safe state: %s: %s", device, exc)
+                done.append(SafeStep(device, False, str(exc)))
+        self.gantry.release()
+        self.stage.close()
+        self.safe = SafeState(tuple(done))
+        (log.info if self.safe.ok else log.error)("safe state: %s", self.safe.sentence())
+        return self.safe
 
     def __enter__(self) -> RigDevices:
         return self
@@ -135,7 +192,8 @@ def open_camera(rig: Rig, endpoint: str | None = None) -> Camera:
             endpoint,
             'set it to the camera\'s frame endpoint ("host:port"), or describe an OpenCV camera in '
             "[camera.capture]",
-        )
+        ),
+        reply_timeout_s=rig.file.camera.reply_timeout_s,
     )
 
 

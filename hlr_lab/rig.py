@@ -66,6 +66,8 @@ class _CameraSection(_Strict):
     # camera driven through OpenCV; the simulated rig supplies its own endpoint
     address: str | None = None
     capture: _CaptureSection | None = None
+    # a frame that has not arrived this long after its exposure ends is a camera that stopped answering
+    reply_timeout_s: float = Field(default=20.0, gt=0, le=3600)
 
     @model_validator(mode="after")
     def _one_way_to_the_camera(self):

@@ -12,6 +12,7 @@ Protocol, one TCP connection, requests in order:
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import threading
 
@@ -19,6 +20,7 @@ import numpy as np
 
 from sim.camera import SimCamera
 
+log = logging.getLogger(__name__)
 MAX_GAIN_DB = 24.0  # a machine-vision sensor's analogue range
 
 
@@ -29,6 +31,7 @@ class CameraServer:
         self._server: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self.cut_replies = 0  # fault injection: this many next replies stop half-way and drop the link
+        self.silent = False  # fault injection: requests are read and never answered (a hung camera)
 
     def serve_tcp(self, host: str = "127.0.0.1") -> str:
         self._server = socket.create_server((host, 0))
@@ -43,17 +46,30 @@ class CameraServer:
                 conn, _ = self._server.accept()
             except (TimeoutError, OSError):
                 continue
-            with conn, conn.makefile("rb") as requests:
-                conn.settimeout(None)
-                for line in requests:
-                    if self._stop.is_set():
-                        break
-                    reply = self._answer(line)
-                    if self.cut_replies > 0:  # an injected fault: half a reply, then the link drops
-                        self.cut_replies -= 1
-                        conn.sendall(reply[: len(reply) // 2])
-                        break
-                    conn.sendall(reply)
+            try:
+                self._serve(conn)
+            except OSError as exc:  # the client went away mid-reply: serve the next one, as a camera would
+                log.info("camera client gone (%s)", exc)
+            except Exception:  # a bug in answering one request must not take the camera down for good
+                log.exception("camera request failed; closing that link")
+            finally:
+                conn.close()
+
+    def _serve(self, conn: socket.socket) -> None:
+        with conn.makefile("rb") as requests:
+            conn.settimeout(None)
+            for line in requests:
+                if self._stop.is_set():
+                    break
+                if self.silent:  # an injected fault: the camera hangs, answering nothing
+                    self._stop.wait()
+                    break
+                reply = self._answer(line)
+                if self.cut_replies > 0:  # an injected fault: half a reply, then the link drops
+                    self.cut_replies -= 1
+                    conn.sendall(reply[: len(reply) // 2])
+                    break
+                conn.sendall(reply)
 
     def _answer(self, line: bytes) -> bytes:
         try:

@@ -215,7 +215,10 @@ def test_a_killed_run_stops_safely_and_resumes_without_repeats(builtin_plan, tmp
             child.wait()
         child.stderr.close()
     events = read_journal(session / JOURNAL)
-    assert events[-1] == {**events[-1], "event": "stopped", "reason": "signal SIGTERM"}
+    assert events[-2] == {**events[-2], "event": "stopped", "reason": "signal SIGTERM"}
+    assert events[-1]["event"] == "safe_state"
+    assert events[-1]["ok"]
+    assert [s["device"] for s in events[-1]["steps"]] == ["lamp", "turntable", "gantry"]
     frames = [e for e in events if e["event"] == "frame"]
     assert all(load_frame(session, e) is not None for e in frames)
 

@@ -58,7 +58,7 @@ def test_settings_outside_the_range_are_refused_before_asking(sim):
 
 def test_an_unreachable_camera_is_named():
     with pytest.raises(DeviceError, match=r"camera on 127\.0\.0\.1:1: cannot connect"):
-        NetworkCamera("127.0.0.1:1", timeout_s=1)
+        NetworkCamera("127.0.0.1:1", reply_timeout_s=1)
 
 
 def test_a_frame_cut_short_is_an_error_and_closes_the_link():
@@ -74,7 +74,7 @@ def test_a_frame_cut_short_is_an_error_and_closes_the_link():
 
     peer = threading.Thread(target=answer_half)
     peer.start()
-    camera = NetworkCamera(f"127.0.0.1:{server.getsockname()[1]}", timeout_s=5)
+    camera = NetworkCamera(f"127.0.0.1:{server.getsockname()[1]}", reply_timeout_s=5)
     with pytest.raises(DeviceTimeout, match="stopped after 10 of 48 bytes"):
         camera.capture()
     server.close()  # the bridge is gone: the next capture opens a new link, and says it cannot

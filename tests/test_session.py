@@ -1,5 +1,6 @@
 """The session directory: frames stored bit for bit and never replaced, a journal that survives a kill."""
 
+import json
 import os
 import signal
 import subprocess
@@ -13,9 +14,20 @@ import pytest
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import FILE_MODE
 from hlr_lab.session.frames import frame_problem, load_frame, store_frame
-from hlr_lab.session.journal import Journal, read_journal
+from hlr_lab.session.journal import DAMAGED, Journal, load_journal, read_journal
 from hlr_lab.session.metadata import SESSION, start_or_resume
 from hlr_lab.session.writer import FrameWriter
+
+
+def frame_fields(pose: str = "p000", k: int = 0, exposure_s: float = 0.01) -> dict:
+    """What a journal frame line and its sidecar both say about a frame (as acquisition writes them)."""
+    return {"pose": pose, "exposure_index": k, "dark": False, "exposure_s": exposure_s}
+
+
+def stored_event(session, name, pixels, **fields) -> dict:
+    """A frame stored and described as acquisition does: the journal line for it."""
+    f = frame_fields(**fields)
+    return store_frame(session, name, pixels, f).as_event(**f, adaptive=False, clipped_pixels=0)
 
 
 @pytest.mark.parametrize(
@@ -23,8 +35,7 @@ from hlr_lab.session.writer import FrameWriter
 )
 def test_frames_are_stored_bit_for_bit(tmp_path, shape, dtype, top):
     pixels = np.random.default_rng(0).integers(0, top + 1, size=shape).astype(dtype)
-    stored = store_frame(tmp_path, "p000_e0", pixels, {"exposure_s": 0.01})
-    event = stored.as_event(pose="p000")
+    event = stored_event(tmp_path, "p000_e0", pixels)
     assert frame_problem(tmp_path, event) is None
     back = load_frame(tmp_path, event)
     assert back.dtype == dtype
@@ -33,15 +44,15 @@ def test_frames_are_stored_bit_for_bit(tmp_path, shape, dtype, top):
 
 def test_nothing_is_overwritten(tmp_path):
     first = np.full((4, 4, 3), 7, np.uint16)
-    stored = store_frame(tmp_path, "p000_e0", first, {})
+    event = stored_event(tmp_path, "p000_e0", first)
     with pytest.raises(FileExistsError):
         store_frame(tmp_path, "p000_e0", first + 1, {})
-    np.testing.assert_array_equal(load_frame(tmp_path, stored.as_event()), first)
+    np.testing.assert_array_equal(load_frame(tmp_path, event), first)
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["p000_e0.json", "p000_e0.png"]
 
 
 def test_a_changed_or_missing_frame_is_detected(tmp_path):
-    event = store_frame(tmp_path, "a", np.zeros((4, 4, 3), np.uint16), {}).as_event()
+    event = stored_event(tmp_path, "a", np.zeros((4, 4, 3), np.uint16))
     png = tmp_path / event["file"]
     data = bytearray(png.read_bytes())
     data[-20] ^= 0xFF
@@ -58,21 +69,33 @@ def test_a_torn_last_line_is_cut_and_appends_continue(tmp_path):
     path = tmp_path / "journal.jsonl"
     with Journal(path) as journal:
         journal.append({"event": "start"})
-        journal.append({"event": "frame", "n": 1})
+        journal.append({"event": "pose", "n": 1})
     with path.open("ab") as f:
-        f.write(b'{"event": "frame", "n"')  # the power went out here
-    assert read_journal(path) == [{"event": "start"}, {"event": "frame", "n": 1}]
+        f.write(b'{"event": "pose", "n"')  # the power went out here
+    assert read_journal(path) == [{"event": "start"}, {"event": "pose", "n": 1}]
     with Journal(path) as journal:
         assert len(journal.events) == 2
-        journal.append({"event": "frame", "n": 2})
+        assert not journal.damaged  # a torn tail is a crash, not damage
+        journal.append({"event": "pose", "n": 2})
     assert [e.get("n") for e in read_journal(path)] == [None, 1, 2]
+    assert not (tmp_path / DAMAGED).exists()
 
 
-def test_damage_before_the_last_line_is_refused(tmp_path):
+def test_damaged_lines_are_reported_and_set_aside_by_a_writer(tmp_path):
+    """Reading reports a damaged line (number, problem) and leaves it out; opening to write keeps it in
+    journal.damaged and rewrites the journal without it, byte for byte otherwise."""
     path = tmp_path / "journal.jsonl"
-    path.write_text('{"event": "start"}\n{"event": "fr\n{"event": "end"}\n')
-    with pytest.raises(InputError, match="line 2 is damaged"):
-        Journal(path)
+    good = '{"event": "start"}\n{"event": "end"}\n'
+    path.write_text('{"event": "start"}\n{"event": "fr\n{"event": "end"}\n[1, 2]\n')
+    contents = load_journal(path)
+    assert [e["event"] for e in contents.events] == ["start", "end"]
+    assert [(d.line, d.problem[:8]) for d in contents.damaged] == [(2, "not JSON"), (4, "not an e")]
+    with Journal(path) as journal:
+        assert [d.line for d in journal.damaged] == [2, 4]
+        journal.append({"event": "more"})
+    assert path.read_text() == good + '{"event": "more"}\n'
+    aside = [json.loads(line) for line in (tmp_path / DAMAGED).read_text().splitlines()]
+    assert [(a["line"], a["text"]) for a in aside] == [(2, '{"event": "fr'), (4, "[1, 2]")]
 
 
 CHILD = textwrap.dedent(
@@ -89,8 +112,9 @@ CHILD = textwrap.dedent(
         print("ready", flush=True)
         for i in range(100000):
             pixels = rng.integers(0, 4096, size=(120, 160, 3)).astype(np.uint16)
-            stored = store_frame(session, f"f{i:05d}", pixels, {"i": i})
-            journal.append(stored.as_event(i=i))
+            fields = {"pose": f"f{i:05d}", "exposure_index": 0, "dark": False, "exposure_s": 0.01}
+            stored = store_frame(session, f"f{i:05d}", pixels, fields)
+            journal.append(stored.as_event(i=i, **fields, adaptive=False, clipped_pixels=0))
     """
 )
 
@@ -131,9 +155,11 @@ def test_the_frame_writer_stores_every_queued_frame_and_journals_it(tmp_path):
     frames = {f"f{i}": np.full((4, 5), i, np.uint16) for i in range(5)}
     with Journal(tmp_path / "journal.jsonl") as journal, FrameWriter(tmp_path, journal, depth=1) as writer:
         for name, pixels in frames.items():
-            writer.submit(name, pixels, {"n": name}, pose=name)
+            fields = frame_fields(pose=name)
+            writer.submit(name, pixels, fields, **fields, adaptive=False, clipped_pixels=0)
     events = read_journal(tmp_path / "journal.jsonl")
     assert [e["pose"] for e in events] == list(frames)
+    assert writer.stored == len(frames)
     for e in events:
         assert np.array_equal(load_frame(tmp_path, e), frames[e["pose"]])
 

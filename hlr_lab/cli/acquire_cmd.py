@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import logging
-import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -15,20 +13,15 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hlr_lab.acquisition import Bracketing, Instruments, Outcome, Step, acquire
+from hlr_lab.acquire_session import Links, acquire_session
+from hlr_lab.acquisition import Bracketing, Outcome, Step
 from hlr_lab.cli.common import console, resolve_rig, speed_factor_option
-from hlr_lab.devices import open_camera, open_devices
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
-from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.rig import Rig
-from hlr_lab.session.metadata import start_or_resume
 from hlr_lab.silhouette import object_window
-
-log = logging.getLogger(__name__)
-LOG = "acquire.log"
 
 
 @click.command("acquire")
@@ -66,9 +59,12 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
-    frame in flight. Running the same command again resumes: finished frames are checked and kept,
+    frames in flight. Running the same command again resumes: finished frames are checked and kept,
     the rest are taken. Whatever happens, the lamp ends off, the turntable stopped and the gantry
-    parked as the rig file says (torque off by default). Ctrl-C or kill: exit status 130.
+    parked as the rig file says (torque off by default), each read back from the device; the last line
+    says what was confirmed. Ctrl-C or kill: exit status 130 (a second signal does not cut the safe
+    stop short); exit status 1 when a device failed or the rig could not be confirmed safe. One run
+    at a time per session and per device: a second one is refused, naming the first.
 
     \b
     Examples:
@@ -93,40 +89,24 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
         raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
     object_windows = _object_windows(rig, plan, plan_path)
-    with contextlib.ExitStack() as stack:  # unwinds in reverse: camera, devices (safe state), simulator
-        # `kill` (SIGTERM) stops the run like Ctrl-C: the journal says so and the rig ends safe
-        previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
-        stack.callback(signal.signal, signal.SIGTERM, previous)
+    with contextlib.ExitStack() as stack:  # the simulated world, when there is one, outlives the run
         links = _links(stack, rig, plan, plan_path, scene_path, sim, speed_factor)
-        devices = stack.enter_context(
-            open_devices(rig, gantry_port=links.get("gantry"), stage_address=links.get("stage"))
-        )
-        camera = open_camera(rig, links.get("camera"))  # before anything is energised
-        stack.callback(camera.close)
-        devices.connect()
-        # only now, with every device answering, does the session directory come into being
-        resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
-        stack.enter_context(_session_log(session / LOG))
-        console.print(f"{'resuming' if resumed else 'starting'} session {escape(str(session))}")
-        try:
-            with _progress_bar(len(targets)) as show:
-                outcome = acquire(
-                    plan,
-                    targets,
-                    Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
-                    session,
-                    bracket=Bracketing(dark_frames=dark_frames),
-                    progress=show,
-                    object_window=object_windows,
-                )
-        except BaseException:
-            console.print(
-                "[yellow]stopped[/]: the lamp is off and the rig parked; the journal and "
-                f"{LOG} say why. Run the same command again to resume.",
-                soft_wrap=True,
+        with _progress_bar(len(targets)) as show:
+            outcome = acquire_session(
+                plan,
+                plan_path,
+                targets,
+                rig,
+                session,
+                links=links,
+                bracket=Bracketing(dark_frames=dark_frames),
+                force=force,
+                progress=show,
+                object_window=object_windows,
+                on_start=lambda resumed: console.print(
+                    f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
+                ),
             )
-            raise
-        log.info("run summary: %s", outcome.summary())
     console.print(_summary_table(outcome, session))
 
 
@@ -156,26 +136,6 @@ def _progress_bar(poses: int) -> Iterator[Callable[[Step], None]]:
         yield show
 
 
-@contextlib.contextmanager
-def _session_log(path: Path) -> Iterator[None]:
-    """Everything the drivers and hlr-lab log during the run (retries, reboots, warnings), appended to
-    the session's log file."""
-    handler = logging.FileHandler(path, encoding="utf-8")
-    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    loggers = [logging.getLogger(name) for name in ("drivers", "hlr_lab")]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.addHandler(handler)
-        logger.setLevel(logging.INFO)
-    try:
-        yield
-    finally:
-        for logger, level in zip(loggers, levels, strict=True):
-            logger.removeHandler(handler)
-            logger.setLevel(level)
-        handler.close()
-
-
 def _summary_table(outcome: Outcome, session: Path) -> Table:
     t = Table(title=f"session {escape(str(session))}", title_justify="left", show_header=False)
     t.add_column(justify="left")
@@ -192,13 +152,9 @@ def _summary_table(outcome: Outcome, session: Path) -> Table:
     return t
 
 
-def _terminate_as_interrupt(signum, _frame) -> None:
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-
-def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> dict:
+def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> Links:
     if not sim:
-        return {}  # every device as the rig file says
+        return Links()  # every device as the rig file says
     # the simulator is reached only from the command line (the composition root)
     from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
     from sim.rig import SimRig
@@ -206,7 +162,7 @@ def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bo
     scene = sim_scene(plan, plan_path, scene_path)
     world = stack.enter_context(SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor))
     e = world.endpoints
-    return {"gantry": e.dynamixel, "stage": e.modbus, "camera": e.camera}
+    return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera)
 
 
 def _motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:

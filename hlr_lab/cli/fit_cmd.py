@@ -46,7 +46,13 @@ def _theta_c(value: str) -> float | str:
     type=click.Path(dir_okay=False, path_type=Path),
     help="materials.json to write (default: SESSION/materials.json); diagnostics go beside it.",
 )
-def fit(session: Path, theta_c, method: str, output: Path | None) -> None:
+@click.option(
+    "--allow-incomplete",
+    is_flag=True,
+    help="Fit although planned frames are missing (a stopped run, damaged journal lines); materials.json "
+    "records what was missing.",
+)
+def fit(session: Path, theta_c, method: str, output: Path | None, allow_incomplete: bool) -> None:
     """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
 
     Each pose's bracket is merged into linear radiance (no clipped or noise-dominated value used, dark
@@ -55,12 +61,25 @@ def fit(session: Path, theta_c, method: str, output: Path | None) -> None:
     region borders are pooled per region over all poses. A region without enough highlight pixels gets
     its diffuse colour and "specular": "unmeasured" with the reason.
 
+    Every frame is checked against its journal line (checksums, what its sidecar says); a damaged
+    journal line or a frame that does not check out is named and left out, and a session that lacks
+    planned frames is refused unless --allow-incomplete.
+
     \b
     Examples:
       hlr-lab fit plan-session
       hlr-lab fit sessions/bunny-1 --theta-c 10 --method paper -o bunny-materials.json
+      hlr-lab fit sessions/stopped-run --allow-incomplete
     """
-    s = open_session(session)
+    s = open_session(session, allow_incomplete=allow_incomplete)
+    for note in s.gaps.notes():
+        console.print(f"[yellow]not used:[/] {escape(note)}", soft_wrap=True)
+    if s.gaps.missing_frames:
+        console.print(
+            f"[yellow]incomplete:[/] {len(s.gaps.missing_frames)} planned frame(s) missing; fitting what "
+            "is there (recorded in materials.json)",
+            soft_wrap=True,
+        )
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
     output = output or session / MATERIALS

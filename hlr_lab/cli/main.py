@@ -8,6 +8,7 @@ import click
 from rich.markup import escape
 
 from hlr_lab import __version__
+from hlr_lab.acquire_session import EXIT_INTERRUPTED, RunStopped
 from hlr_lab.cli.acquire_cmd import acquire_cmd
 from hlr_lab.cli.bench_cmd import bench
 from hlr_lab.cli.common import console
@@ -20,6 +21,7 @@ from hlr_lab.cli.report_cmd import report
 from hlr_lab.cli.segment_cmd import segment
 from hlr_lab.cli.sim_cmd import sim
 from hlr_lab.errors import HlrLabError
+from hlr_lab.signals import stop_once_on_signals
 
 EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
 EXIT_INTERNAL = 70  # a bug in hlr-lab (EX_SOFTWARE)
@@ -56,15 +58,29 @@ cli.add_command(demo)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; the first SIGINT/SIGTERM stops it (exit status 130), later ones cannot cut its
+    safe stop short (:mod:`hlr_lab.signals`)."""
+    with stop_once_on_signals():
+        return _run(argv)
+
+
+def _run(argv: list[str] | None) -> int:
     debug = "--debug" in (argv if argv is not None else sys.argv[1:])
     try:
         return cli.main(args=argv, prog_name="hlr-lab", standalone_mode=False) or 0
     except click.exceptions.Abort:
         console.print("[red]interrupted[/]")
-        return 130
+        return EXIT_INTERRUPTED
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
+    except RunStopped as exc:  # a run that switched devices on: what stopped it and the rig's state
+        if debug:
+            console.print_exception()
+        colour = "yellow" if exc.exit_status == EXIT_INTERRUPTED else "bold red"
+        label = "interrupted" if exc.exit_status == EXIT_INTERRUPTED else "error"
+        console.print(f"[{colour}]{label}:[/] {escape(str(exc))}", soft_wrap=True)
+        return exc.exit_status
     except HlrLabError as exc:
         if debug:
             console.print_exception()

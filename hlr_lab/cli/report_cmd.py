@@ -30,7 +30,7 @@ def report(session: Path, output: Path | None) -> None:
       hlr-lab fit plan-session && hlr-lab report plan-session
       hlr-lab report sessions/bunny-1 -o bunny-report.html
     """
-    s = open_session(session)
+    s = open_session(session, allow_incomplete=True)  # fit said what is missing (so does materials.json)
     with console.status("building the report…") as status:
         page, figures = build_report(s, progress=lambda what: status.update(escape(what)))
     output = output or session / "report.html"

@@ -9,9 +9,10 @@ they form separate views, each with its own geometry.
 from __future__ import annotations
 
 import json
+import math
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -43,8 +44,8 @@ from hlr_lab.reflectance.views import (
     pose_samples,
 )
 from hlr_lab.rig import Rig, rig_of_snapshot
-from hlr_lab.session.frames import load_frame
-from hlr_lab.session.journal import JOURNAL, read_journal
+from hlr_lab.session.frames import frame_problem, load_frame, read_sidecar
+from hlr_lab.session.journal import JOURNAL, load_journal
 from hlr_lab.session.metadata import SESSION, read_record
 from hlr_lab.silhouette import object_window
 
@@ -63,6 +64,23 @@ class View:
     darks: dict[int, dict]  # exposure index → journal line of the dark frame
 
 
+@dataclass(frozen=True)
+class Gaps:
+    """What of a session cannot be used, and why: journal lines that are damaged, frames whose files or
+    sidecars do not agree with their journal line, and planned frames that are not there at all."""
+
+    damaged_lines: list[str] = field(default_factory=list)  # "line 17: not JSON (…)"
+    rejected_frames: list[str] = field(default_factory=list)  # "frames/p001_e0.png: …"
+    missing_frames: list[str] = field(default_factory=list)  # "p001 exposure 0"
+
+    def notes(self) -> list[str]:
+        """One line per unusable journal line or frame, for the operator."""
+        return [f"{JOURNAL} {d}" for d in self.damaged_lines] + self.rejected_frames
+
+    def as_record(self) -> dict:
+        return {k: v for k, v in asdict(self).items() if v}
+
+
 @dataclass(frozen=True, eq=False)
 class Session:
     path: Path
@@ -71,6 +89,7 @@ class Session:
     rig: Rig
     views: list[View]
     record: dict  # session.json
+    gaps: Gaps = Gaps()
 
 
 @dataclass
@@ -110,8 +129,10 @@ class FitResult:
     seconds: dict[str, float]  # per stage: hdr, g-buffer, selection, shadows, fitting
 
 
-def open_session(path: Path) -> Session:
-    """Read ``session.json`` and the journal: the plan, the rig as recorded, and the views."""
+def open_session(path: Path, *, allow_incomplete: bool = False) -> Session:
+    """Read ``session.json`` and the journal: the plan, the rig as recorded, and the views. Every frame
+    is checked against its journal line; a session missing planned frames is refused (saying which and
+    why) unless ``allow_incomplete``, and then :attr:`Session.gaps` says what is missing."""
     record = read_record(path)
     plan_path = Path(record["plan"]["path"])
     if not plan_path.is_file():
@@ -124,38 +145,42 @@ def open_session(path: Path) -> Session:
         )
     plan = read_plan(plan_path)
     rig = rig_of_snapshot(record["rig"]["snapshot"], f"{path / SESSION} (rig snapshot)")
-    return Session(path, plan, plan_path, rig, _views(path, read_journal(path / JOURNAL)), record)
+    journal = load_journal(path / JOURNAL)
+    views, rejected = _views(path, journal.events)
+    have = {(v.pose, e["exposure_index"]) for v in views for e in v.frames}
+    missing = [
+        f"{p.id} exposure {k}" for p in plan.poses for k in range(len(p.exposures_s)) if (p.id, k) not in have
+    ]
+    gaps = Gaps([d.describe() for d in journal.damaged], rejected, missing)
+    if missing and not allow_incomplete:
+        shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
+        why = "; ".join(gaps.notes()[:3]) or "the run stopped before them"
+        raise InputError(
+            f"{len(missing)} planned frame(s) are not in the session ({shown}); why: {why}. Run hlr-lab "
+            "acquire on this session again to take them, or fit with --allow-incomplete",
+            path=path,
+        )
+    return Session(path, plan, plan_path, rig, views, record, gaps)
 
 
-def _views(path: Path, events: list[dict]) -> list[View]:
-    """The journaled frames grouped into views. Of the journal lines for one frame (pose, exposure,
-    lamp), the last whose files are there counts (a resumed run retakes a lost frame under a new name); a
-    frame with none is an error: the fit would silently use less than was measured. Checksums are
-    verified when the frame is read (:func:`load_frame`), not here as well."""
-    latest: dict[tuple[str, int, bool], dict] = {}
-    broken: dict[tuple[str, int, bool], str] = {}
+def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
+    """The journaled frames that check out (files, checksums, sidecar agreeing with the journal line),
+    grouped into views, and what was wrong with the others. Of the lines for one frame (pose, exposure,
+    lamp), the last intact one counts (a resumed run retakes a lost frame under a new name)."""
+    latest: dict[tuple[str, int, bool], tuple[dict, dict]] = {}
+    rejected = []
     for e in events:
         if e.get("event") != "frame":
             continue
-        key = (e["pose"], e["exposure_index"], bool(e.get("dark")))
-        problem = next(
-            (f"{e[k]} is missing" for k in ("file", "sidecar") if not (path / e[k]).is_file()), None
-        )
+        problem = frame_problem(path, e)
+        sidecar = None if problem else read_sidecar(path, e)
+        problem = problem or _sidecar_problem(sidecar)
         if problem:
-            broken.setdefault(key, problem)
+            rejected.append(f"{e['file']}: {problem}")
         else:
-            latest[key] = e
-            broken.pop(key, None)
-    if broken:
-        first = next(iter(broken.values()))
-        raise InputError(
-            f"{first} ({len(broken)} frame(s) in all); run hlr-lab acquire on this session again to retake "
-            "them, then fit",
-            path=path,
-        )
+            latest[(e["pose"], e["exposure_index"], e["dark"])] = (e, sidecar)
     groups: dict[tuple[str, str], View] = {}
-    for (pose, k, dark), e in latest.items():
-        sidecar = json.loads((path / e["sidecar"]).read_text())
+    for (pose, k, dark), (e, sidecar) in latest.items():
         view = groups.setdefault(
             (pose, json.dumps(sidecar["measured"], sort_keys=True)), View(pose, sidecar["measured"], [], {})
         )
@@ -163,7 +188,26 @@ def _views(path: Path, events: list[dict]) -> list[View]:
             view.darks[k] = e
         else:
             view.frames.append(e)
-    return [v for v in groups.values() if v.frames]
+    return [v for v in groups.values() if v.frames], rejected
+
+
+def _sidecar_problem(sidecar: dict) -> str | None:
+    """What makes a sidecar's numbers unusable (they set the geometry and the radiometry), or None."""
+    m = sidecar.get("measured")
+    checks = (
+        ("measured.turntable_steps", isinstance(m, dict) and type(m.get("turntable_steps")) is int),
+        ("measured.gantry_ticks", isinstance(m, dict) and isinstance(m.get("gantry_ticks"), list)
+         and len(m["gantry_ticks"]) == 2 and all(type(t) is int for t in m["gantry_ticks"])),
+        ("exposure_s", _finite(sidecar.get("exposure_s"), 0, 3600)),
+        ("gain_db", _finite(sidecar.get("gain_db"), 0, 60, closed=True)),
+        ("bits", type(sidecar.get("bits")) is int and 1 <= sidecar["bits"] <= 16),
+    )  # fmt: skip
+    bad = [name for name, ok in checks if not ok]
+    return f"its sidecar has no usable {', '.join(bad)}" if bad else None
+
+
+def _finite(v, lo: float, hi: float, *, closed: bool = False) -> bool:
+    return type(v) in (int, float) and math.isfinite(v) and (lo <= v if closed else lo < v) and v <= hi
 
 
 def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
@@ -237,6 +281,10 @@ def fit_session(
         if fit is not None:
             fits[region.id] = fit
     materials = materials_file(entries, mesh=plan.object.mesh, sha256=plan.object.sha256)
+    if session.gaps.missing_frames:  # fitted with --allow-incomplete: the file says on what
+        materials = MaterialsFile.model_validate(
+            {**materials.model_dump(exclude_none=True), "incomplete": session.gaps.as_record()}
+        )
     return FitResult(materials, diagnostics, fits, dict(times))
 
 
@@ -321,7 +369,7 @@ def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins
 
 
 def _bracket_frame(session: Path, event: dict, dark: dict | None) -> BracketFrame:
-    sidecar = json.loads((session / event["sidecar"]).read_text())
+    sidecar = read_sidecar(session, event)
     pixels = load_frame(session, event)
     return BracketFrame(
         pixels if pixels.ndim == 3 else pixels[..., None],

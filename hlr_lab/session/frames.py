@@ -52,15 +52,17 @@ def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> 
     if not ok:
         raise OSError(f"PNG encoding of frame {name} failed")
     image = png.tobytes()
-    meta = (json.dumps(sidecar, indent=1, sort_keys=True) + "\n").encode()
+    image_sha256 = _sha256(image)  # the sidecar vouches for its image: a journal line must agree with both
+    meta = (json.dumps({**sidecar, "image_sha256": image_sha256}, indent=1, sort_keys=True) + "\n").encode()
     image_path, sidecar_path = f"{FRAMES}/{name}.png", f"{FRAMES}/{name}.json"
     atomic_create_bytes(session / image_path, image)
     atomic_create_bytes(session / sidecar_path, meta)
-    return StoredFrame(image_path, _sha256(image), sidecar_path, _sha256(meta))
+    return StoredFrame(image_path, image_sha256, sidecar_path, _sha256(meta))
 
 
 def frame_problem(session: Path, event: dict) -> str | None:
-    """Why a journaled frame cannot be trusted (missing or changed file), or None when it is intact."""
+    """Why a journaled frame cannot be trusted (a file missing or changed, a sidecar that disagrees with
+    its journal line), or None when it is intact. ``event`` is a checked journal frame line."""
     return _read_checked(session, event)[1]
 
 
@@ -70,22 +72,43 @@ def load_frame(session: Path, event: dict) -> np.ndarray:
     if problem:
         raise InputError(f"{problem}; run hlr-lab acquire again on this session to retake it", path=session)
     pixels = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        raise InputError(f"{event['file']} is not a PNG image although its checksum matches", path=session)
     return pixels[..., ::-1] if pixels.ndim == 3 else pixels
 
 
+def read_sidecar(session: Path, event: dict) -> dict:
+    """The sidecar of a journaled frame that :func:`frame_problem` passed."""
+    return json.loads((session / event["sidecar"]).read_bytes())
+
+
+# what a journal frame line and its sidecar must both say
+_AGREE = ("pose", "exposure_index", "dark", "exposure_s")
+
+
 def _read_checked(session: Path, event: dict) -> tuple[bytes, str | None]:
-    """The image file's bytes, and why the frame cannot be trusted (None when both files check out)."""
-    image = b""
+    """The image file's bytes, and why the frame cannot be trusted (None when it checks out)."""
+    files = {}
     for key, digest in (("file", "sha256"), ("sidecar", "sidecar_sha256")):
         path = session / event[key]
         if not path.is_file():
-            return image, f"{event[key]} is missing"
+            return b"", f"{event[key]} is missing"
         data = path.read_bytes()
         if _sha256(data) != event[digest]:
-            return image, f"{event[key]} does not match its checksum in the journal"
-        if key == "file":
-            image = data
-    return image, None
+            return b"", f"{event[key]} does not match its checksum in the journal"
+        files[key] = data
+    try:
+        sidecar = json.loads(files["sidecar"])
+    except ValueError:
+        sidecar = None
+    if not isinstance(sidecar, dict):
+        return b"", f"{event['sidecar']} is not a JSON object"
+    if sidecar.get("image_sha256") != event["sha256"]:
+        return b"", f"{event['sidecar']} describes another image than {event['file']}"
+    differ = [k for k in _AGREE if sidecar.get(k) != event[k]]
+    if differ:
+        return b"", f"the journal line of {event['file']} and its sidecar disagree on {', '.join(differ)}"
+    return files["file"], None
 
 
 def _sha256(data: bytes) -> str:

@@ -24,6 +24,7 @@ import numpy as np
 
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import Journal
+from hlr_lab.session.space import storage_error
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +42,7 @@ class FrameWriter:
         self.session, self.journal = session, journal
         self._jobs: queue.Queue[_Job | None] = queue.Queue(maxsize=depth)
         self._error: BaseException | None = None  # the first storing failure; later frames are not stored
+        self.stored = 0  # frames whose journal line is on disk
         self._reported = False
         self._thread = threading.Thread(target=self._work, name="frame-writer", daemon=True)
         self._thread.start()
@@ -76,6 +78,9 @@ class FrameWriter:
             try:
                 stored = store_frame(self.session, job.name, job.pixels, job.sidecar)
                 self.journal.append(stored.as_event(**job.event))
+                self.stored += 1
+            except OSError as exc:
+                self._error = storage_error(exc, self.session, f"frame {job.name}", job.pixels.nbytes)
             except BaseException as exc:
                 self._error = exc
 

@@ -262,6 +262,15 @@ class SimServo:
         self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
         return self.alert
 
+    def slip(self, ticks: int, *, hold_s: float = math.inf) -> None:
+        """An injected fault: the axis is knocked ``ticks`` away from where it is (a slipping coupling, a
+        bump) and stays there for ``hold_s`` of the bus's time before its position loop, if torque is on,
+        brings it back to the goal along its profile."""
+        now = self.clock()
+        here, _ = self._profile.state(now)
+        p = self._profile
+        self._profile = _Profile(here + ticks, p.goal, now + hold_s, p.v_max, p.accel)
+
     def hardware_fault(self, bits: int = OVERLOAD) -> None:
         """An injected fault (overload, overheating…): alert bit on, torque dropped until a reboot."""
         self._freeze()

@@ -1,0 +1,187 @@
+"""Acquiring a session on a rig, from code: what ``hlr-lab acquire`` does once the plan is checked.
+
+In order: lock every device link (:mod:`hlr_lab.locks`), open and connect the devices and the camera,
+lock and create (or resume) the session directory, forecast the disk space, run the plan
+(:func:`hlr_lab.acquisition.acquire`), and whatever happened, make the rig safe and confirm it
+(:meth:`hlr_lab.devices.RigDevices.safe_state`), journaling what the devices confirmed.
+
+A run that ends early raises :class:`RunStopped`, whose one-line message says why and what state the
+rig was left in, as the devices reported it. Its exit status is 130 for an operator's stop (a signal)
+with the rig confirmed safe, and 1 otherwise: a rig not confirmed safe is an operator's problem, never
+an "interrupted" like any other.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drivers.protocols import Camera
+from hlr_lab.acquisition import Bracketing, Instruments, Outcome, Step, Tolerance, acquire
+from hlr_lab.devices import RigDevices, SafeState, open_camera, open_devices
+from hlr_lab.errors import HlrLabError
+from hlr_lab.formats.plan import PlanFile
+from hlr_lab.locks import hold_devices, hold_session
+from hlr_lab.mesh import file_sha256
+from hlr_lab.motion import PoseTarget
+from hlr_lab.rig import Rig
+from hlr_lab.session.journal import JOURNAL, Journal, read_journal
+from hlr_lab.session.metadata import start_or_resume
+from hlr_lab.session.space import check_room, frame_bytes
+
+log = logging.getLogger(__name__)
+LOG = "acquire.log"
+EXIT_INTERRUPTED = 130
+
+
+@dataclass(frozen=True)
+class Links:
+    """Where the devices are reached when not where the rig file says (the simulated rig's endpoints)."""
+
+    gantry: str | None = None
+    stage: str | None = None
+    camera: str | None = None
+
+
+NO_OVERRIDES = Links()
+PLANNED_ONLY = Bracketing()  # adaptive bracketing, no dark frames
+
+
+class RunStopped(HlrLabError):
+    """The run ended early. ``cause`` is why; ``safe`` what the devices confirmed of the safe state
+    (None when they were never opened); ``exit_status`` 130 or 1 (see the module's docstring)."""
+
+    def __init__(self, cause: BaseException, safe: SafeState | None):
+        self.cause, self.safe = cause, safe
+        interrupted = isinstance(cause, KeyboardInterrupt)
+        why = f"stopped ({cause or 'interrupted'})" if interrupted else f"stopped: {cause}"
+        if safe is None:
+            state = "no device had been switched on"
+        elif safe.ok:
+            state = "the rig is safe: " + safe.sentence()
+        else:
+            state = safe.sentence()
+        self.exit_status = EXIT_INTERRUPTED if interrupted and (safe is None or safe.ok) else 1
+        super().__init__(f"{why}. {state}. Run the same command again to resume.")
+
+
+def rig_device_links(rig: Rig, links: Links) -> list[tuple[str, str]]:
+    """(description, link) of every device a run on ``rig`` uses, for :func:`hlr_lab.locks.hold_devices`;
+    the camera as :func:`hlr_lab.devices.open_camera` chooses it."""
+    f = rig.file
+    capture = f.camera.capture
+    camera = links.camera or (capture.device if capture is not None else f.camera.address)
+    found = [
+        ("the gantry's servo bus", links.gantry or f.gantry.port),
+        ("the turntable's Modbus link", links.stage or f.turntable.address),
+        ("the camera", camera),
+    ]
+    return [(what, str(link)) for what, link in found if link]
+
+
+def acquire_session(
+    plan: PlanFile,
+    plan_path: Path,
+    targets: list[PoseTarget],
+    rig: Rig,
+    session: Path,
+    *,
+    links: Links = NO_OVERRIDES,
+    bracket: Bracketing = PLANNED_ONLY,
+    force: bool = False,
+    progress: Callable[[Step], None] = lambda _: None,
+    object_window: Callable[[float], np.ndarray] | None = None,
+    on_start: Callable[[bool], None] = lambda _resumed: None,
+) -> Outcome:
+    """Run ``plan`` on ``rig`` into ``session`` (created, or resumed when it exists); see the module's
+    docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready."""
+    devices: RigDevices | None = None
+    with contextlib.ExitStack() as session_held:  # outlives the devices: the safe state is journaled too
+        try:
+            with contextlib.ExitStack() as stack:
+                session_exists = session.is_dir()
+                if session_exists:  # a second writer is refused before anything is switched on
+                    session_held.enter_context(hold_session(session))
+                stack.enter_context(hold_devices(rig_device_links(rig, links)))
+                devices = stack.enter_context(
+                    open_devices(rig, gantry_port=links.gantry, stage_address=links.stage)
+                )
+                camera: Camera = open_camera(rig, links.camera)  # before anything is energised
+                stack.callback(camera.close)
+                devices.connect()
+                if not session_exists:  # only now, with every device answering, is the session created
+                    session_held.enter_context(hold_session(session))
+                resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
+                stack.enter_context(session_log(session / LOG))
+                _check_room(plan, rig, session, bracket)
+                on_start(resumed)
+                outcome = acquire(
+                    plan,
+                    targets,
+                    Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
+                    session,
+                    bracket=bracket,
+                    progress=progress,
+                    object_window=object_window,
+                    tolerance=Tolerance(rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks),
+                )
+                log.info("run summary: %s", outcome.summary())
+        except BaseException as exc:
+            safe = devices.safe if devices is not None else None
+            if safe is not None and (session / JOURNAL).exists():
+                _record_safe_state(safe, session)
+            if isinstance(exc, HlrLabError) and safe is None:
+                raise  # nothing was switched on: the error says all (a busy device, a bad link)
+            raise RunStopped(exc, safe) from exc
+        _record_safe_state(devices.safe, session)
+    if not devices.safe.ok:
+        raise RunStopped(HlrLabError("the run finished but the rig could not be made safe"), devices.safe)
+    return outcome
+
+
+def _check_room(plan: PlanFile, rig: Rig, session: Path, bracket: Bracketing) -> None:
+    """Refuse before anything moves when the frames still to take will not fit on the disk."""
+    have = {
+        (e["pose"], e["exposure_index"])
+        for e in read_journal(session / JOURNAL)
+        if e["event"] == "frame" and not e["dark"]
+    }
+    missing = sum(k not in have for p in plan.poses for k in [(p.id, i) for i in range(len(p.exposures_s))])
+    frames = missing * (2 if bracket.dark_frames else 1)
+    check_room(session, frames, frame_bytes(rig.camera.width, rig.camera.height))
+
+
+def _record_safe_state(safe: SafeState, session: Path) -> None:
+    """What the devices confirmed when the run ended: a ``safe_state`` journal line and a log line."""
+    with session_log(session / LOG):
+        (log.info if safe.ok else log.error)("safe state: %s", safe.sentence())
+    try:
+        with Journal(session / JOURNAL) as journal:
+            journal.append_last(safe.as_event())
+    except (OSError, HlrLabError) as exc:  # the console and the log still say it
+        log.error("could not journal the safe state: %s", exc)
+
+
+@contextlib.contextmanager
+def session_log(path: Path) -> Iterator[None]:
+    """Everything the drivers and hlr-lab log during the run (retries, reboots, warnings, the safe state),
+    appended to the session's log file."""
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    loggers = [logging.getLogger(name) for name in ("drivers", "hlr_lab")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+        handler.close()
