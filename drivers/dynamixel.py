@@ -50,6 +50,11 @@ from drivers.errors import (
 )
 
 log = logging.getLogger(__name__)
+try:  # a vanished tty fails termios calls (pyserial's buffer resets) with termios.error, not an OSError
+    from termios import error as _TermiosError
+except ImportError:  # not on POSIX
+    _TermiosError = OSError
+LINK_LOST = (serial.SerialException, OSError, _TermiosError)
 
 X_SERIES_MODELS = {1020: "XM430-W350", 1030: "XM430-W210", 1060: "XL430-W250", 1120: "XM540-W270"}
 # control table (X-series e-manual)
@@ -319,7 +324,7 @@ class DynamixelGantry:
                         break
                     problem = "the servo still reports " + ("torque on" if torque_off else "moving")
                 except DeviceError as exc:
-                    problem = str(exc)
+                    problem = exc.reason
                 log.warning("%s: not safe yet (%s); attempt %d of %d", self._device(axis), problem, attempt,
                             attempts)  # fmt: skip
                 time.sleep(0.05 * attempt)
@@ -345,9 +350,12 @@ class DynamixelGantry:
             self.release()
 
     def release(self) -> None:
-        """Close the port (nothing is sent)."""
+        """Close the port (nothing is sent); a port that has vanished is closed all the same."""
         with self._lock:
-            self.port.closePort()
+            try:
+                self.port.closePort()
+            except LINK_LOST as exc:
+                log.warning("%s: closing the port: %s", self.name, exc)
 
     # -- transport ----------------------------------------------------------------------------------
     def _state(self) -> list[tuple[int, bool]]:
@@ -415,7 +423,7 @@ class DynamixelGantry:
                 self.port.is_using = False
             try:
                 yield
-            except (serial.SerialException, OSError) as exc:
+            except LINK_LOST as exc:
                 self.port.is_using = False
                 raise DeviceError(
                     f"the link is lost ({exc}); check the adapter's cable and the servos' power",
@@ -456,7 +464,7 @@ class DynamixelGantry:
                     raise
                 self.retried += 1
                 log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries, extra=RETRY)
-                with self._lock:
+                with self._transaction():
                     self.port.clearPort()  # a late reply must not be taken for the next one
                 time.sleep(self.config.backoff_s * 2**attempt)
         raise AssertionError("unreachable")

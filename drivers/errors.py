@@ -18,7 +18,7 @@ class DeviceError(HlrLabError):
     """A device misbehaved; ``device`` names it (e.g. "gantry servo 2 on /dev/ttyUSB0")."""
 
     def __init__(self, message: str, *, device: str):
-        self.device = device
+        self.device, self.reason = device, message  # the message without the device's name
         super().__init__(f"{device}: {message}")
 
 

@@ -84,7 +84,8 @@ class NetworkCamera:
             data = self._reply.read(size)
         except TimeoutError as exc:
             raise DeviceTimeout(
-                f"no frame {self.reply_timeout_s:g} s after the exposure; is the camera hung?", device=self.name
+                f"no frame {self.reply_timeout_s:g} s after the exposure; is the camera hung?",
+                device=self.name,
             ) from exc
         except OSError as exc:
             raise DeviceTimeout(f"the link dropped ({exc})", device=self.name) from exc

@@ -173,7 +173,7 @@ def session_log(path: Path) -> Iterator[None]:
     appended to the session's log file."""
     handler = logging.FileHandler(path, encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    loggers = [logging.getLogger(name) for name in ("drivers", "hlr_lab")]
+    loggers = [logging.getLogger(name) for name in ("drivers", "hlr_lab", "pymodbus")]
     levels = [logger.level for logger in loggers]
     for logger in loggers:
         logger.addHandler(handler)

@@ -162,9 +162,10 @@ class RigDevices:
                 continue
             try:
                 done.append(SafeStep(device, True, step()))
-            except DeviceError as exc:  # the rest must still run
-                log.error("safe state: %s: %s", device, exc)
-                done.append(SafeStep(device, False, str(exc)))
+            except Exception as exc:  # noqa: BLE001 — whatever went wrong, the rest must still run
+                problem = str(exc) if isinstance(exc, DeviceError) else f"{type(exc).__name__}: {exc}"
+                log.error("safe state: %s: %s", device, problem)
+                done.append(SafeStep(device, False, problem))
         self.gantry.release()
         self.stage.close()
         self.safe = SafeState(tuple(done))

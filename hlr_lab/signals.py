@@ -33,7 +33,10 @@ class _StopOnce:
 @contextlib.contextmanager
 def stop_once_on_signals() -> Iterator[None]:
     """Within the block, the first SIGINT/SIGTERM raises KeyboardInterrupt and later ones are ignored
-    (said on stderr). Outside the main thread, where Python cannot set handlers, it does nothing."""
+    (said on stderr). Once a signal has stopped the block, both signals are left ignored: the process is
+    ending, and a second signal arriving as it exits must not turn exit status 130 into death by signal
+    (Python puts its own handlers back to the default while it shuts down; an ignored signal it leaves
+    ignored). Outside the main thread, where Python cannot set handlers, it does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -43,4 +46,4 @@ def stop_once_on_signals() -> Iterator[None]:
         yield
     finally:
         for s, old in previous.items():
-            signal.signal(s, old)
+            signal.signal(s, old if handler.received is None else signal.SIG_IGN)

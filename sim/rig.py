@@ -96,6 +96,10 @@ class SimRig:
             raise
 
     def close(self) -> None:
+        """Stop every device (a second call does nothing: a test may pull the plug before the end)."""
+        if getattr(self, "_closed", False):
+            return
+        self._closed = True
         if self.camera_server:
             self.camera_server.close()
         self.bus.close()

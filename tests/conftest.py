@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 import threading
 from pathlib import Path
 
@@ -17,6 +19,11 @@ from hlr_lab.rig import Rig, sim_rig
 from hlr_lab.segment import segment
 
 SHARED_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
+
+
+def pytest_configure(config):
+    """Device locks of the tests (and of the hlr-lab processes they start) in a folder of their own."""
+    os.environ["HLR_LAB_LOCK_DIR"] = tempfile.mkdtemp(prefix="hlr-lab-test-locks-")
 
 
 @pytest.fixture(autouse=True)
@@ -95,3 +102,14 @@ def plan_file(tmp_path_factory, rig):
     path = tmp_path_factory.mktemp("plan") / "plan.json"
     write_plan(path, plan)
     return path, result, obj, m
+
+
+@pytest.fixture(scope="session")
+def builtin_plan(tmp_path_factory) -> Path:
+    """A plan of builtin:pebble, the object the default simulated world is made of, as `hlr-lab plan`
+    writes it."""
+    from hlr_lab.cli.main import main
+
+    path = tmp_path_factory.mktemp("builtin") / "plan.json"
+    assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(path)]) == 0
+    return path

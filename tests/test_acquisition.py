@@ -138,14 +138,6 @@ def test_no_goal_outside_the_limits_ever_reaches_the_devices(sim_world, rig, pla
     assert (len(sim_world.bus.goals), len(sim_world.turntable.stage.moves)) == sent
 
 
-@pytest.fixture(scope="module")
-def builtin_plan(tmp_path_factory):
-    """A plan of builtin:pebble, the object the default simulated world is made of."""
-    path = tmp_path_factory.mktemp("builtin") / "plan.json"
-    assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(path)]) == 0
-    return path
-
-
 def test_cli_acquire_dry_run_resume_and_changed_plan(builtin_plan, tmp_path, capsys):
     plan_path = builtin_plan
     session = tmp_path / "session"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 
 import click
@@ -60,6 +61,14 @@ cli.add_command(demo)
 def main(argv: list[str] | None = None) -> int:
     """Run one command; the first SIGINT/SIGTERM stops it (exit status 130), later ones cannot cut its
     safe stop short (:mod:`hlr_lab.signals`)."""
+    for name in (
+        "hlr_lab",
+        "drivers",
+        "pymodbus",
+    ):  # records go to the session's log; the console has its own
+        logger = logging.getLogger(name)
+        if not any(isinstance(h, logging.NullHandler) for h in logger.handlers):
+            logger.addHandler(logging.NullHandler())
     with stop_once_on_signals():
         return _run(argv)
 
