@@ -162,7 +162,7 @@ class RigDevices:
                 continue
             try:
                 done.append(SafeStep(device, True, step()))
-            except Exception as exc:  # noqa: BLE001 — whatever went wrong, the rest must still run
+            except Exception as exc:
                 problem = str(exc) if isinstance(exc, DeviceError) else f"{type(exc).__name__}: {exc}"
                 log.error("safe state: %s: %s", device, problem)
                 done.append(SafeStep(device, False, problem))

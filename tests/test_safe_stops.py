@@ -139,10 +139,12 @@ def test_a_signal_at_a_random_moment_leaves_the_rig_safe_and_says_so(kind, long_
                 child.send_signal(sig)
             status, err = finish(child)
             assert status == 130, err
-            assert "the rig is safe" in err and "NOT SAFE" not in err
+            assert "the rig is safe" in err
+            assert "NOT SAFE" not in err
             events = read_journal(session / JOURNAL)
             assert [e["event"] for e in events[-2:]] == ["stopped", "safe_state"]
-            assert events[-1]["ok"] and len(events[-1]["steps"]) == 3
+            assert events[-1]["ok"]
+            assert len(events[-1]["steps"]) == 3
             assert device_state(world) == SAFE, f"trial {trial}: {err}"
 
 
@@ -164,7 +166,8 @@ def test_a_lost_device_is_one_line_naming_it_and_what_could_not_be_made_safe(lon
         "error: stopped: gantry on"
     )
     assert "NOT SAFE" in lines[0]
-    assert "internal error" not in err and "Traceback" not in err
+    assert "internal error" not in err
+    assert "Traceback" not in err
     events = read_journal(session / JOURNAL)
     assert [e["event"] for e in events[-2:]] == ["stopped", "safe_state"]
     assert not events[-1]["ok"]
@@ -174,7 +177,7 @@ def test_a_lost_device_is_one_line_naming_it_and_what_could_not_be_made_safe(lon
 def test_a_second_run_on_the_same_session_or_devices_is_refused_naming_the_first(long_plan, rig, tmp_path):
     """While one run holds a session and the rig, a second run on the same session, and a third on the
     same devices with another session, are refused with the first run's PID; neither writes anything."""
-    with bench(long_plan, rig, tmp_path) as (world, rig_file):
+    with bench(long_plan, rig, tmp_path) as (_world, rig_file):
         session = tmp_path / "session"
         first = start_acquire(long_plan, rig_file, session)
         try:
