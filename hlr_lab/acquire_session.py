@@ -104,6 +104,7 @@ def acquire_session(
     with contextlib.ExitStack() as session_held:  # outlives the devices: the safe state is journaled too
         try:
             with contextlib.ExitStack() as stack:
+                _check_room(plan, rig, session, bracket)  # before anything is opened or switched on
                 session_exists = session.is_dir()
                 if session_exists:  # a second writer is refused before anything is switched on
                     session_held.enter_context(hold_session(session))
@@ -118,7 +119,6 @@ def acquire_session(
                     session_held.enter_context(hold_session(session))
                 resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
                 stack.enter_context(session_log(session / LOG))
-                _check_room(plan, rig, session, bracket)
                 on_start(resumed)
                 outcome = acquire(
                     plan,

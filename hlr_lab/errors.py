@@ -6,7 +6,7 @@ from pathlib import Path
 
 from drivers.errors import HlrLabError
 
-__all__ = ["HlrLabError", "InputError", "PlanningError", "RigNotReady"]
+__all__ = ["DiskFull", "HlrLabError", "InputError", "PlanningError", "RigNotReady"]
 
 
 class InputError(HlrLabError):
@@ -29,3 +29,7 @@ class PlanningError(HlrLabError):
 
 class RigNotReady(HlrLabError):
     """``hlr-lab doctor`` found problems (it has printed them, each with what to do)."""
+
+
+class DiskFull(HlrLabError):
+    """A file could not be written for want of space; the message names it and says how much is free."""

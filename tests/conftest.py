@@ -113,3 +113,14 @@ def builtin_plan(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("builtin") / "plan.json"
     assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(path)]) == 0
     return path
+
+
+@pytest.fixture(scope="session")
+def finished_session(builtin_plan, tmp_path_factory) -> Path:
+    """A complete session of the built-in plan on the simulated rig (tests copy it before changing it)."""
+    from hlr_lab.cli.main import main
+
+    session = tmp_path_factory.mktemp("finished") / "session"
+    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session), "--speed-factor", "40"]
+    assert main(command) == 0
+    return session

@@ -2,9 +2,12 @@
 
 import contextlib
 import json
+import math
 import random
 import re
 import signal
+import socket
+import struct
 import subprocess
 import sys
 import time
@@ -13,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceFault, HardwareAlarm
+from drivers.errors import DeviceFault, DeviceTimeout, HardwareAlarm, SettleTimeout
 from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import Bracketing, Instruments, acquire
 from hlr_lab.cli.main import main
@@ -58,12 +61,13 @@ def sim_world(plan_file):
         yield world
 
 
-def run(world, rig, plan, session, bracket=None, progress=None, object_window=None):
+def run(world, rig, plan, session, bracket=None, progress=None, object_window=None, settle_timeout_s=60.0,
+        reply_timeout_s=20.0):  # fmt: skip
     targets = motion_targets(plan, rig)
     e = world.endpoints
     with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
         devices.connect()
-        camera = NetworkCamera(e.camera)
+        camera = NetworkCamera(e.camera, reply_timeout_s=reply_timeout_s)
         try:
             return acquire(
                 plan,
@@ -73,6 +77,7 @@ def run(world, rig, plan, session, bracket=None, progress=None, object_window=No
                 bracket=bracket or Bracketing(),
                 progress=progress or (lambda _: None),
                 object_window=object_window,
+                settle_timeout_s=settle_timeout_s,
             )
         finally:
             camera.close()
@@ -418,3 +423,87 @@ def test_a_rig_without_a_lamp_relay_is_refused_before_anything_opens(plan_file, 
     assert main(["acquire", "--plan", str(plan_file[0]), "--rig", str(rig_file), "--out", str(session)]) == 1
     assert "add a [lamp] section" in capsys.readouterr().err
     assert not session.exists()
+
+
+def _slip_during(world, pose_index: int, frame: int, ticks: int, hold_s: float, stuck: bool = False):
+    """A progress callback that knocks the elevation servo ``ticks`` off just before frame ``frame`` of
+    pose ``pose_index`` is exposed, for ``hold_s`` of the simulated bus's time (``stuck``: and it
+    follows no goal any more)."""
+    seen = []
+
+    def progress(step):
+        if step.index == pose_index and step.action.startswith("exposure"):
+            seen.append(step.action)
+            if len(seen) == frame + 1:
+                world.bus.servo(2).slip(ticks, hold_s=hold_s)
+                world.bus.servo(2).stuck = stuck
+
+    return progress
+
+
+def test_a_frame_exposed_while_an_axis_moved_is_retaken_after_settling(plan_file, rig, tmp_path):
+    """The elevation axis is knocked 40 ticks off during an exposure and comes back a moment later: that
+    frame is not journaled; the rig settles anew and takes it again. Every journaled frame was rendered
+    where its sidecar says the axes were (the simulator's own record, in the sidecar's camera block)."""
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    bracket = len(plan.poses[0].exposures_s)
+    with world_of(plan_file) as world:
+        outcome = run(world, rig, plan, tmp_path, progress=_slip_during(world, 0, 1, 40, hold_s=20.0))
+    assert outcome.taken == bracket
+    events = read_journal(tmp_path / JOURNAL)
+    assert [e["event"] for e in events].count("pose") == 2  # settled, then settled anew
+    retakes = [e for e in events if e["event"] == "retry"]
+    assert len(retakes) == 1
+    assert "elevation servo was at" in retakes[0]["error"]
+    for e in (e for e in events if e["event"] == "frame"):
+        sidecar = json.loads((tmp_path / e["sidecar"]).read_text())
+        rendered_at, measured = sidecar["camera"]["servo_ticks"], sidecar["measured"]["gantry_ticks"]
+        assert np.abs(np.subtract(rendered_at, measured)).max() <= 2
+
+
+def test_an_axis_that_stays_off_stops_the_run_with_no_frame_journaled_from_there(plan_file, rig, tmp_path):
+    """Knocked off for good (a slipped coupling): the frame is dropped, settling anew times out, the run
+    stops safely and the journal holds no frame exposed away from its recorded place."""
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:1]})
+    with world_of(plan_file) as world:
+        with pytest.raises(SettleTimeout, match="not settled"):
+            run(world, rig, plan, tmp_path, progress=_slip_during(world, 0, 1, 52, math.inf, stuck=True),
+                settle_timeout_s=1.0)  # fmt: skip
+        assert not world.turntable.stage.lamp
+    events = read_journal(tmp_path / JOURNAL)
+    assert [e["exposure_index"] for e in events if e["event"] == "frame"] == [0]
+    assert events[-1]["event"] == "stopped"
+
+
+def test_a_camera_that_stops_answering_times_out_into_a_safe_stop(plan_file, rig, tmp_path):
+    """The camera hangs while a frame is requested (lamp on): after the reply timeout and its retries the
+    run stops, the lamp is off and no servo holds torque."""
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:2]})
+    with world_of(plan_file) as world:
+        hang = _inject_on_second_pose(lambda: setattr(world.camera_server, "silent", True))
+        with pytest.raises(DeviceTimeout, match="is the camera hung"):
+            run(world, rig, plan, tmp_path, progress=hang, reply_timeout_s=0.5)
+        assert not world.turntable.stage.lamp
+        assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
+    events = read_journal(tmp_path / JOURNAL)
+    assert events[-1]["event"] == "stopped"
+    assert {e["pose"] for e in events if e["event"] == "frame"} == {plan.poses[0].id}
+
+
+def test_the_simulated_camera_outlives_a_client_that_leaves_mid_frame(plan_file):
+    """A client that asks for a frame and goes away before it arrives (a killed acquire) must not take
+    the camera endpoint down: the next client gets its frame."""
+    with world_of(plan_file) as world:
+        host, _, port = world.endpoints.camera.rpartition(":")
+        for _ in range(3):
+            with socket.create_connection((host, int(port))) as s:
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # reset on close
+                s.sendall(b'{"exposure_s": 0.01}\n')
+        camera = NetworkCamera(world.endpoints.camera, reply_timeout_s=20)
+        try:
+            assert camera.capture().pixels.shape == (480, 640, 3)
+        finally:
+            camera.close()

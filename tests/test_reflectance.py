@@ -144,7 +144,7 @@ def test_a_lost_frame_is_refused_until_it_is_retaken(acquired, capsys):
     assert main(["fit", str(session), "-o", str(session / "m2.json")]) == 1
     err = capsys.readouterr().err
     assert "frames/p001_e1.png is missing" in err
-    assert "run hlr-lab acquire on this session again" in err
+    assert "acquire on this session again" in err
     assert (
         main(["acquire", "--plan", str(plan_path), "--sim", "--out", str(session), "--speed-factor", "40"])
         == 0

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
+import shutil
 import tempfile
 import tomllib
 from pathlib import Path
@@ -12,7 +14,7 @@ from typing import TypeVar
 
 import pydantic
 
-from hlr_lab.errors import InputError
+from hlr_lab.errors import DiskFull, InputError
 
 Model = TypeVar("Model", bound=pydantic.BaseModel)
 # files get the mode an ordinary open() gives (mkstemp's temporaries are private: 0600); read once, at
@@ -42,18 +44,37 @@ def atomic_create_bytes(path: str | Path, data: bytes) -> None:
 
 
 def _write_via_temporary(path: Path, data: bytes, publish) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "wb") as f:
-            os.fchmod(f.fileno(), FILE_MODE)
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        publish(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)  # after os.replace it is gone already; after os.link, a 2nd name
-    fsync_directory(path.parent)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                os.fchmod(f.fileno(), FILE_MODE)
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            publish(tmp, path)
+        finally:
+            Path(tmp).unlink(
+                missing_ok=True
+            )  # after os.replace it is gone already; after os.link, a 2nd name
+        fsync_directory(path.parent)
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise disk_full(path, len(data)) from exc
+        raise
+
+
+def disk_full(path: Path, size: int) -> DiskFull:
+    """The error for ``path`` (``size`` bytes) not fitting on its filesystem, with what is free there."""
+    where = path.parent
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    free = shutil.disk_usage(where).free
+    return DiskFull(
+        f"{path}: no space left on the device ({size / 1e6:.1f} MB to write, {free / 1e6:.1f} MB free); "
+        "free some space and run the command again"
+    )
 
 
 def fsync_directory(directory: Path) -> None:

@@ -79,8 +79,8 @@ class FrameWriter:
                 stored = store_frame(self.session, job.name, job.pixels, job.sidecar)
                 self.journal.append(stored.as_event(**job.event))
                 self.stored += 1
-            except OSError as exc:
-                self._error = storage_error(exc, self.session, f"frame {job.name}", job.pixels.nbytes)
+            except OSError as exc:  # the journal's line (the frame's files raise DiskFull themselves)
+                self._error = storage_error(exc, self.journal.path, job.pixels.nbytes)
             except BaseException as exc:
                 self._error = exc
 

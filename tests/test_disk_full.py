@@ -1,0 +1,118 @@
+"""A full disk: refused before a run when the forecast does not fit; mid-run, one line naming the file
+and the free space, the rig safe and the journal's last line written all the same; ``fit`` likewise.
+
+The small disk is a tmpfs mounted for the test, which needs root (CI runs as root; elsewhere these
+tests are skipped, and fail in CI rather than skip)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from hlr_lab.cli.main import main
+from hlr_lab.errors import DiskFull
+from hlr_lab.formats.plan import read_plan
+from hlr_lab.session.journal import JOURNAL, read_journal
+from tests.test_acquisition import run, world_of
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A function mounting a tmpfs of ``megabytes`` under tmp_path; unmounted after the test."""
+    mounted = []
+
+    def mount(megabytes: int) -> Path:
+        if os.geteuid() != 0:
+            if os.environ.get("CI"):
+                pytest.fail("the disk-full tests mount a tmpfs and need root, which CI has")
+            pytest.skip("mounting a small tmpfs needs root")
+        where = tmp_path / f"disk{len(mounted)}"
+        where.mkdir()
+        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={megabytes}m", "tmpfs", str(where)], check=True)
+        mounted.append(where)
+        return where
+
+    yield mount
+    for where in mounted:
+        subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+def fill(disk: Path, leave_bytes: int) -> None:
+    """A ballast file that leaves about ``leave_bytes`` free on ``disk`` (or none: others write too)."""
+    with open(disk / "ballast", "ab") as f:
+        try:
+            while (free := shutil.disk_usage(disk).free) > leave_bytes:
+                f.write(b"\1" * min(65536, max(free - leave_bytes, 4096)))
+                f.flush()
+        except OSError:
+            pass
+
+
+def test_a_disk_that_fills_mid_run_stops_it_with_one_line_and_the_rig_safe(plan_file, rig, small_disk):
+    """The disk fills while the rig moves to the second pose: the run stops with DiskFull naming the frame
+    file and the free space; the journal's last line (written into the room kept for it) says so and
+    counts only the frames that were stored; lamp off, no torque."""
+    disk = small_disk(24)
+    plan = read_plan(plan_file[0])
+    plan = plan.model_copy(update={"poses": plan.poses[:2]})
+    session = disk / "session"
+
+    def progress(step):
+        if (step.index, step.action) == (1, "moving"):
+            fill(disk, leave_bytes=100_000)  # less than a 640×480 frame
+
+    with world_of(plan_file) as world:
+        with pytest.raises(DiskFull, match=r"(\.png|journal\.jsonl): no space left on the device .* MB free"):
+            run(world, rig, plan, session, progress=progress)
+        assert not world.turntable.stage.lamp
+        assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
+    events = read_journal(session / JOURNAL)
+    assert events[-1]["event"] == "stopped"
+    assert "no space left" in events[-1]["reason"]
+    assert events[-1]["frames_taken"] == sum(e["event"] == "frame" for e in events)
+    assert not list((session / "frames").glob(".*.tmp"))
+
+
+def test_a_run_that_cannot_fit_is_refused_before_anything_moves(builtin_plan, small_disk, capsys):
+    disk = small_disk(40)
+    session = disk / "session"
+    assert main(["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session)]) == 1
+    err = capsys.readouterr().err
+    assert re.search(r"need up to [\d,]+ MB \(6 frames of up to 7\.4 MB .*\), but \d+ MB is free", err), err
+    assert not session.exists()
+
+
+def test_fit_on_a_full_disk_is_one_line_and_leaves_nothing_half_written(finished_session, small_disk, capsys):
+    disk = small_disk(32)
+    session = disk / "session"
+    shutil.copytree(finished_session, session)
+    fill(disk, leave_bytes=0)
+    assert main(["fit", str(session)]) == 1
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith(("error", "internal"))]
+    assert len(lines) == 1, err
+    assert re.match(r"error: .*materials.json: no space left on the device", lines[0]) or re.match(
+        r"error: .*fit-diagnostics.json: no space left on the device", lines[0]
+    ), err
+    assert not list(session.glob(".*.tmp"))
+
+
+def test_a_resumed_run_removes_the_temporaries_of_a_killed_one(
+    finished_session, builtin_plan, tmp_path, capsys
+):
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    leftovers = [session / "frames" / ".p000_e0.png.k3j2.tmp", session / ".session.json.x1.tmp"]
+    for p in leftovers:
+        p.write_bytes(b"\0" * 1000)
+    before = [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"]
+    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session), "--speed-factor", "40"]
+    assert main(command) == 0
+    assert not any(p.exists() for p in leftovers)
+    assert [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"] == before
+    capsys.readouterr()
