@@ -315,11 +315,13 @@ class DynamixelGantry:
         for axis in self.config.axes:
             for attempt in range(1, attempts + 1):
                 try:
+                    # a servo in hardware alarm (overload…) answers with the alert bit, and has shut its
+                    # torque off itself: what it reads back is what counts
                     if torque_off:
-                        self._write(axis, TORQUE_ENABLE, 0, 1)
-                        confirmed = self._read(axis, TORQUE_ENABLE, 1) == 0
+                        self._write(axis, TORQUE_ENABLE, 0, 1, alert_ok=True)
+                        confirmed = self._read(axis, TORQUE_ENABLE, 1, alert_ok=True) == 0
                     else:
-                        confirmed = self._read(axis, MOVING, 1) == 0
+                        confirmed = self._read(axis, MOVING, 1, alert_ok=True) == 0
                     if confirmed:
                         break
                     problem = "the servo still reports " + ("torque on" if torque_off else "moving")
@@ -396,12 +398,16 @@ class DynamixelGantry:
         )
         return value - (1 << 32) if size == 4 and value >= 1 << 31 else value
 
-    def _write(self, axis: Axis, address: int, value: int, size: int) -> None:
+    def _write(self, axis: Axis, address: int, value: int, size: int, *, alert_ok: bool = False) -> None:
         writer = {1: self.ph.write1ByteTxRx, 2: self.ph.write2ByteTxRx, 4: self.ph.write4ByteTxRx}[size]
         raw = value & ((1 << (8 * size)) - 1)
         self._retry(
             lambda: self._call(
-                axis, f"write {address}", None, *self._tx_rx(writer, axis.servo_id, address, raw)
+                axis,
+                f"write {address}",
+                None,
+                *self._tx_rx(writer, axis.servo_id, address, raw),
+                alert_ok=alert_ok,
             )
         )
 

@@ -62,10 +62,15 @@ def sim_world(plan_file):
 
 
 def run(world, rig, plan, session, bracket=None, progress=None, object_window=None, settle_timeout_s=60.0,
-        reply_timeout_s=20.0):  # fmt: skip
+        reply_timeout_s=20.0, safe_states=None):  # fmt: skip
+    """acquire() on the simulated rig through the real drivers; ``safe_states`` (a list) gets what the
+    devices confirmed of the safe state at the end."""
     targets = motion_targets(plan, rig)
     e = world.endpoints
-    with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
+    devices = open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus)
+    with contextlib.ExitStack() as stack:
+        stack.callback(lambda: safe_states.append(devices.safe) if safe_states is not None else None)
+        stack.enter_context(devices)
         devices.connect()
         camera = NetworkCamera(e.camera, reply_timeout_s=reply_timeout_s)
         try:
@@ -402,11 +407,20 @@ def test_a_device_fault_mid_run_stops_safely(fault, plan_file, rig, tmp_path):
     inject, error, words = STOPPING_FAULTS[fault]
     plan = read_plan(plan_file[0])
     assert len(plan.poses) >= 2
+    safe = []
     with world_of(plan_file) as world:
         with pytest.raises(error, match=words):
-            run(world, rig, plan, tmp_path, progress=_inject_on_second_pose(lambda: inject(world)))
+            run(
+                world,
+                rig,
+                plan,
+                tmp_path,
+                progress=_inject_on_second_pose(lambda: inject(world)),
+                safe_states=safe,
+            )
         assert not world.turntable.stage.lamp
         assert all(s.get("torque_enable") == 0 for s in world.bus.servos)
+    assert safe[0].ok, safe[0].sentence()  # an overloaded servo has its torque off: confirmed, not "NOT SAFE"
     events = read_journal(tmp_path / JOURNAL)
     assert events[-1]["event"] == "stopped"
     assert re.search(words, events[-1]["reason"])

@@ -22,7 +22,7 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from pymodbus.client import ModbusTcpClient
 
 from hlr_lab.cli.bench_acquire import repeated_poses
-from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
+from hlr_lab.cli.sim_world import rig_file_text, sim_camera_spec, sim_scene
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.session.journal import JOURNAL, read_journal
 from sim.rig import SimRig
@@ -30,7 +30,6 @@ from sim.turntable import register_map as rm
 from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
 
 TRIALS = int(os.environ.get("HLR_LAB_STOP_TRIALS", "2"))
-SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
 TORQUE_ENABLE, MOVING = 64, 122
 
 
@@ -49,15 +48,8 @@ def bench(plan_path: Path, rig, folder: Path, speed_factor: float = 4.0):
     scene = sim_scene(read_plan(plan_path), plan_path, None)
     with SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor, spp=2) as world:
         e = world.endpoints
-        text = SIM_RIG.read_text()
-        for section, line in (
-            ("[camera]", f'address = "{e.camera}"\nreply_timeout_s = 5.0'),
-            ("[gantry]", f'port = "{e.dynamixel}"'),
-            ("[turntable]", f'address = "{e.modbus}"'),
-        ):
-            text = text.replace(f"{section}\n", f"{section}\n{line}\n")
         rig_file = folder / "rig.toml"
-        rig_file.write_text(text)
+        rig_file.write_text(rig_file_text(e.dynamixel, e.modbus, e.camera, reply_timeout_s=5.0))
         yield world, rig_file
 
 

@@ -256,3 +256,56 @@ def bench_session_fit(poses) -> None:
         f"  per stage: {stages}",
     ):
         out.print(line, markup=False, soft_wrap=True)
+
+
+@bench.command("soak")
+@click.option("--poses", type=click.IntRange(20, 100_000), default=500, show_default=True)
+@click.option(
+    "--kills", type=click.IntRange(0, 1000), default=10, show_default=True, help="SIGKILLs at random moments."
+)
+@click.option(
+    "--fault-every",
+    "fault_interval_s",
+    type=click.FloatRange(min=0.05),
+    default=0.6,
+    show_default=True,
+    help="Mean seconds between injected faults.",
+)
+@click.option("--seed", type=int, default=0, show_default=True)
+@speed_factor_option("Simulated", default=1000.0)
+def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
+    """A night under abuse: acquire POSES poses (builtin:pebble's plan cycled; hlr-lab acquire in a child
+    process against the simulated rig) while faults of every kind are injected and the child is killed
+    with SIGKILL at random moments, resuming after every end until the plan is complete; then check every
+    planned frame once and intact, no goal outside the limits, flat memory and descriptors.
+
+    \b
+    Example:
+      hlr-lab bench soak --poses 500 --kills 10
+    """
+    from hlr_lab.cli.bench_soak import soak  # builds the simulated rig: CLI only
+
+    with console.status(f"soaking {poses} poses on the simulated rig…"):
+        f = soak(
+            poses=poses, kills=kills, fault_interval_s=fault_interval_s, speed_factor=speed_factor, seed=seed
+        )
+    child, world = f.longest_child, f.world
+    warm = child[len(child) // 5]  # after start-up: imports, connecting, the first frames
+    lines = [
+        f"{f.poses} poses, {f.frames_planned} planned frames, {f.seconds:.0f} s, motion ×{speed_factor:g}",
+        f"faults injected: {sum(f.faults.values())} ({', '.join(f'{k} {v}' for k, v in f.faults.most_common())})",
+        f"runs: {sum(f.ends.values())} ({', '.join(f'{k} {v}' for k, v in f.ends.most_common())}); "
+        f"retries journaled {f.retries_journaled}",
+        f"planned frames journaled {f.frames_journaled} of {f.frames_planned}, taken twice {f.duplicates}, "
+        f"failing their checksums {f.damaged}; goals outside the limits that reached the devices {f.goals_outside}",
+        f"longest run ({child[-1].t:.0f} s): RSS {warm.rss_mb:.0f} → {child[-1].rss_mb:.0f} MB, "
+        f"descriptors {warm.fds} → {child[-1].fds} (from {warm.t:.0f} s to the end)",
+        f"this process (the simulated rig): RSS {world[1].rss_mb:.0f} → {world[-1].rss_mb:.0f} MB, "
+        f"descriptors {world[1].fds} → {world[-1].fds} (after the first run to the end)",
+    ]
+    for line in lines:
+        out.print(line, markup=False, soft_wrap=True)
+    ok = f.frames_journaled == f.frames_planned and not (f.duplicates or f.damaged or f.goals_outside)
+    out.print("soak: PASS" if ok else "soak: FAIL", markup=False)
+    if not ok:
+        raise SystemExit(1)

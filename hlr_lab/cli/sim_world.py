@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass, replace
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.mesh import file_sha256
 from hlr_lab.planned_object import face_regions, load_planned_mesh, mesh_to_turntable, palette, region_ids
-from hlr_lab.rig import Rig
+from hlr_lab.rig import SIM_RIG, Rig
 from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
 
@@ -81,3 +82,17 @@ def _scene_file(plan: PlanFile, scene_path: Path) -> SceneSpec:
             field="object.mesh",
         )
     return spec
+
+
+def rig_file_text(dynamixel: str, modbus: str, camera: str | None, *, reply_timeout_s: float = 20.0) -> str:
+    """The built-in simulated rig's file with the links of a running simulated rig filled in: what an
+    operator's rig.toml is to a real bench (``hlr-lab acquire --rig`` in another process)."""
+    text = (resources.files("hlr_lab.data") / SIM_RIG).read_text(encoding="utf-8")
+    camera_lines = f'address = "{camera}"\nreply_timeout_s = {reply_timeout_s}\n' if camera else ""
+    for section, lines in (
+        ("[camera]", camera_lines),
+        ("[gantry]", f'port = "{dynamixel}"\n'),
+        ("[turntable]", f'address = "{modbus}"\n'),
+    ):
+        text = text.replace(f"{section}\n", f"{section}\n{lines}", 1)
+    return text
