@@ -16,14 +16,13 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from drivers.protocols import Camera
 from hlr_lab.acquisition import Bracketing, Instruments, Outcome, Step, Tolerance, acquire
-from hlr_lab.devices import RigDevices, SafeState, open_camera, open_devices
+from hlr_lab.devices import Links, RigDevices, SafeState, open_camera, open_devices, rig_device_links
 from hlr_lab.errors import HlrLabError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.locks import hold_devices, hold_session
@@ -37,15 +36,6 @@ from hlr_lab.session.space import check_room, frame_bytes
 log = logging.getLogger(__name__)
 LOG = "acquire.log"
 EXIT_INTERRUPTED = 130
-
-
-@dataclass(frozen=True)
-class Links:
-    """Where the devices are reached when not where the rig file says (the simulated rig's endpoints)."""
-
-    gantry: str | None = None
-    stage: str | None = None
-    camera: str | None = None
 
 
 NO_OVERRIDES = Links()
@@ -68,20 +58,6 @@ class RunStopped(HlrLabError):
             state = safe.sentence()
         self.exit_status = EXIT_INTERRUPTED if interrupted and (safe is None or safe.ok) else 1
         super().__init__(f"{why}. {state}. Run the same command again to resume.")
-
-
-def rig_device_links(rig: Rig, links: Links) -> list[tuple[str, str]]:
-    """(description, link) of every device a run on ``rig`` uses, for :func:`hlr_lab.locks.hold_devices`;
-    the camera as :func:`hlr_lab.devices.open_camera` chooses it."""
-    f = rig.file
-    capture = f.camera.capture
-    camera = links.camera or (capture.device if capture is not None else f.camera.address)
-    found = [
-        ("the gantry's servo bus", links.gantry or f.gantry.port),
-        ("the turntable's Modbus link", links.stage or f.turntable.address),
-        ("the camera", camera),
-    ]
-    return [(what, str(link)) for what, link in found if link]
 
 
 def acquire_session(

@@ -209,3 +209,26 @@ def open_devices(rig: Rig, *, gantry_port: str | None = None, stage_address: str
     lamp_file = rig.file.lamp
     lamp = None if lamp_file is None else ModbusRelay(stage, lamp_file.device_id, lamp_file.coil)
     return RigDevices(gantry, stage, lamp, rig.file.gantry.park)
+
+
+@dataclass(frozen=True)
+class Links:
+    """Where the devices are reached when not where the rig file says (the simulated rig's endpoints)."""
+
+    gantry: str | None = None
+    stage: str | None = None
+    camera: str | None = None
+
+
+def rig_device_links(rig: Rig, links: Links) -> list[tuple[str, str]]:
+    """(description, link) of every device a run on ``rig`` uses, for :func:`hlr_lab.locks.hold_devices`;
+    the camera as :func:`hlr_lab.devices.open_camera` chooses it."""
+    f = rig.file
+    capture = f.camera.capture
+    camera = links.camera or (capture.device if capture is not None else f.camera.address)
+    found = [
+        ("the gantry's servo bus", links.gantry or f.gantry.port),
+        ("the turntable's Modbus link", links.stage or f.turntable.address),
+        ("the camera", camera),
+    ]
+    return [(what, str(link)) for what, link in found if link]

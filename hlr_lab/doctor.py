@@ -1,7 +1,8 @@
 """``hlr-lab doctor``: connect to every device of a rig, read what it says about itself, and say in plain
 words what is wrong and what to do.
 
-Read-only: nothing is configured, energised or moved, so it is safe to run on a rig in any state. The
+Read-only: nothing is configured, energised or moved, so it is safe to run on a rig in any state (but
+not beside a run: it takes the same device locks, :mod:`hlr_lab.locks`). The
 diagnoses are pure functions of the devices' reports, so each rule is tested without a fault to stage.
 """
 
@@ -14,8 +15,9 @@ from typing import Literal
 from drivers.dynamixel import DynamixelGantry, ServoReport
 from drivers.errors import DeviceTimeout, HlrLabError
 from drivers.modbus_stage import DriveReport, ModbusRelay, ModbusStage, StageConfig
-from hlr_lab.devices import gantry_config, open_camera, stage_config
+from hlr_lab.devices import Links, gantry_config, open_camera, rig_device_links, stage_config
 from hlr_lab.kinematics import TurntableKinematics
+from hlr_lab.locks import Busy, hold_devices
 from hlr_lab.rig import Rig
 
 Level = Literal["ok", "warning", "problem"]
@@ -38,9 +40,16 @@ def examine_rig(
     camera: bool = True,
 ) -> list[Finding]:
     """Every device of ``rig`` in turn (the camera unless ``camera`` is False); a device that cannot be
-    reached is a finding, not an exception."""
-    found = _examine_stage(rig, stage_address) + _examine_gantry(rig, gantry_port)
-    return found + (_examine_camera(rig, camera_endpoint) if camera else [])
+    reached is a finding, not an exception. The devices are locked as a run locks them: a rig in use by
+    a run is one finding naming the run, and nothing of it is touched."""
+    links = Links(gantry_port, stage_address, camera_endpoint)
+    used = [(what, link) for what, link in rig_device_links(rig, links) if camera or what != "the camera"]
+    try:
+        with hold_devices(used):
+            found = _examine_stage(rig, stage_address) + _examine_gantry(rig, gantry_port)
+            return found + (_examine_camera(rig, camera_endpoint) if camera else [])
+    except Busy as exc:
+        return [Finding("rig", "problem", str(exc))]
 
 
 def diagnose_servo(report: ServoReport) -> list[Finding]:

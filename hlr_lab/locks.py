@@ -104,10 +104,13 @@ def hold_devices(links: Iterable[tuple[str, str]]) -> Iterator[None]:
     """Lock every ``(description, link)`` for the block, in a fixed order (no two runs can each hold
     half); :class:`Busy` names the first one taken."""
     directory = lock_directory()
+    by_key: dict[str, tuple[str, str]] = {}  # two devices on one link (a bus, a gateway) share its lock
+    for what, link in links:
+        by_key.setdefault(link_key(link), (what, link))
     held: list[Lock] = []
     try:
-        for link, what in sorted({(link, what) for what, link in links}):
-            held.append(Lock(directory / link_key(link), f"{what} ({link})"))
+        for key, (what, link) in sorted(by_key.items()):
+            held.append(Lock(directory / key, f"{what} ({link})"))
         yield
     finally:
         for lock in reversed(held):

@@ -1,5 +1,6 @@
 """``hlr-lab doctor`` on the simulated rig: healthy, with injected faults, and with devices missing."""
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -9,6 +10,7 @@ from pymodbus.client import ModbusTcpClient
 from drivers.dynamixel import Axis, ServoReport
 from hlr_lab.cli.main import main
 from hlr_lab.doctor import diagnose_servo, examine_rig
+from hlr_lab.locks import hold_devices
 from sim.dynamixel.servo import OVERLOAD
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
@@ -131,3 +133,17 @@ def test_a_port_that_does_not_open_is_one_finding(rig):
     assert "no address" in findings[2].message
     assert "cannot open the port" in findings[1].message
     assert "/dev/hlr-lab-no-such-port" in findings[1].message
+
+
+def test_a_rig_in_use_by_a_run_is_one_finding_and_left_untouched(rig):
+    """The doctor takes the device locks a run holds: while another process (here: this one) holds the
+    servo bus, the doctor names the holder and asks nothing of any device."""
+    with SimRig(speed_factor=40.0) as sim:
+        e = sim.endpoints
+        with hold_devices([("the gantry's servo bus", e.dynamixel)]):
+            requests = sim.turntable.requests
+            findings = examine(sim, rig)
+            assert [(f.device, f.level) for f in findings] == [("rig", "problem")]
+            assert f"is in use by PID {os.getpid()}" in findings[0].message
+            assert sim.turntable.requests == requests  # not even the turntable was asked
+        assert [f.level for f in examine(sim, rig)] == ["ok"] * 4  # released: examined as usual
