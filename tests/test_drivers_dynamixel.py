@@ -107,3 +107,34 @@ def test_socket_url_and_unopenable_port(bus):
     g.close()
     with pytest.raises(DeviceError, match="cannot open the port"):
         DynamixelGantry(GantryConfig("/dev/does-not-exist", AXES))
+
+
+def test_park_confirms_torque_off_even_after_a_transaction_was_cut_short(bus):
+    """An exception in the middle of an SDK exchange (a signal, say) leaves dynamixel-sdk's port marked
+    busy, after which every exchange fails with "Port is in use!". The safe-state step frees it, switches
+    the torque off, and says so only because the servos read back 0."""
+    g = gantry_on(bus)
+    g.connect()
+    g.move_to((2000, 1500))
+    g.port.is_using = True  # what an interrupted txRxPacket leaves behind
+    assert g.park() == "torque off (read back)"
+    assert all(s.get("torque_enable") == 0 for s in bus.servos)
+    g.release()
+
+
+def test_park_names_the_servo_that_does_not_answer(bus):
+    g = gantry_on(bus)
+    g.connect()
+    bus.fault(2).drop_replies = 1000
+    with pytest.raises(DeviceError, match=r"could not switch torque off \(elevation: no reply to write 64"):
+        g.park(attempts=2)
+    assert bus.servo(1).get("torque_enable") == 0  # the other axis is still made safe
+    g.release()
+
+
+def test_a_servo_in_overload_confirms_its_torque_off(bus):
+    g = gantry_on(bus)
+    g.connect()
+    bus.servo(2).hardware_fault(OVERLOAD)  # it answers every packet with the alert bit from now on
+    assert g.park() == "torque off (read back)"
+    g.release()
