@@ -77,13 +77,18 @@ def acquire_session(
     """Run ``plan`` on ``rig`` into ``session`` (created, or resumed when it exists); see the module's
     docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready."""
     devices: RigDevices | None = None
+    resumed: bool | None = None
+
+    def open_session_directory() -> bool:
+        session_held.enter_context(hold_session(session))
+        return start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
+
     with contextlib.ExitStack() as session_held:  # outlives the devices: the safe state is journaled too
         try:
             with contextlib.ExitStack() as stack:
                 _check_room(plan, rig, session, bracket)  # before anything is opened or switched on
-                session_exists = session.is_dir()
-                if session_exists:  # a second writer is refused before anything is switched on
-                    session_held.enter_context(hold_session(session))
+                if session.is_dir():  # a second writer, a changed plan or rig: refused before anything opens
+                    resumed = open_session_directory()
                 stack.enter_context(hold_devices(rig_device_links(rig, links)))
                 devices = stack.enter_context(
                     open_devices(rig, gantry_port=links.gantry, stage_address=links.stage)
@@ -91,9 +96,8 @@ def acquire_session(
                 camera: Camera = open_camera(rig, links.camera)  # before anything is energised
                 stack.callback(camera.close)
                 devices.connect()
-                if not session_exists:  # only now, with every device answering, is the session created
-                    session_held.enter_context(hold_session(session))
-                resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
+                if resumed is None:  # only now, with every device answering, is the session created
+                    resumed = open_session_directory()
                 stack.enter_context(session_log(session / LOG))
                 on_start(resumed)
                 outcome = acquire(

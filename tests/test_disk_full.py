@@ -64,7 +64,7 @@ def test_a_disk_that_fills_mid_run_stops_it_with_one_line_and_the_rig_safe(plan_
 
     def progress(step):
         if (step.index, step.action) == (1, "moving"):
-            fill(disk, leave_bytes=100_000)  # less than a 640×480 frame
+            fill(disk, leave_bytes=0)  # not even the journal's last line fits: it uses the room kept for it
 
     with world_of(plan_file) as world:
         with pytest.raises(DiskFull, match=r"(\.png|journal\.jsonl): no space left on the device .* MB free"):
