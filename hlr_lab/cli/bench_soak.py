@@ -17,6 +17,7 @@ Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -118,32 +119,35 @@ def soak(*, poses: int, kills: int, fault_interval_s: float, speed_factor: float
 def _run_child(command, session, world, rng, kill_at, interval_s, figures) -> tuple[str, list[Sample]]:
     """One ``hlr-lab acquire`` until it ends (complete, stopped by a fault) or is killed; faults are
     injected meanwhile. Returns how it ended and the samples of its memory and descriptors."""
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    started, samples, stop = time.monotonic(), [], threading.Event()
-    injector = threading.Thread(
-        target=_inject, args=(world, rng, interval_s, figures.faults, stop), daemon=True
-    )
-    injector.start()
-    killed = False
-    try:
-        while child.poll() is None:
-            samples.append(_sample(child.pid, started))
-            frames = sum(e["event"] == "frame" for e in read_journal(session / JOURNAL))
-            if kill_at and frames >= kill_at[0]:
-                kill_at.pop(0)
-                child.send_signal(signal.SIGKILL)
-                killed = True
-                break
-            time.sleep(0.25)
-        status = child.wait(timeout=300)
-    finally:
-        stop.set()
-        injector.join()
-        if child.poll() is None:
-            child.kill()
-            child.wait()
-        err = child.stderr.read()
-        child.stderr.close()
+    # stderr to a file: a pipe read only at the end fills up (the motion table alone is large) and blocks
+    with tempfile.TemporaryFile("w+") as err_file:
+        child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err_file, text=True)
+        started, samples, stop = time.monotonic(), [], threading.Event()
+        injector = threading.Thread(
+            target=_inject, args=(world, rng, interval_s, figures.faults, stop), daemon=True
+        )
+        injector.start()
+        killed = False
+        try:
+            while child.poll() is None:
+                with contextlib.suppress(OSError):  # it may end between the poll and the reading
+                    samples.append(_sample(child.pid, started))
+                frames = sum(e["event"] == "frame" for e in read_journal(session / JOURNAL))
+                if kill_at and frames >= kill_at[0]:
+                    kill_at.pop(0)
+                    child.send_signal(signal.SIGKILL)
+                    killed = True
+                    break
+                time.sleep(0.25)
+            status = child.wait(timeout=300)
+        finally:
+            stop.set()
+            injector.join()
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+        err_file.seek(0)
+        err = err_file.read()
     if killed:
         return "killed", samples
     if status == 0:
