@@ -131,7 +131,7 @@ def _check_room(plan: PlanFile, rig: Rig, session: Path, bracket: Bracketing) ->
         for e in read_journal(session / JOURNAL)
         if e["event"] == "frame" and not e["dark"]
     }
-    missing = sum(k not in have for p in plan.poses for k in [(p.id, i) for i in range(len(p.exposures_s))])
+    missing = sum((p.id, k) not in have for p in plan.poses for k in range(len(p.exposures_s)))
     frames = missing * (2 if bracket.dark_frames else 1)
     check_room(session, frames, frame_bytes(rig.camera.width, rig.camera.height))
 

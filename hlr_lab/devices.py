@@ -22,6 +22,7 @@ from hlr_lab.errors import InputError
 from hlr_lab.rig import Rig
 
 log = logging.getLogger(__name__)
+HOLD_SETTLE_S = 5.0  # a gantry parked holding torque comes to rest within this after a stop
 
 
 def link(rig: Rig, field: str, override: str | None, advice: str) -> str:
@@ -150,8 +151,9 @@ class RigDevices:
             log.error("%s", exc)  # every Modbus step below will fail and say so
 
         def park() -> str:
-            if hold:
+            if hold:  # hold where it is: stop, let it come to rest, then confirm it is not moving
                 self.gantry.stop()
+                self.gantry.wait_settled(HOLD_SETTLE_S)
             return self.gantry.park(torque_off=not hold)
 
         steps = [("lamp", self.lamp.switch_off if self.lamp else None), ("turntable", self.stage.halt),

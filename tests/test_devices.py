@@ -164,5 +164,9 @@ def test_park_policy_hold_keeps_the_torque(sim, rig):
     )
     with devices_on(sim, holding) as devices:
         devices.connect()
+        devices.gantry.move_to((1500, 1300))  # stopped mid-move: it must come to rest and hold there
     assert all(s.get("torque_enable") == 1 for s in sim.bus.servos)
+    assert all(s.get("moving") == 0 for s in sim.bus.servos)
     assert not sim.turntable.stage.lamp
+    assert devices.safe.ok, devices.safe.sentence()
+    assert devices.safe.steps[-1].detail == "holding, not moving (read back)"
