@@ -9,8 +9,12 @@ read back from the device, and says (:class:`SafeState`) which steps it could no
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 
 from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
 from drivers.errors import DeviceError
@@ -23,6 +27,7 @@ from hlr_lab.rig import Rig
 
 log = logging.getLogger(__name__)
 HOLD_SETTLE_S = 5.0  # a gantry parked holding torque comes to rest within this after a stop
+SAFE_STATE_ATTEMPTS = 3  # each Modbus safe-state step, on a fresh link each time (the servos: park())
 
 
 def link(rig: Rig, field: str, override: str | None, advice: str) -> str:
@@ -156,8 +161,9 @@ class RigDevices:
                 self.gantry.wait_settled(HOLD_SETTLE_S)
             return self.gantry.park(torque_off=not hold)
 
-        steps = [("lamp", self.lamp.switch_off if self.lamp else None), ("turntable", self.stage.halt),
-                 ("gantry", park)]  # fmt: skip
+        insist = partial(_on_fresh_links, self.stage)
+        steps = [("lamp", insist(self.lamp.switch_off) if self.lamp else None),
+                 ("turntable", insist(self.stage.halt)), ("gantry", park)]  # fmt: skip
         done = []
         for device, step in steps:
             if step is None:
@@ -179,6 +185,26 @@ class RigDevices:
 
     def __exit__(self, *exc) -> None:
         self.safe_state()
+
+
+def _on_fresh_links(stage: ModbusStage, step: Callable[[], str]) -> Callable[[], str]:
+    """A Modbus safe-state step, tried again on a fresh link after a failure: the driver's own retries
+    may all fall into one burst of faults, and a lamp left on is worth a second and a third try."""
+
+    def attempts() -> str:
+        for n in range(1, SAFE_STATE_ATTEMPTS + 1):
+            try:
+                return step()
+            except DeviceError as exc:
+                if n == SAFE_STATE_ATTEMPTS:
+                    raise
+                log.warning("safe state: %s; trying again on a fresh link", exc)
+                time.sleep(0.1 * n)
+                with contextlib.suppress(DeviceError):
+                    stage.reconnect()
+        raise AssertionError("unreachable")
+
+    return attempts
 
 
 def open_camera(rig: Rig, endpoint: str | None = None) -> Camera:

@@ -170,3 +170,14 @@ def test_park_policy_hold_keeps_the_torque(sim, rig):
     assert not sim.turntable.stage.lamp
     assert devices.safe.ok, devices.safe.sentence()
     assert devices.safe.steps[-1].detail == "holding, not moving (read back)"
+
+
+def test_the_safe_state_outlasts_a_burst_of_modbus_faults(sim, rig):
+    """Five Modbus requests in a row go unanswered as the run ends, more than the driver's own four
+    tries: the lamp step is tried again on a fresh link, and the lamp is confirmed off."""
+    with devices_on(sim, rig) as devices:
+        devices.connect()
+        devices.lamp.set(True)
+        sim.turntable.faults.no_reply = 5
+    assert devices.safe.ok, devices.safe.sentence()
+    assert not sim.turntable.stage.lamp

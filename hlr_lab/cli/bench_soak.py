@@ -150,11 +150,23 @@ def _run_child(command, session, world, rng, kill_at, interval_s, figures) -> tu
         err = err_file.read()
     if killed:
         return "killed", samples
+    last = err.strip().splitlines()[-1] if err.strip() else "(nothing on stderr)"
+    unsafe = _unsafe(world)
+    if unsafe:  # what the devices themselves say, whatever the run said
+        raise HlrLabError(f"soak: after acquire ended ({status}: {last}) the rig is not safe: {unsafe}")
     if status == 0:
         return "complete", samples
-    if status != 1 or "the rig is safe" not in err:
-        raise HlrLabError(f"soak: acquire ended with status {status} and the rig not confirmed safe: {err}")
+    if status != 1 or "the rig is safe" not in last:
+        raise HlrLabError(f"soak: acquire ended with status {status} and the rig not confirmed safe: {last}")
     return "stopped by a fault", samples
+
+
+def _unsafe(world: SimRig) -> str:
+    """What of the simulated rig is not in the safe state (lamp off, torque off, turntable still)."""
+    found = ["the lamp is on"] if world.turntable.stage.lamp else []
+    found += [f"servo {s.id} has torque on" for s in world.bus.servos if s.get("torque_enable")]
+    found += ["the turntable moves"] if world.turntable.stage.moving() else []
+    return ", ".join(found)
 
 
 def _inject(world: SimRig, rng: random.Random, interval_s: float, counts: Counter, stop: threading.Event):
