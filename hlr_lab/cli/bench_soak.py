@@ -211,6 +211,9 @@ def _check(figures: SoakFigures, session: Path, plan, rig: Rig, world: SimRig) -
 
 
 def _sample(pid: int, since: float) -> Sample:
+    """Raises OSError when the process has gone (a zombie has no memory left to report)."""
     status = Path(f"/proc/{pid}/status").read_text()
-    rss_kb = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:"))
-    return Sample(time.monotonic() - since, rss_kb / 1024, len(os.listdir(f"/proc/{pid}/fd")))
+    rss_kb = [int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:")]
+    if not rss_kb:
+        raise ProcessLookupError(pid)
+    return Sample(time.monotonic() - since, rss_kb[0] / 1024, len(os.listdir(f"/proc/{pid}/fd")))
