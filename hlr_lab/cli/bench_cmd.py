@@ -283,14 +283,14 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
     Example:
       hlr-lab bench soak --poses 500 --kills 10
     """
-    from hlr_lab.cli.bench_soak import soak  # builds the simulated rig: CLI only
+    from hlr_lab.cli.bench_soak import leak_window, soak  # builds the simulated rig: CLI only
 
     with console.status(f"soaking {poses} poses on the simulated rig…"):
         f = soak(
             poses=poses, kills=kills, fault_interval_s=fault_interval_s, speed_factor=speed_factor, seed=seed
         )
     child, world = f.longest_child, f.world
-    warm = child[len(child) // 5]  # after start-up: imports, connecting, the first frames
+    warm, late = leak_window(child)
     lines = [
         f"{f.poses} poses, {f.frames_planned} planned frames, {f.seconds:.0f} s, motion ×{speed_factor:g}",
         f"faults injected: {sum(f.faults.values())} ({', '.join(f'{k} {v}' for k, v in f.faults.most_common())})",
@@ -298,8 +298,8 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
         f"retries journaled {f.retries_journaled}",
         f"planned frames journaled {f.frames_journaled} of {f.frames_planned}, taken twice {f.duplicates}, "
         f"failing their checksums {f.damaged}; goals outside the limits that reached the devices {f.goals_outside}",
-        f"longest run ({child[-1].t:.0f} s): RSS {warm.rss_mb:.0f} → {child[-1].rss_mb:.0f} MB, "
-        f"descriptors {warm.fds} → {child[-1].fds} (from {warm.t:.0f} s to the end)",
+        f"longest run ({child[-1].t:.0f} s): RSS {warm.rss_mb:.0f} → {late.rss_mb:.0f} MB, "
+        f"descriptors {warm.fds} → {late.fds} (at {warm.t:.0f} s and {late.t:.0f} s)",
         f"this process (the simulated rig): RSS {world[1].rss_mb:.0f} → {world[-1].rss_mb:.0f} MB, "
         f"descriptors {world[1].fds} → {world[-1].fds} (after the first run to the end)",
     ]

@@ -40,7 +40,7 @@ from hlr_lab.session.journal import JOURNAL, read_journal
 from sim.dynamixel.servo import OVERLOAD
 from sim.rig import SimRig
 
-# fault → weight; the last two stop the run
+# fault → relative frequency; the last two stop the run
 FAULTS = {
     "servo reply dropped": 5,
     "servo reply corrupted": 5,
@@ -48,8 +48,8 @@ FAULTS = {
     "Modbus link dropped": 3,
     "camera frame cut short": 3,
     "axis knocked off during an exposure": 2,
-    "Modbus device failure": 0.6,
-    "servo overload": 0.4,
+    "Modbus device failure": 0.2,  # rarer: each ends a run, and long runs are what show a leak
+    "servo overload": 0.1,
 }
 
 
@@ -208,6 +208,12 @@ def _check(figures: SoakFigures, session: Path, plan, rig: Rig, world: SimRig) -
         not limits[g.servo_id][0] <= g.goal <= limits[g.servo_id][1] for g in world.bus.goals
     )
     figures.goals_outside += sum(not steps[0] <= m <= steps[1] for m in world.turntable.stage.moves)
+
+
+def leak_window(samples: list[Sample]) -> tuple[Sample, Sample]:
+    """Two readings of a run to compare for a leak: at 20 % of its life (past start-up: imports,
+    connecting, the first frames) and at 90 % (before it closes its files on the way out)."""
+    return samples[len(samples) // 5], samples[(9 * len(samples)) // 10]
 
 
 def _sample(pid: int, since: float) -> Sample:
