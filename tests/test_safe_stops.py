@@ -3,7 +3,7 @@ simulated devices served by this one (as a real bench is separate from the compu
 devices are read with the vendors' client libraries (dynamixel-sdk, pymodbus), never through hlr-lab.
 
 HLR_LAB_STOP_TRIALS sets how many random moments each kind of stop is tried at (2 here; 8 or more in a
-nightly-sized run: 24 stops).
+nightly-sized run: 24 stops), HLR_LAB_STOP_SEED which moments.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from sim.turntable import register_map as rm
 from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
 
 TRIALS = int(os.environ.get("HLR_LAB_STOP_TRIALS", "2"))
+SEED = os.environ.get("HLR_LAB_STOP_SEED", "0")  # other moments in another nightly run
 TORQUE_ENABLE, MOVING = 64, 122
 
 
@@ -119,7 +120,7 @@ def test_a_signal_at_a_random_moment_leaves_the_rig_safe_and_says_so(kind, long_
     """SIGTERM, SIGINT, or SIGTERM then SIGINT up to 50 ms later, at random moments of a run: exit 130,
     the journal ends with the stop and the safe state the devices confirmed, and the devices, asked
     afterwards through their vendors' libraries, have torque off, nothing moving and the lamp off."""
-    rng = random.Random(f"{kind}-stops")
+    rng = random.Random(f"{kind}-stops-{SEED}")
     with bench(long_plan, rig, tmp_path) as (world, rig_file):
         for trial in range(TRIALS):
             session = tmp_path / f"session-{trial}"
