@@ -35,7 +35,7 @@ from hlr_lab.session.space import check_room, frame_bytes
 
 log = logging.getLogger(__name__)
 LOG = "acquire.log"
-EXIT_INTERRUPTED = 130
+EXIT_INTERRUPTED = 130  # as hlr_lab.cli.main's: read there from RunStopped.exit_status
 
 
 NO_OVERRIDES = Links()

@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 
+import click
 import pytest
 import trimesh
 
@@ -211,3 +212,29 @@ def test_fit_benchmark_prints_figures(capsys):
     assert code == 0, err
     assert "M samples/s" in out
     assert "B/sample" in out
+
+
+def test_the_command_list_says_what_each_command_says_of_itself():
+    """`hlr-lab --help` lists commands from a table (so it imports none of them): the table must keep up."""
+    from hlr_lab.cli.main import COMMANDS, cli
+
+    ctx = click.Context(cli)
+    for name, (_, summary) in COMMANDS.items():
+        command = cli.get_command(ctx, name)
+        assert command.name in (name, f"{name}_cmd", name.replace("_", "-"))
+        assert command.get_short_help_str(limit=1000) == summary
+
+
+def test_help_and_a_typo_load_nothing_heavy():
+    """The numerical stack is loaded by the commands that use it, not to print help or a usage error."""
+    script = (
+        "import sys\n"
+        "from hlr_lab.cli.main import main\n"
+        "assert main(['--help']) == 0\n"
+        "assert main(['acquir']) == 2\n"
+        "heavy = sorted({'numpy', 'scipy', 'trimesh', 'pymodbus', 'dynamixel_sdk', 'cv2'} & set(sys.modules))\n"
+        "assert not heavy, heavy\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "No such command 'acquir'" in done.stderr

@@ -15,7 +15,8 @@ from rich.table import Table
 
 from hlr_lab.acquire_session import Links, acquire_session
 from hlr_lab.acquisition import Bracketing, Outcome, Step
-from hlr_lab.cli.common import console, resolve_rig, speed_factor_option
+from hlr_lab.cli.common import resolve_rig, speed_factor_option
+from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets

@@ -16,7 +16,8 @@ from hlr_lab.bench import (
     run_plan_case,
     run_throughput_case,
 )
-from hlr_lab.cli.common import console, out, speed_factor_option
+from hlr_lab.cli.common import speed_factor_option
+from hlr_lab.cli.console import console, out
 from hlr_lab.sphere import directions_with_spacing
 
 

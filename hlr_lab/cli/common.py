@@ -1,11 +1,10 @@
-"""What several commands share: the console, mesh and rig options, tables."""
+"""What several commands share: mesh and rig options, tables (the consoles: :mod:`hlr_lab.cli.console`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import click
-from rich.console import Console
 from rich.table import Table
 
 from hlr_lab.errors import InputError
@@ -13,9 +12,6 @@ from hlr_lab.mesh import ColouredMesh, load_mesh
 from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.rig import Rig, load_rig, sim_rig
 from hlr_lab.segment import Region
-
-console = Console(stderr=True, highlight=False)  # stdout stays clean for data; people read stderr
-out = Console(highlight=False)
 
 
 def mesh_options(f):

@@ -14,7 +14,8 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import console, speed_factor_option
+from hlr_lab.cli.common import speed_factor_option
+from hlr_lab.cli.console import console
 from hlr_lab.cli.sim_world import scene_file_object, sim_scene
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials

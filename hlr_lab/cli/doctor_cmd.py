@@ -8,7 +8,8 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import console, resolve_rig
+from hlr_lab.cli.common import resolve_rig
+from hlr_lab.cli.console import console
 from hlr_lab.doctor import Finding, examine_rig
 from hlr_lab.errors import RigNotReady
 

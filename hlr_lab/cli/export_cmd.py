@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options
+from hlr_lab.cli.common import load_coloured_mesh, mesh_options
+from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.export.gltf import write_gltf
 from hlr_lab.export.mitsuba import write_mitsuba

@@ -10,7 +10,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn
 from rich.table import Table
 
-from hlr_lab.cli.common import console
+from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import atomic_write_text
 from hlr_lab.formats.materials import MaterialsFile, write_materials

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import logging
 import sys
 
@@ -9,26 +10,68 @@ import click
 from rich.markup import escape
 
 from hlr_lab import __version__
-from hlr_lab.acquire_session import EXIT_INTERRUPTED, RunStopped
-from hlr_lab.cli.acquire_cmd import acquire_cmd
-from hlr_lab.cli.bench_cmd import bench
-from hlr_lab.cli.common import console
-from hlr_lab.cli.demo_cmd import demo
-from hlr_lab.cli.doctor_cmd import doctor
-from hlr_lab.cli.export_cmd import export
-from hlr_lab.cli.fit_cmd import fit
-from hlr_lab.cli.plan_cmd import plan
-from hlr_lab.cli.report_cmd import report
-from hlr_lab.cli.segment_cmd import segment
-from hlr_lab.cli.sim_cmd import sim
+from hlr_lab.cli.console import console
 from hlr_lab.errors import HlrLabError
 from hlr_lab.signals import stop_once_on_signals
 
 EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
+EXIT_INTERRUPTED = 130  # Ctrl-C or a signal, and nothing left unsafe
 EXIT_INTERNAL = 70  # a bug in hlr-lab (EX_SOFTWARE)
 
+# name → (where the command lives, its one-line summary). A command's module is imported only when the
+# command runs, so that `hlr-lab --help` and a typo answer at once instead of loading numpy, trimesh,
+# scipy and the rest; a test keeps the summaries equal to the commands' own.
+COMMANDS = {
+    "segment": ("hlr_lab.cli.segment_cmd:segment",
+                "Split the surface into same-colour regions (per-vertex and per-face labels)."),
+    "plan": ("hlr_lab.cli.plan_cmd:plan", "Plan light positions that give every region M highlight samples."),
+    "acquire": ("hlr_lab.cli.acquire_cmd:acquire_cmd",
+                "Move to every pose of the plan, capture its exposure bracket, and journal every frame."),
+    "fit": ("hlr_lab.cli.fit_cmd:fit",
+            "Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames."),
+    "report": ("hlr_lab.cli.report_cmd:report",
+               "Write an HTML report of a fitted session: materials ± standard errors, the β–Is curves with "
+               "the fitted lobes, each pose's photograph beside the fitted materials rendered back (with an "
+               "error map and PSNR), the plan and the run summary."),
+    "export": ("hlr_lab.cli.export_cmd:export", "Write the fitted materials on the mesh for other tools."),
+    "bench": ("hlr_lab.cli.bench_cmd:bench", "Benchmarks that print figures (targets in the README)."),
+    "sim": ("hlr_lab.cli.sim_cmd:sim",
+            "The simulated rig (servo bus on a pseudo-terminal, Modbus turntable and lamp relay, camera)."),
+    "doctor": ("hlr_lab.cli.doctor_cmd:doctor",
+               "Connect to every device of the rig and report identities, limits, temperatures and alarms."),
+    "demo": ("hlr_lab.cli.demo_cmd:demo",
+             "Run the whole measurement on the simulated rig and compare the result with the truth."),
+}  # fmt: skip
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+
+class LazyGroup(click.Group):
+    """A group whose commands are imported when used (see :data:`COMMANDS`)."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        module, _, attribute = COMMANDS[name][0].partition(":")
+        return getattr(importlib.import_module(module), attribute)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        limit = formatter.width - 6 - max(map(len, COMMANDS))
+        rows = [(name, _shortened(summary, limit)) for name, (_, summary) in COMMANDS.items()]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+def _shortened(text: str, limit: int) -> str:
+    if len(text) <= limit:
+        return text
+    return text[: limit - 3].rsplit(" ", 1)[0].rstrip(",;:") + "..."
+
+
+@click.group(
+    cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100}
+)
 @click.version_option(__version__, prog_name="hlr-lab")
 @click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
 @click.pass_context
@@ -44,18 +87,6 @@ def cli(ctx: click.Context, debug: bool) -> None:
       hlr-lab plan --mesh builtin:pebble --sim -o plan.json
     """
     ctx.obj = {"debug": debug}
-
-
-cli.add_command(segment)
-cli.add_command(plan)
-cli.add_command(acquire_cmd)
-cli.add_command(fit)
-cli.add_command(report)
-cli.add_command(export)
-cli.add_command(bench)
-cli.add_command(sim)
-cli.add_command(doctor)
-cli.add_command(demo)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,18 +114,15 @@ def _run(argv: list[str] | None) -> int:
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
-    except RunStopped as exc:  # a run that switched devices on: what stopped it and the rig's state
-        if debug:
-            console.print_exception()
-        colour = "yellow" if exc.exit_status == EXIT_INTERRUPTED else "bold red"
-        label = "interrupted" if exc.exit_status == EXIT_INTERRUPTED else "error"
-        console.print(f"[{colour}]{label}:[/] {escape(str(exc))}", soft_wrap=True)
-        return exc.exit_status
     except HlrLabError as exc:
         if debug:
             console.print_exception()
-        console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)  # "[lamp]" is no markup
-        return EXIT_ERROR
+        # a stopped run (hlr_lab.acquire_session.RunStopped) carries its own status: 130 when it was
+        # stopped by a signal and the rig is confirmed safe
+        status = getattr(exc, "exit_status", EXIT_ERROR)
+        label = "[yellow]interrupted:[/]" if status == EXIT_INTERRUPTED else "[bold red]error:[/]"
+        console.print(f"{label} {escape(str(exc))}", soft_wrap=True)  # "[lamp]" is no markup
+        return status
     except Exception as exc:  # the last line of defence: a bug must still end in one clear line
         if debug:
             console.print_exception()

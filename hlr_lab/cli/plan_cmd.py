@@ -8,7 +8,8 @@ import click
 import numpy as np
 from rich.table import Table
 
-from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options, output_option, resolve_rig, swatch
+from hlr_lab.cli.common import load_coloured_mesh, mesh_options, output_option, resolve_rig, swatch
+from hlr_lab.cli.console import console
 from hlr_lab.cli.segment_cmd import segmentation_options
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import build_plan, write_plan

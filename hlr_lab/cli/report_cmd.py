@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 from rich.markup import escape
 
-from hlr_lab.cli.common import console
+from hlr_lab.cli.console import console
 from hlr_lab.reflectance.session_fit import open_session
 from hlr_lab.report.build import build_report, write_report
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from hlr_lab.cli.common import console, load_coloured_mesh, mesh_options, output_option, region_table
+from hlr_lab.cli.common import load_coloured_mesh, mesh_options, output_option, region_table
+from hlr_lab.cli.console import console
 from hlr_lab.formats.regions import write_regions
 from hlr_lab.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
 from hlr_lab.segment import segment as segment_mesh

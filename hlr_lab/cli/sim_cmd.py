@@ -8,7 +8,8 @@ import threading
 
 import click
 
-from hlr_lab.cli.common import console, speed_factor_option
+from hlr_lab.cli.common import speed_factor_option
+from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.rig import sim_rig
 
