@@ -34,8 +34,20 @@ class Camera:
         object.__setattr__(self, "_dist5", d)
 
     @classmethod
-    def look_at(cls, position, target, *, matrix, width: int, height: int, distortion=(), up=(0.0, 0.0, 1.0)):
-        """A camera at ``position`` looking at ``target`` with world ``up`` pointing up in the image."""
+    def look_at(
+        cls,
+        position,
+        target,
+        *,
+        matrix,
+        width: int,
+        height: int,
+        distortion=(),
+        up=(0.0, 0.0, 1.0),
+        roll_deg=0.0,
+    ):
+        """A camera at ``position`` looking at ``target`` with world ``up`` pointing up in the image, then
+        turned ``roll_deg`` about its optical axis (right-handed about +z: x → cos·x + sin·y)."""
         position, target, up = (np.asarray(a, dtype=np.float64) for a in (position, target, up))
         z = target - position
         z /= np.linalg.norm(z)
@@ -44,7 +56,8 @@ class Camera:
             raise ValueError("the viewing direction is parallel to 'up'; choose another up vector")
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
-        rotation = np.stack([x, y, z])
+        c, s = np.cos(np.radians(roll_deg)), np.sin(np.radians(roll_deg))
+        rotation = np.stack([c * x + s * y, c * y - s * x, z])
         return cls(
             np.asarray(matrix, float),
             np.asarray(distortion, float),

@@ -1,8 +1,11 @@
 """Kinematics between what plans speak (light positions, turntable degrees) and what devices move
 (servo ticks, stage steps), from the rig file.
 
-Gantry (DESIGN §3): the lamp at ``centre + R·(cos el cos az, cos el sin az, sin el)``; azimuth and
-elevation servos read ``zero + direction · angle · ticks_per_rev / 360`` ticks.
+Gantry (DESIGN §3): the lamp at ``centre + R·F·(cos el cos az, cos el sin az, sin el)``; azimuth and
+elevation servos read ``zero + direction · angle · ticks_per_rev / 360`` ticks. F is the gantry's own
+frame (:func:`gantry_frame`): its azimuth axis ``a`` (the rig file's ``gantry.azimuth_axis``, world +z
+on a rig built to its drawing), azimuth 0 along world +x projected onto the plane perpendicular to
+``a``, elevation measured from that plane. With ``a`` = +z, F is the identity.
 """
 
 from __future__ import annotations
@@ -14,6 +17,18 @@ import numpy as np
 from hlr_lab.sphere import azimuth_elevation, direction
 
 
+def gantry_frame(azimuth_axis) -> np.ndarray:
+    """(3, 3) world ← gantry rotation: columns are the gantry's azimuth-0 direction, the azimuth-90°
+    direction and its azimuth axis (unit), all in world coordinates."""
+    a = np.asarray(azimuth_axis, float)
+    a = a / np.linalg.norm(a)
+    x = np.array([1.0, 0.0, 0.0]) - a[0] * a  # world +x projected onto the plane perpendicular to a
+    if np.linalg.norm(x) < 1e-9:
+        raise ValueError("the gantry's azimuth axis lies along world x: azimuth 0 is undefined")
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(a, x), a], axis=1)
+
+
 @dataclass(frozen=True, eq=False)
 class GantryKinematics:
     centre: np.ndarray  # (3,) m
@@ -21,6 +36,20 @@ class GantryKinematics:
     zero_ticks: tuple[int, int]  # azimuth, elevation servo readings at 0°
     directions: tuple[int, int] = (1, 1)  # +1: ticks grow with the angle
     ticks_per_rev: int = 4096
+    azimuth_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)  # world direction of the azimuth axis
+
+    @property
+    def frame(self) -> np.ndarray:
+        """(3, 3) world ← gantry rotation (:func:`gantry_frame`)."""
+        return gantry_frame(self.azimuth_axis)
+
+    def unit_direction(self, azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+        """Gantry angles (radians, any shape) → (…, 3) world unit vectors from the centre to the lamp."""
+        return direction(azimuth, elevation) @ self.frame.T
+
+    def direction_angles(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(…, 3) world unit vectors from the centre → gantry azimuth and elevation, radians."""
+        return azimuth_elevation(np.asarray(d, float) @ self.frame)
 
     def ticks_for(self, azimuth_deg: float, elevation_deg: float) -> tuple[int, int]:
         """Servo goals for gantry angles (degrees), rounded to the nearest tick."""
@@ -61,12 +90,12 @@ class GantryKinematics:
     def light_position(self, ticks: tuple[int, int]) -> np.ndarray:
         """(3,) world position of the lamp for servo readings — the *measured* light of a frame."""
         az, el = np.radians(self.angles_for(ticks))
-        return np.asarray(self.centre) + self.arm_radius * direction(az, el)
+        return np.asarray(self.centre) + self.arm_radius * self.unit_direction(az, el)
 
     def angles_of(self, position: np.ndarray) -> tuple[float, float]:
         """Gantry angles (degrees) that put the lamp at a world position on its sphere."""
         d = np.asarray(position, float) - np.asarray(self.centre)
-        az, el = azimuth_elevation(d / np.linalg.norm(d))
+        az, el = self.direction_angles(d / np.linalg.norm(d))
         return float(np.degrees(az)), float(np.degrees(el))
 
 

@@ -15,7 +15,6 @@ import numpy as np
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.rig import Rig
-from hlr_lab.sphere import direction
 
 # The plan stores light positions rounded to 1 µm and angles to 1e-4°, whose arc on a 0.3 m arm is
 # 0.5 µm; a 1 mm disagreement between the two can only mean another centre or arm radius.
@@ -78,7 +77,8 @@ def _pose_problems(turntable_deg: float, light, rig: Rig) -> list[tuple[str, str
             problems.append(
                 (f"light.{axis}_deg", f"maps to servo tick {tick}, outside the servo limits [{lo}, {hi}]")
             )
-    on_sphere = g.centre + g.arm_radius * direction(*np.radians([light.azimuth_deg, light.elevation_deg]))
+    angles = np.radians([light.azimuth_deg, light.elevation_deg])
+    on_sphere = g.centre + g.arm_radius * g.kinematics.unit_direction(*angles)
     miss = float(np.linalg.norm(on_sphere - np.asarray(light.position_m)))
     if miss > SPHERE_TOLERANCE_M:
         problems.append(

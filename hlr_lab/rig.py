@@ -61,6 +61,8 @@ class _CameraSection(_Strict):
     position_m: Vec3
     look_at_m: Vec3
     up: Vec3 = [0.0, 0.0, 1.0]
+    # rotation of the camera about its optical axis after look_at_m/up, right-handed about its +z
+    roll_deg: float = Field(default=0.0, ge=-180, le=180)
     exposure_bracket_s: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=1)] = [0.01]
     # how frames are taken: a frame endpoint "host:port" (drivers.net_camera), or [camera.capture] for a
     # camera driven through OpenCV; the simulated rig supplies its own endpoint
@@ -88,6 +90,10 @@ class _GantrySection(_Strict):
     zero_ticks: Annotated[list[int], _PAIR] = [2048, 1024]
     directions: Annotated[list[Literal[-1, 1]], _PAIR] = [1, 1]
     ticks_per_rev: int = Field(default=4096, gt=0)
+    # direction of the azimuth axis in the world frame (calibrated; +z on a rig built to its drawing):
+    # azimuth 0 is world +x projected onto the plane perpendicular to it, elevation is measured from
+    # that plane (hlr_lab.kinematics)
+    azimuth_axis: Vec3 = [0.0, 0.0, 1.0]
     # the link (DESIGN §6): a device path or a pyserial URL; the simulated rig supplies its own pty
     port: str | None = None
     baudrate: int = Field(default=1_000_000, gt=0)
@@ -108,6 +114,9 @@ class _GantrySection(_Strict):
                 raise ValueError(f"{name}: the lower limit {lo} must be below the upper {hi}")
         if not -90 <= self.elevation_limits_deg[0] < self.elevation_limits_deg[1] <= 90:
             raise ValueError("elevation_limits_deg must lie within [-90, 90]")
+        a = np.asarray(self.azimuth_axis, float)
+        if not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-6 or np.linalg.norm(a[1:]) < 1e-6:
+            raise ValueError("azimuth_axis must be a direction (not zero, not along x), e.g. [0, 0, 1]")
         if self.servo_ids[0] == self.servo_ids[1]:
             raise ValueError("servo_ids: azimuth and elevation need two different servo IDs")
         self._limits_fit_the_servos()
@@ -120,6 +129,7 @@ class _GantrySection(_Strict):
             tuple(self.zero_ticks),
             tuple(self.directions),
             self.ticks_per_rev,
+            tuple(self.azimuth_axis),
         )
 
     def _limits_fit_the_servos(self) -> None:
@@ -252,6 +262,7 @@ def _build(f: RigFile, source: str) -> Rig:
         height=c.height,
         distortion=c.distortion,
         up=c.up,
+        roll_deg=c.roll_deg,
     )
     gantry = Gantry(
         np.array(g.centre_m),

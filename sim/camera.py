@@ -22,7 +22,9 @@ if TYPE_CHECKING:  # the renderer imports Mitsuba: only when a camera is really 
 
 @dataclass(frozen=True)
 class GantryGeometry:
-    """The physical truth of the light gantry: arm about ``centre``, servo ticks → angles."""
+    """The physical truth of the light gantry: arm about ``centre``, servo ticks → angles, and the
+    direction of the azimuth axis (azimuth 0 along world +x projected onto the plane perpendicular to
+    it, elevation from that plane; +z on a gantry built to its drawing)."""
 
     centre: tuple[float, float, float] = (0.0, 0.0, 0.07)
     arm_radius: float = 0.30
@@ -30,18 +32,28 @@ class GantryGeometry:
     elevation_servo: int = 2
     zero_ticks: tuple[int, int] = (2048, 1024)  # ticks at azimuth 0° and elevation 0°
     ticks_per_rev: int = 4096
+    directions: tuple[int, int] = (1, 1)  # +1: ticks grow with the angle
+    azimuth_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     def light_position(self, azimuth_ticks: int, elevation_ticks: int) -> np.ndarray:
-        az = 2 * np.pi * (azimuth_ticks - self.zero_ticks[0]) / self.ticks_per_rev
-        el = 2 * np.pi * (elevation_ticks - self.zero_ticks[1]) / self.ticks_per_rev
-        return np.asarray(self.centre) + self.arm_radius * np.array(
-            [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
-        )
+        per_rad = self.ticks_per_rev / (2 * np.pi)
+        az = (azimuth_ticks - self.zero_ticks[0]) / (self.directions[0] * per_rad)
+        el = (elevation_ticks - self.zero_ticks[1]) / (self.directions[1] * per_rad)
+        up = np.asarray(self.azimuth_axis, float) / np.linalg.norm(self.azimuth_axis)
+        ahead = np.array([1.0, 0.0, 0.0]) - up[0] * up  # azimuth 0: world x, in the plane of the arm
+        ahead /= np.linalg.norm(ahead)
+        side = np.cross(up, ahead)
+        arm = np.cos(el) * (np.cos(az) * ahead + np.sin(az) * side) + np.sin(el) * up
+        return np.asarray(self.centre) + self.arm_radius * arm
 
 
 @dataclass(frozen=True)
 class StageGeometry:
     steps_per_degree: float = 100.0
+    zero_steps: int = 0  # the stage's reading where the plate is at 0°
+
+    def degrees(self, steps: float) -> float:
+        return (steps - self.zero_steps) / self.steps_per_degree
 
 
 @dataclass
@@ -64,7 +76,7 @@ class SimCamera:
         return {
             "light_position_m": g.light_position(az, el).tolist(),
             "servo_ticks": [az, el],
-            "turntable_deg": float(stage.position() / self.stage.steps_per_degree),
+            "turntable_deg": float(self.stage.degrees(stage.position())),
             "lamp": bool(stage.lamp),
         }
 

@@ -521,3 +521,37 @@ def test_the_simulated_camera_outlives_a_client_that_leaves_mid_frame(plan_file)
             assert camera.capture().pixels.shape == (480, 640, 3)
         finally:
             camera.close()
+
+
+def _lamp_believed_and_true(session, rig) -> np.ndarray:
+    """Per frame, how far the lamp the simulator rendered was from where ``rig`` puts it (m)."""
+    misses = []
+    for e in (e for e in read_journal(session / JOURNAL) if e["event"] == "frame"):
+        sidecar = json.loads((session / e["sidecar"]).read_text())
+        believed = rig.gantry.kinematics.light_position(tuple(sidecar["measured"]["gantry_ticks"]))
+        misses.append(np.linalg.norm(believed - np.asarray(sidecar["camera"]["light_position_m"])))
+    return np.array(misses)
+
+
+def test_the_simulated_world_can_be_a_rig_other_than_the_one_believed(builtin_plan, rig, tmp_path, capsys):
+    """--true-rig builds the world from another rig file: hlr-lab, believing the drawing, puts the lamp
+    millimetres from where it really was (zero ticks 14/17 off, arm +3 mm, axis tilted); without it, and
+    with --rig naming the true file beside --sim, belief and world agree."""
+    from hlr_lab.rig import load_rig
+
+    common = ["acquire", "--plan", str(builtin_plan), "--sim", "--speed-factor", "40"]
+    assert main([*common, "--true-rig", "builtin:bench-offsets", "--out", str(tmp_path / "off")]) == 0
+    assert _lamp_believed_and_true(tmp_path / "off", rig).min() > 5e-3
+    assert main([*common, "--out", str(tmp_path / "drawn")]) == 0
+    assert _lamp_believed_and_true(tmp_path / "drawn", rig).max() < 1e-9
+    true_file = tmp_path / "bench.toml"
+    true_file.write_text(
+        (Path(__file__).resolve().parents[1] / "sim" / "data" / "bench-offsets.toml").read_text()
+    )
+    plan = tmp_path / "bench-plan.json"  # a plan for that rig: the drawing's plan is 3 mm off its sphere
+    assert main(["plan", "--mesh", "builtin:pebble", "--rig", str(true_file), "-o", str(plan)]) in (0, 3)
+    known = ["acquire", "--plan", str(plan), "--sim", "--rig", str(true_file), "--speed-factor", "40"]
+    assert main([*known, "--out", str(tmp_path / "known")]) == 0
+    assert _lamp_believed_and_true(tmp_path / "known", load_rig(true_file)).max() < 1e-9
+    assert main([*common[:4], "--true-rig", "builtin:no-such-rig", "--out", str(tmp_path / "x")]) == 1
+    assert "no such built-in true rig; known: builtin:bench-offsets" in capsys.readouterr().err

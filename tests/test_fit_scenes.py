@@ -19,7 +19,7 @@ import trimesh
 from drivers.net_camera import NetworkCamera
 from hlr_lab.acquisition import Instruments, acquire
 from hlr_lab.cli.main import main
-from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
+from hlr_lab.cli.sim_world import sim_scene, world_geometry
 from hlr_lab.devices import open_devices
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import build_plan, write_plan
@@ -120,7 +120,7 @@ def measure(
     vertices = mesh.transformed(to_tt).vertices
     with contextlib.ExitStack() as stack:
         world = stack.enter_context(
-            SimRig(scene=scene, camera=sim_camera_spec(rig), sensor=sensor, speed_factor=40.0, spp=4)
+            SimRig(scene=scene, sensor=sensor, speed_factor=40.0, spp=4, **world_geometry(rig))
         )
         e = world.endpoints
         devices = stack.enter_context(open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus))

@@ -60,3 +60,62 @@ def test_turntable_round_trip():
     assert k.steps_for(90.0) == 8750
     for deg in np.random.default_rng(3).uniform(-180, 180, 100):
         assert abs(k.degrees_for(k.steps_for(deg)) - deg) <= 0.5 / 100.0 + 1e-12
+
+
+def test_a_tilted_azimuth_axis_carries_the_whole_gantry_with_it():
+    """Azimuth axis tilted 5° toward +x: straight up (elevation 90°) is along the axis, azimuth 0 lies in
+    the plane of world x and the axis, every angle survives the round trip through a position."""
+    tilt = np.radians(5.0)
+    axis = (np.sin(tilt), 0.0, np.cos(tilt))
+    k = GantryKinematics(np.array([0.0, 0.0, 0.07]), 0.3, (2048, 1024), azimuth_axis=axis)
+    np.testing.assert_allclose(k.frame.T @ k.frame, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(k.unit_direction(0.0, np.pi / 2), axis, atol=1e-12)
+    zero = k.unit_direction(0.0, 0.0)
+    assert abs(zero @ axis) < 1e-12
+    assert abs(zero[1]) < 1e-12
+    assert zero[0] > 0.99
+    rng = np.random.default_rng(3)
+    az, el = rng.uniform(-np.pi, np.pi, 200), rng.uniform(-0.2, 1.4, 200)
+    back = k.direction_angles(k.unit_direction(az, el))
+    np.testing.assert_allclose(back, (az, el), atol=1e-9)
+    upright = GantryKinematics(np.zeros(3), 0.3, (2048, 1024))
+    np.testing.assert_allclose(upright.frame, np.eye(3))
+
+
+def test_a_true_rig_file_is_read_alike_by_hlr_lab_and_by_the_simulator(tmp_path):
+    """The simulator reads a true rig file in its own words (sim.true_rig); on a rig with every offset
+    the calibration will look for (tilted axis, zero ticks, arm, camera roll and pose, turntable zero)
+    both readings put the lamp, the camera and the turntable in the same place."""
+    from importlib import resources
+
+    from hlr_lab.rig import load_rig
+    from sim.true_rig import load_true_rig
+
+    with resources.as_file(resources.files("sim.data") / "bench-offsets.toml") as path:
+        believed = load_rig(path)
+    truth = load_true_rig("builtin:bench-offsets")
+    assert truth.gantry.azimuth_axis != (0.0, 0.0, 1.0)
+    ticks = np.random.default_rng(4).integers(0, 4096, size=(100, 2))
+    for t in ticks:
+        np.testing.assert_allclose(
+            believed.gantry.kinematics.light_position(tuple(t)), truth.gantry.light_position(*t), atol=1e-12
+        )
+    np.testing.assert_allclose(believed.camera.rotation, truth.camera.rotation, atol=1e-12)
+    np.testing.assert_allclose(believed.camera.translation, truth.camera.translation, atol=1e-12)
+    np.testing.assert_allclose(believed.camera.matrix, truth.camera.matrix)
+    assert believed.turntable_kinematics.degrees_for(1234) == pytest.approx(truth.stage.degrees(1234))
+
+
+def test_camera_roll_turns_the_image_about_the_optical_axis():
+    """roll_deg is right-handed about the camera's +z: the camera's axes turn by the angle, i.e. its
+    rotation is Rᵀ(θ)·R₀ with R(θ) OpenCV's Rodrigues rotation of θ about z."""
+    import cv2
+
+    from hlr_lab.camera import Camera
+
+    common = {"matrix": np.diag([1000.0, 1000.0, 1.0]), "width": 640, "height": 480}
+    plain = Camera.look_at((0.0, -0.6, 0.3), (0.0, 0.0, 0.07), **common)
+    rolled = Camera.look_at((0.0, -0.6, 0.3), (0.0, 0.0, 0.07), roll_deg=30.0, **common)
+    turn, _ = cv2.Rodrigues(np.array([0.0, 0.0, np.radians(30.0)]))
+    np.testing.assert_allclose(rolled.rotation, turn.T @ plain.rotation, atol=1e-12)
+    np.testing.assert_allclose(rolled.centre, plain.centre, atol=1e-12)

@@ -22,7 +22,7 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from pymodbus.client import ModbusTcpClient
 
 from hlr_lab.cli.bench_acquire import repeated_poses
-from hlr_lab.cli.sim_world import rig_file_text, sim_camera_spec, sim_scene
+from hlr_lab.cli.sim_world import rig_file_text, sim_scene, world_geometry
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.session.journal import JOURNAL, read_journal
 from sim.rig import SimRig
@@ -47,7 +47,7 @@ def bench(plan_path: Path, rig, folder: Path, speed_factor: float = 4.0):
     """The simulated devices of ``plan_path``'s world, and a rig file naming their endpoints: (world, rig
     file)."""
     scene = sim_scene(read_plan(plan_path), plan_path, None)
-    with SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor, spp=2) as world:
+    with SimRig(scene=scene, speed_factor=speed_factor, spp=2, **world_geometry(rig)) as world:
         e = world.endpoints
         rig_file = folder / "rig.toml"
         rig_file.write_text(rig_file_text(e.dynamixel, e.modbus, e.camera, reply_timeout_s=5.0))

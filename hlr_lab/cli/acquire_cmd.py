@@ -15,7 +15,7 @@ from rich.table import Table
 
 from hlr_lab.acquire_session import Links, acquire_session
 from hlr_lab.acquisition import Bracketing, Outcome, Step
-from hlr_lab.cli.common import resolve_rig, speed_factor_option
+from hlr_lab.cli.common import believed_rig, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
@@ -33,8 +33,12 @@ from hlr_lab.silhouette import object_window
     "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
 )
 @click.option(
-    "--sim", is_flag=True, help="Run on the simulated rig (servos, turntable, lamp, Mitsuba camera)."
+    "--sim",
+    is_flag=True,
+    help="Run on the simulated rig (servos, turntable, lamp, Mitsuba camera); with --rig, a simulated "
+    "world built as that rig file says, reached through the simulator's own links.",
 )
+@true_rig_option
 @click.option(
     "--scene",
     "scene_path",
@@ -56,7 +60,9 @@ from hlr_lab.silhouette import object_window
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
-def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run, force, speed_factor) -> None:
+def acquire_cmd(
+    plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames, dry_run, force, speed_factor
+):
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
@@ -72,10 +78,12 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
       hlr-lab acquire --plan plan.json --sim
       hlr-lab acquire --plan plan.json --rig rig.toml --dry-run
       hlr-lab acquire --plan plan.json --rig rig.toml --out sessions/bunny-1
+      hlr-lab acquire --plan plan.json --sim --true-rig builtin:bench-offsets   # a rig off its drawing
     """
-    if scene_path is not None and not sim:
-        raise InputError("--scene describes the simulated world: use it with --sim", field="--scene")
-    rig = resolve_rig(rig_path, sim)
+    for option, given in (("--scene", scene_path), ("--true-rig", true_rig)):
+        if given is not None and not sim:
+            raise InputError("describes the simulated world: use it with --sim", field=option)
+    rig = believed_rig(rig_path, sim)
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
     console.print(_motion_table(plan, targets))
@@ -91,7 +99,7 @@ def acquire_cmd(plan_path, rig_path, sim, scene_path, out, dark_frames, dry_run,
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
     object_windows = _object_windows(rig, plan, plan_path)
     with contextlib.ExitStack() as stack:  # the simulated world, when there is one, outlives the run
-        links = _links(stack, rig, plan, plan_path, scene_path, sim, speed_factor)
+        links = _links(stack, rig, plan, plan_path, scene_path, sim, true_rig, speed_factor)
         with _progress_bar(len(targets)) as show:
             outcome = acquire_session(
                 plan,
@@ -153,15 +161,19 @@ def _summary_table(outcome: Outcome, session: Path) -> Table:
     return t
 
 
-def _links(stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, speed_factor) -> Links:
+def _links(
+    stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, true_rig, speed_factor
+) -> Links:
     if not sim:
         return Links()  # every device as the rig file says
     # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
+    from hlr_lab.cli.sim_world import sim_scene, world_geometry
     from sim.rig import SimRig
 
     scene = sim_scene(plan, plan_path, scene_path)
-    world = stack.enter_context(SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor))
+    world = stack.enter_context(
+        SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig, true_rig))
+    )
     e = world.endpoints
     return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera)
 

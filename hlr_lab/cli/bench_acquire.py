@@ -23,7 +23,7 @@ from pathlib import Path
 from drivers.net_camera import NetworkCamera
 from drivers.protocols import Camera, Positioner, RawFrame
 from hlr_lab.acquisition import Instruments, Step, acquire
-from hlr_lab.cli.sim_world import sim_camera_spec, sim_scene
+from hlr_lab.cli.sim_world import sim_scene, world_geometry
 from hlr_lab.devices import open_devices
 from hlr_lab.formats.plan import PlanFile, build_plan, write_plan
 from hlr_lab.mesh import file_sha256
@@ -149,7 +149,7 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
     figures = AcquireFigures()
     scene = sim_scene(plan, Path.cwd(), None)  # a built-in object: no file is read
     with (
-        SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor) as world,
+        SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig)) as world,
         tempfile.TemporaryDirectory(prefix="hlr-bench-acquire-") as scratch,
     ):
         session = Path(scratch) if keep is None else keep / "session"

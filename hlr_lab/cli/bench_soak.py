@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hlr_lab.cli.bench_acquire import builtin_plan, repeated_poses
-from hlr_lab.cli.sim_world import rig_file_text, sim_camera_spec, sim_scene
+from hlr_lab.cli.sim_world import rig_file_text, sim_scene, world_geometry
 from hlr_lab.errors import HlrLabError
 from hlr_lab.formats.plan import write_plan
 from hlr_lab.rig import Rig, sim_rig
@@ -88,7 +88,7 @@ def soak(*, poses: int, kills: int, fault_interval_s: float, speed_factor: float
         write_plan(plan_path, plan)
         scene = sim_scene(plan, plan_path, None)
         started = time.monotonic()
-        with SimRig(scene=scene, camera=sim_camera_spec(rig), speed_factor=speed_factor, spp=1) as world:
+        with SimRig(scene=scene, speed_factor=speed_factor, spp=1, **world_geometry(rig)) as world:
             e = world.endpoints
             rig_path = Path(scratch) / "rig.toml"
             rig_path.write_text(rig_file_text(e.dynamixel, e.modbus, e.camera))

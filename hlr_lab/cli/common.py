@@ -59,6 +59,26 @@ def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:
     return sim_rig() if use_sim else load_rig(rig_path)
 
 
+def believed_rig(rig_path: Path | None, use_sim: bool) -> Rig:
+    """The rig hlr-lab works with: the file given, else with ``use_sim`` the built-in simulated rig.
+    Unlike :func:`resolve_rig`, a rig file may come with ``--sim``: the simulated world then takes the
+    file's geometry (or ``--true-rig``'s), and its endpoints replace the file's links."""
+    if rig_path is not None:
+        return load_rig(rig_path)
+    return resolve_rig(None, use_sim)
+
+
+def true_rig_option(f):
+    """``--true-rig`` for commands that run the simulated world."""
+    return click.option(
+        "--true-rig",
+        "true_rig",
+        metavar="FILE|builtin:NAME",
+        help="With --sim: build the simulated world from this rig file (the rig as it really is, e.g. "
+        "builtin:bench-offsets), while hlr-lab keeps believing --rig (or the built-in simulated rig).",
+    )(f)
+
+
 def swatch(colour: tuple[int, int, int]) -> str:
     r, g, b = colour
     return f"[on rgb({r},{g},{b})]    [/] {r:3d},{g:3d},{b:3d}"

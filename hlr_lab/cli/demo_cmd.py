@@ -14,7 +14,7 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import speed_factor_option
+from hlr_lab.cli.common import speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 from hlr_lab.cli.sim_world import scene_file_object, sim_scene
 from hlr_lab.errors import InputError
@@ -42,8 +42,9 @@ EXIT_UNCOVERED = 3  # plan's status when some region cannot be covered: the demo
     show_default=True,
     help="Folder for everything the demo writes (a new one: the demo never overwrites).",
 )
+@true_rig_option
 @speed_factor_option("Simulated", default=20.0)
-def demo(scene_path: Path | None, out: Path, speed_factor: float) -> None:
+def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor: float) -> None:
     """Run the whole measurement on the simulated rig and compare the result with the truth.
 
     \b
@@ -54,6 +55,7 @@ def demo(scene_path: Path | None, out: Path, speed_factor: float) -> None:
     Examples:
       hlr-lab demo
       hlr-lab demo --scene my-object/scene.toml --out demo-2
+      hlr-lab demo --true-rig builtin:bench-offsets --out demo-3   # the rig is not its drawing
     """
     if out.exists() and any(out.iterdir()):
         raise InputError("the folder is not empty; give a new --out", path=out, field="--out")
@@ -64,8 +66,8 @@ def demo(scene_path: Path | None, out: Path, speed_factor: float) -> None:
     run("segment", "--mesh", mesh, "-o", regions)
     if run("plan", "--mesh", mesh, "--regions", regions, "--sim", "-o", plan_path) == EXIT_UNCOVERED:
         console.print("[yellow]some regions cannot be covered; the demo goes on with the others[/]")
-    scene = ["--scene", scene_path] if scene_path else []
-    run("acquire", "--plan", plan_path, "--sim", *scene, "--out", session, "--speed-factor", speed_factor)
+    world = (["--scene", scene_path] if scene_path else []) + (["--true-rig", true_rig] if true_rig else [])
+    run("acquire", "--plan", plan_path, "--sim", *world, "--out", session, "--speed-factor", speed_factor)
     run("fit", session)
     run("report", session)
     exports = out / "export"

@@ -8,7 +8,7 @@ import threading
 
 import click
 
-from hlr_lab.cli.common import speed_factor_option
+from hlr_lab.cli.common import speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.rig import sim_rig
@@ -27,8 +27,9 @@ def sim() -> None:
     help="Also serve a camera photographing this scene: a scene file (format in sim/render/scene.py), "
     "builtin:cylinder (the paper's 4.2) or builtin:lumpy (four materials).",
 )
+@true_rig_option
 @speed_factor_option("Simulated")
-def serve(scene_spec, speed_factor) -> int:
+def serve(scene_spec, true_rig, speed_factor) -> int:
     """Run the simulated devices until interrupted; print their endpoints as one JSON line.
 
     Any Dynamixel or Modbus tool can talk to the servo bus and the turntable. With --scene, a camera
@@ -39,24 +40,25 @@ def serve(scene_spec, speed_factor) -> int:
       hlr-lab sim serve
       {"dynamixel": "/dev/pts/7", "modbus": "127.0.0.1:40123", "servo_ids": [1, 2], ...}
       hlr-lab sim serve --scene builtin:cylinder
+      hlr-lab sim serve --scene builtin:lumpy --true-rig builtin:bench-offsets
     """
     # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import sim_camera_spec
+    from hlr_lab.cli.sim_world import world_geometry
     from sim.render.scene import SceneError, builtin_scene, load_scene
     from sim.rig import SimRig
 
-    scene = camera = None
+    scene = None
     if scene_spec:
         try:
             scene = builtin_scene(scene_spec) if scene_spec.startswith("builtin:") else load_scene(scene_spec)
         except SceneError as exc:
             raise InputError(str(exc), field="--scene") from exc
-        camera = sim_camera_spec(sim_rig())
+    geometry = world_geometry(sim_rig(), true_rig)  # the camera is made only with a scene
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     with console.status("starting the simulated rig…"):
-        rig = SimRig(speed_factor=speed_factor, scene=scene, camera=camera)
+        rig = SimRig(speed_factor=speed_factor, scene=scene, **geometry)
     with rig:
         click.echo(json.dumps(rig.endpoints.as_dict()), nl=True)
         console.print("simulated rig running; Ctrl-C stops it")

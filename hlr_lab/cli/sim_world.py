@@ -20,15 +20,34 @@ from hlr_lab.formats.plan import PlanFile
 from hlr_lab.mesh import file_sha256
 from hlr_lab.planned_object import face_regions, load_planned_mesh, mesh_to_turntable, palette, region_ids
 from hlr_lab.rig import SIM_RIG, Rig
-from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
 
 DEFAULT_RS, DEFAULT_N, RD_SCALE = (0.25, 0.25, 0.25), 40.0, 0.8  # Rd + Rs ≤ 1: energy is not created
 
 
-def sim_camera_spec(rig: Rig) -> CameraSpec:
-    c = rig.camera
-    return CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
+def world_geometry(rig: Rig, true_rig: str | Path | None = None) -> dict:
+    """The simulated world's camera, gantry, turntable and servo ids, as :class:`sim.rig.SimRig` takes
+    them: from ``true_rig`` (a rig file or ``builtin:NAME``: the world as it really is, while hlr-lab
+    keeps believing ``rig``), else from ``rig``'s own file (the world is as hlr-lab believes). Either way
+    the simulator reads the file itself (:mod:`sim.true_rig`)."""
+    from sim.true_rig import TrueRigError, load_true_rig
+
+    try:
+        if true_rig is not None:
+            world = load_true_rig(true_rig)
+        elif rig.source == "builtin:sim":
+            with resources.as_file(resources.files("hlr_lab.data") / SIM_RIG) as path:
+                world = load_true_rig(path)
+        else:
+            world = load_true_rig(rig.source)
+    except TrueRigError as exc:
+        raise InputError(str(exc), field="--true-rig" if true_rig is not None else "--rig") from exc
+    return {
+        "camera": world.camera,
+        "gantry": world.gantry,
+        "stage": world.stage,
+        "servo_ids": world.servo_ids,
+    }
 
 
 def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> SceneSpec:

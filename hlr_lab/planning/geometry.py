@@ -11,7 +11,6 @@ from hlr_lab.camera import Camera
 from hlr_lab.errors import InputError, PlanningError
 from hlr_lab.mesh import ColouredMesh
 from hlr_lab.rig import Gantry
-from hlr_lab.sphere import azimuth_elevation
 
 _UP_AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -58,8 +57,8 @@ class LightSphere:
     def reachable(self, positions: np.ndarray, camera: Camera) -> np.ndarray:
         """(N,) bool for world positions (N, 3) on S: joint limits, camera keep-out cone, above the table."""
         d = (positions - self.centre) / self.radius
-        az, el = azimuth_elevation(d)
         g = self.gantry
+        az, el = g.kinematics.direction_angles(d)
         to_cam = camera.centre - self.centre
         to_cam /= np.linalg.norm(to_cam)
         return (

@@ -29,7 +29,7 @@ from hlr_lab.planning.samples import SurfaceSamples, surface_samples, vertex_sam
 from hlr_lab.raycast import RayCaster, facing
 from hlr_lab.rig import Rig
 from hlr_lab.segment import Segmentation
-from hlr_lab.sphere import azimuth_elevation, directions_with_spacing, rotation_z
+from hlr_lab.sphere import directions_with_spacing, rotation_z
 
 CountUnit = Literal["pixels", "vertices"]
 Criterion = Literal["capped", "plain"]
@@ -291,7 +291,7 @@ class _Planner:
         for i in order:
             c = selection.choices[i]
             d = self.cands.fine[self._refined[c.view, c.candidate][0]]
-            az, el = azimuth_elevation(d)
+            az, el = self.rig.gantry.kinematics.direction_angles(d)
             world_from_tt = rotation_z(np.radians(self.views[c.view]))[:3, :3]
             lights.append(
                 PlannedLight(

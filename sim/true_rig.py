@@ -1,0 +1,108 @@
+"""The world as it really is: a rig file read by the simulator itself.
+
+hlr-lab believes one rig file (the drawing, or its calibration); the simulated world can be built from
+another, the *true* rig (``--true-rig``), so that calibration has something to find. The simulator
+reads it in its own words — its own TOML reading, camera pose and gantry kinematics, no code shared
+with hlr-lab — so that it stays an independent truth. Only what shapes the world is read: the
+camera's intrinsics and pose, the gantry's geometry and tick mapping, the turntable's step mapping.
+
+Built-in true rigs live in ``sim/data`` (``builtin:bench-offsets``).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from sim.camera import GantryGeometry, StageGeometry
+from sim.render.camera import CameraSpec
+
+BUILTIN = "builtin:"
+
+
+class TrueRigError(ValueError):
+    """A true rig file that cannot be used; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class TrueRig:
+    camera: CameraSpec
+    gantry: GantryGeometry
+    stage: StageGeometry
+    servo_ids: tuple[int, int]  # azimuth, elevation
+    source: str
+
+
+def builtin_true_rigs() -> list[str]:
+    return sorted(f"{BUILTIN}{p.name.removesuffix('.toml')}" for p in resources.files("sim.data").iterdir()
+                  if p.name.endswith(".toml"))  # fmt: skip
+
+
+def load_true_rig(spec: str | Path) -> TrueRig:
+    """A rig file (path) or a built-in true rig (``builtin:NAME``) → the world's geometry."""
+    spec = str(spec)
+    if spec.startswith(BUILTIN):
+        name = spec.removeprefix(BUILTIN)
+        ref = resources.files("sim.data") / f"{name}.toml"
+        if not ref.is_file():
+            raise TrueRigError(f"{spec}: no such built-in true rig; known: {', '.join(builtin_true_rigs())}")
+        text = ref.read_text(encoding="utf-8")
+    else:
+        try:
+            text = Path(spec).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise TrueRigError(f"{spec}: cannot read the true rig file ({exc.strerror})") from exc
+    try:
+        data = tomllib.loads(text)
+        return _world(data, spec)
+    except tomllib.TOMLDecodeError as exc:
+        raise TrueRigError(f"{spec}: not valid TOML ({exc})") from exc
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, TrueRigError):
+            raise
+        raise TrueRigError(f"{spec}: {exc!r} in the camera, gantry or turntable section") from exc
+
+
+def _world(data: dict, source: str) -> TrueRig:
+    c, g, t = data["camera"], data["gantry"], data["turntable"]
+    ids = tuple(int(i) for i in g.get("servo_ids", (1, 2)))
+    gantry = GantryGeometry(
+        centre=tuple(float(v) for v in g["centre_m"]),
+        arm_radius=float(g["arm_radius_m"]),
+        azimuth_servo=ids[0],
+        elevation_servo=ids[1],
+        zero_ticks=tuple(int(v) for v in g.get("zero_ticks", (2048, 1024))),
+        ticks_per_rev=int(g.get("ticks_per_rev", 4096)),
+        directions=tuple(int(v) for v in g.get("directions", (1, 1))),
+        azimuth_axis=tuple(float(v) for v in g.get("azimuth_axis", (0.0, 0.0, 1.0))),
+    )
+    stage = StageGeometry(float(t["steps_per_degree"]), int(t.get("zero_steps", 0)))
+    return TrueRig(_camera(c), gantry, stage, ids, source)
+
+
+def _camera(c: dict) -> CameraSpec:
+    """OpenCV pose from where the camera stands, what it looks at, which way is up and its roll."""
+    eye, target = np.asarray(c["position_m"], float), np.asarray(c["look_at_m"], float)
+    up = np.asarray(c.get("up", (0.0, 0.0, 1.0)), float)
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    roll = np.radians(float(c.get("roll_deg", 0.0)))  # the body turned about its optical axis
+    right, down = np.cos(roll) * right + np.sin(roll) * down, np.cos(roll) * down - np.sin(roll) * right
+    rotation = np.stack([right, down, forward])
+    distortion = np.zeros(5)
+    given = np.asarray(c.get("distortion", []), float)
+    distortion[: len(given)] = given
+    return CameraSpec(
+        np.asarray(c["matrix"], float),
+        distortion,
+        rotation,
+        -rotation @ eye,
+        int(c["width"]),
+        int(c["height"]),
+    )
