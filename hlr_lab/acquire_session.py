@@ -1,14 +1,9 @@
 """Acquiring a session on a rig, from code: what ``hlr-lab acquire`` does once the plan is checked.
 
-In order: lock every device link (:mod:`hlr_lab.locks`), open and connect the devices and the camera,
-lock and create (or resume) the session directory, forecast the disk space, run the plan
-(:func:`hlr_lab.acquisition.acquire`), and whatever happened, make the rig safe and confirm it
-(:meth:`hlr_lab.devices.RigDevices.safe_state`), journaling what the devices confirmed.
-
-A run that ends early raises :class:`RunStopped`, whose one-line message says why and what state the
-rig was left in, as the devices reported it. Its exit status is 130 for an operator's stop (a signal)
-with the rig confirmed safe, and 1 otherwise: a rig not confirmed safe is an operator's problem, never
-an "interrupted" like any other.
+In order: forecast the disk space, lock (and check) an existing session, open the rig
+(:func:`hlr_lab.rig_control.open_rig`: device locks, devices, camera), create the session when it is
+new, run the plan (:func:`hlr_lab.acquisition.acquire`), and whatever happened, journal what the devices
+confirmed of the safe state. An early end is :class:`hlr_lab.rig_control.RunStopped`.
 """
 
 from __future__ import annotations
@@ -20,44 +15,22 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.protocols import Camera
-from hlr_lab.acquisition import Bracketing, Instruments, Outcome, Step, Tolerance, acquire
-from hlr_lab.devices import Links, RigDevices, SafeState, open_camera, open_devices, rig_device_links
+from hlr_lab.acquisition import Bracketing, Outcome, Step, Tolerance, acquire
+from hlr_lab.devices import Links, SafeState
 from hlr_lab.errors import HlrLabError
 from hlr_lab.formats.plan import PlanFile
-from hlr_lab.locks import hold_devices, hold_session
+from hlr_lab.locks import hold_session
 from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import PoseTarget
 from hlr_lab.rig import Rig
+from hlr_lab.rig_control import NO_OVERRIDES, OpenRig, RunStopped, open_rig
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
 from hlr_lab.session.metadata import start_or_resume
 from hlr_lab.session.space import check_room, frame_bytes
 
 log = logging.getLogger(__name__)
 LOG = "acquire.log"
-EXIT_INTERRUPTED = 130  # as hlr_lab.cli.main's: read there from RunStopped.exit_status
-
-
-NO_OVERRIDES = Links()
 PLANNED_ONLY = Bracketing()  # adaptive bracketing, no dark frames
-
-
-class RunStopped(HlrLabError):
-    """The run ended early. ``cause`` is why; ``safe`` what the devices confirmed of the safe state
-    (None when they were never opened); ``exit_status`` 130 or 1 (see the module's docstring)."""
-
-    def __init__(self, cause: BaseException, safe: SafeState | None):
-        self.cause, self.safe = cause, safe
-        interrupted = isinstance(cause, KeyboardInterrupt)
-        why = f"stopped ({cause or 'interrupted'})" if interrupted else f"stopped: {cause}"
-        if safe is None:
-            state = "no device had been switched on"
-        elif safe.ok:
-            state = "the rig is safe: " + safe.sentence()
-        else:
-            state = safe.sentence()
-        self.exit_status = EXIT_INTERRUPTED if interrupted and (safe is None or safe.ok) else 1
-        super().__init__(f"{why}. {state}. Run the same command again to resume.")
 
 
 def acquire_session(
@@ -76,51 +49,41 @@ def acquire_session(
 ) -> Outcome:
     """Run ``plan`` on ``rig`` into ``session`` (created, or resumed when it exists); see the module's
     docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready."""
-    devices: RigDevices | None = None
     resumed: bool | None = None
+    opened: OpenRig | None = None
 
     def open_session_directory() -> bool:
         session_held.enter_context(hold_session(session))
         return start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
 
-    with contextlib.ExitStack() as session_held:  # outlives the devices: the safe state is journaled too
+    with contextlib.ExitStack() as session_held:  # outlives the rig: the safe state is journaled too
         try:
-            with contextlib.ExitStack() as stack:
-                _check_room(plan, rig, session, bracket)  # before anything is opened or switched on
-                if session.is_dir():  # a second writer, a changed plan or rig: refused before anything opens
-                    resumed = open_session_directory()
-                stack.enter_context(hold_devices(rig_device_links(rig, links)))
-                devices = stack.enter_context(
-                    open_devices(rig, gantry_port=links.gantry, stage_address=links.stage)
-                )
-                camera: Camera = open_camera(rig, links.camera)  # before anything is energised
-                stack.callback(camera.close)
-                devices.connect()
+            _check_room(plan, rig, session, bracket)  # before anything is opened or switched on
+            if session.is_dir():  # a second writer, a changed plan or rig: refused before anything opens
+                resumed = open_session_directory()
+            with open_rig(rig, links) as opened:
                 if resumed is None:  # only now, with every device answering, is the session created
                     resumed = open_session_directory()
-                stack.enter_context(session_log(session / LOG))
-                on_start(resumed)
-                outcome = acquire(
-                    plan,
-                    targets,
-                    Instruments(devices.stage, devices.gantry, camera, devices.lamp, (devices.gantry,)),
-                    session,
-                    bracket=bracket,
-                    progress=progress,
-                    object_window=object_window,
-                    tolerance=Tolerance(rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks),
-                )
-                log.info("run summary: %s", outcome.summary())
-        except BaseException as exc:
-            safe = devices.safe if devices is not None else None
-            if safe is not None and (session / JOURNAL).exists():
-                _record_safe_state(safe, session)
-            if isinstance(exc, HlrLabError) and safe is None:
-                raise  # nothing was switched on: the error says all (a busy device, a bad link)
-            raise RunStopped(exc, safe) from exc
-        _record_safe_state(devices.safe, session)
-    if not devices.safe.ok:
-        raise RunStopped(HlrLabError("the run finished but the rig could not be made safe"), devices.safe)
+                with session_log(session / LOG):
+                    on_start(resumed)
+                    outcome = acquire(
+                        plan,
+                        targets,
+                        opened.instruments,
+                        session,
+                        bracket=bracket,
+                        progress=progress,
+                        object_window=object_window,
+                        tolerance=Tolerance(
+                            rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks
+                        ),
+                    )
+                    log.info("run summary: %s", outcome.summary())
+        except RunStopped as stop:
+            if (session / JOURNAL).exists():
+                _record_safe_state(stop.safe, session)
+            raise
+        _record_safe_state(opened.devices.safe, session)
     return outcome
 
 

@@ -13,10 +13,11 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hlr_lab.acquire_session import Links, acquire_session
+from hlr_lab.acquire_session import acquire_session
 from hlr_lab.acquisition import Bracketing, Outcome, Step
 from hlr_lab.cli.common import believed_rig, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
+from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
