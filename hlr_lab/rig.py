@@ -193,6 +193,37 @@ class _SensorSection(_Strict):
     read_noise_dn: float = Field(default=1.5, ge=0)  # below a few of these a value is dark-noise dominated
 
 
+class _BoardSection(_Strict):
+    """The ChArUco board of ``hlr-lab calibrate camera`` (OpenCV's conventions) and how it stands."""
+
+    squares: Annotated[list[Annotated[int, Field(ge=3, le=100)]], _PAIR]  # across, down
+    square_m: float = Field(gt=0, le=1)
+    marker_m: float = Field(gt=0, le=1)
+    dictionary: str = "DICT_4X4_50"  # OpenCV's name of the ArUco dictionary
+    centre_height_m: float = Field(ge=0, le=2)  # the board's centre above the plate, on its first wedge face
+
+    @model_validator(mode="after")
+    def _marker_inside(self):
+        if self.marker_m >= self.square_m:
+            raise ValueError("marker_m must be smaller than square_m (the marker sits inside a square)")
+        return self
+
+
+class _Provenance(BaseModel):
+    """What a calibration procedure recorded: when, with what, how well (free-form beyond these)."""
+
+    model_config = ConfigDict(extra="allow")
+    date: str
+    hlr_lab: str
+
+
+class _CalibrationSection(_Strict):
+    board: _BoardSection | None = None
+    camera: _Provenance | None = None  # written by hlr-lab calibrate camera
+    gantry: _Provenance | None = None
+    radiometric: _Provenance | None = None
+
+
 class RigFile(_Strict):
     rig: _Header
     camera: _CameraSection
@@ -201,6 +232,7 @@ class RigFile(_Strict):
     lamp: _LampSection | None = None
     light: _LightSection = _LightSection()
     sensor: _SensorSection = _SensorSection()
+    calibration: _CalibrationSection = _CalibrationSection()
 
 
 @dataclass(frozen=True, eq=False)

@@ -95,6 +95,16 @@ class SimRig:
             self.close()
             raise
 
+    def show(self, scene: SceneSpec) -> None:
+        """Put another scene in front of the camera, as an operator moves a target between photographs
+        (never during one: call it between captures)."""
+        from sim.render.renderer import Renderer
+
+        if self.camera is None:
+            raise ValueError("this simulated rig has no camera: give it a scene and a camera to begin with")
+        old = self.camera.renderer
+        self.camera.renderer = Renderer(scene, old.camera, spp=old.spp)
+
     def close(self) -> None:
         """Stop every device (a second call does nothing: a test may pull the plug before the end)."""
         if getattr(self, "_closed", False):

@@ -1,0 +1,200 @@
+"""``hlr-lab calibrate camera``: photograph a ChArUco board on a wedge as the turntable turns it, then
+find the camera's intrinsics and its pose against the turntable axis (:mod:`calibration.charuco`,
+:mod:`calibration.camera_pose`).
+
+The board stands on a wedge on the plate (``[calibration.board]`` in the rig file says which board and
+how high its centre stands). The wedge has two faces of different tilt: the board is photographed on
+one, the operator turns the wedge to the other (asked once), and it is photographed again, each time
+at ``views / 2`` turntable angles spread over ±55° (beyond that the board is seen too obliquely to
+detect). The gantry lamp lights it from above the camera's side. Every photograph is kept in the output
+folder as a session's frames are (16-bit PNG, sidecar, journal), so a solve can be run again from them
+(:func:`load_board_frames`) without the rig.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calibration.camera_pose import CameraPose, refine_pose
+from calibration.charuco import BoardSpec, CalibrationError, Detection, calibrate_intrinsics, detect
+from hlr_lab.acquisition import Instruments
+from hlr_lab.errors import InputError
+from hlr_lab.rig import Rig
+from hlr_lab.session.frames import load_frame, read_sidecar, store_frame
+from hlr_lab.session.journal import JOURNAL, Journal, read_journal
+
+log = logging.getLogger(__name__)
+DEFAULT_VIEWS = 24
+SWEEP_DEG = 55.0  # the board's turn either way; beyond ~60° its markers are too oblique to decode
+LAMP_DEG = (-90.0, 45.0)  # gantry azimuth, elevation: above the camera's side (world −y)
+FILL = 0.7  # the brightest paper at this fraction of full scale
+SETTLE_S = 60.0
+
+
+@dataclass(frozen=True)
+class BoardFrame:
+    """One photograph of the board: raw pixels (H, W[, C]), the stage's measured steps, which wedge face."""
+
+    pixels: np.ndarray
+    turntable_steps: int
+    placement: int
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    pose: CameraPose
+    detections: list[Detection]
+    frames: list[BoardFrame]
+    intrinsics_rms_px: float
+
+    def rig_fields(self) -> dict[str, dict]:
+        """The ``[camera]`` fields the rig file takes from this calibration."""
+        p = self.pose
+        return {
+            "camera": {
+                "matrix": p.matrix,
+                "distortion": p.distortion,
+                "position_m": p.position_m,
+                "look_at_m": p.look_at_m,
+                "up": [0.0, 0.0, 1.0],
+                "roll_deg": p.roll_deg,
+            }
+        }
+
+    def record(self, images: Path) -> dict:
+        """The ``[calibration.camera]`` provenance: the images used and the residuals."""
+        return {
+            "images": str(images.resolve()),
+            "views": len(self.frames),
+            "views_used": int(sum(len(d.ids) >= 6 for d in self.detections)),
+            "rms_px": round(self.pose.rms_px, 4),
+            "worst_view_rms_px": round(float(self.pose.per_view_rms_px.max()), 4),
+            "board_azimuth_deg": round(self.pose.board_azimuth_deg, 4),
+        }
+
+
+def board_spec(rig: Rig) -> tuple[BoardSpec, float]:
+    """The rig file's board, and the height of its centre above the plate; refused when missing."""
+    board = rig.file.calibration.board
+    if board is None:
+        raise InputError(
+            "no [calibration.board]: describe the ChArUco board (squares, square_m, marker_m, dictionary, "
+            "centre_height_m) — see docs/calibration.md",
+            path=rig.source,
+            field="calibration.board",
+        )
+    return BoardSpec(
+        tuple(board.squares), board.square_m, board.marker_m, board.dictionary
+    ), board.centre_height_m
+
+
+def board_angles(views: int) -> list[tuple[int, float]]:
+    """(placement, turntable degrees) of each view: half on each wedge face, spread over ±55°."""
+    if views < 2 * 8:
+        raise InputError(
+            f"{views} views are too few: at least 16 (8 on each face of the wedge)", field="--views"
+        )
+    per_face = views // 2
+    angles = np.linspace(-SWEEP_DEG, SWEEP_DEG, per_face)
+    return [(face, float(a)) for face in (0, 1) for a in angles]
+
+
+def capture_board_frames(
+    instruments: Instruments,
+    rig: Rig,
+    out: Path,
+    *,
+    views: int = DEFAULT_VIEWS,
+    turn_the_wedge: Callable[[int], None],
+    progress: Callable[[int, int, str], None] = lambda i, n, what: None,
+) -> None:
+    """Photograph the board at every (placement, angle) into ``out`` (frames, sidecars, journal).
+    ``turn_the_wedge(placement)`` is called before each placement's first view (the operator puts the
+    board on that face of the wedge)."""
+    plan = board_angles(views)
+    g, t = rig.gantry.kinematics, rig.turntable_kinematics
+    lamp_ticks = g.ticks_for(*LAMP_DEG)
+    exposure = rig.exposure_bracket_s[0]
+    with Journal(out / JOURNAL) as journal:
+        journal.append({"event": "run_start", "at": time.time(), "procedure": "calibrate camera"})
+        instruments.gantry.move_to(lamp_ticks)
+        instruments.gantry.wait_settled(SETTLE_S)
+        for i, (face, angle) in enumerate(plan):
+            if i == 0 or plan[i - 1][0] != face:
+                instruments.lamp.set(False)
+                turn_the_wedge(face)
+                instruments.lamp.set(True)
+            progress(i, len(plan), f"wedge face {face + 1}, turntable {angle:+.1f}°")
+            instruments.turntable.move_to((t.steps_for(angle),))
+            (steps,) = instruments.turntable.wait_settled(SETTLE_S)
+            frame = _exposed(instruments, exposure)
+            exposure = frame.exposure_s
+            fields = {"pose": f"v{i:02d}", "exposure_index": 0, "dark": False, "exposure_s": frame.exposure_s}
+            sidecar = {**fields, "turntable_steps": int(steps), "placement": face, "gain_db": frame.gain_db,
+                       "bits": frame.bits, "lamp_ticks": list(lamp_ticks)}  # fmt: skip
+            stored = store_frame(out, f"v{i:02d}", frame.pixels, sidecar)
+            journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
+        instruments.lamp.set(False)
+        journal.append({"event": "run_end", "at": time.time(), "frames_taken": len(plan)})
+
+
+def _exposed(instruments: Instruments, exposure: float):
+    """A frame whose brightest paper sits near :data:`FILL` of full scale (at most two adjustments)."""
+    camera = instruments.camera
+    for _ in range(3):
+        camera.set_exposure(exposure)
+        frame = camera.capture()
+        top = (1 << frame.bits) - 1
+        bright = float(np.percentile(frame.pixels, 99.9))
+        if 0.4 * top <= bright <= 0.9 * top:
+            return frame
+        exposure = exposure * FILL * top / max(bright, 1.0) if bright < top else exposure / 4
+    return frame
+
+
+def load_board_frames(folder: Path) -> list[BoardFrame]:
+    """The photographs a capture left in ``folder`` (checked against their journal lines)."""
+    if not (folder / JOURNAL).is_file():
+        raise InputError(
+            "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
+        )
+    frames = []
+    for e in (e for e in read_journal(folder / JOURNAL) if e["event"] == "frame"):
+        sidecar = read_sidecar(folder, e)
+        frames.append(
+            BoardFrame(load_frame(folder, e), int(sidecar["turntable_steps"]), int(sidecar["placement"]))
+        )
+    if not frames:
+        raise InputError("the folder has no calibration images", path=folder)
+    return frames
+
+
+def solve_camera(frames: list[BoardFrame], rig: Rig) -> CameraCalibration:
+    """Intrinsics, then the joint fit of camera pose, board placements and intrinsics."""
+    spec, centre_height = board_spec(rig)
+    detections = [detect(f.pixels, spec) for f in frames]
+    size = (frames[0].pixels.shape[1], frames[0].pixels.shape[0])
+    if size != (rig.camera.width, rig.camera.height):
+        raise CalibrationError(
+            f"the images are {size[0]}×{size[1]}, the rig file says {rig.camera.width}×{rig.camera.height}: "
+            "correct camera.width and camera.height"
+        )
+    intrinsics = calibrate_intrinsics(detections, spec, size)
+    turntable_deg = np.array([rig.turntable_kinematics.degrees_for(f.turntable_steps) for f in frames])
+    pose = refine_pose(
+        detections,
+        turntable_deg,
+        spec,
+        intrinsics,
+        rig.camera.rotation,
+        rig.camera.translation,
+        centre_height,
+        placements=[f.placement for f in frames],
+    )
+    return CameraCalibration(pose, detections, frames, intrinsics.rms_px)

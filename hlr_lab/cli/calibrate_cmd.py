@@ -1,0 +1,172 @@
+"""``hlr-lab calibrate``: measure the rig, and write a calibrated copy of its rig file."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from importlib import resources
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.markup import escape
+from rich.table import Table
+
+from hlr_lab.cli.common import believed_rig, speed_factor_option, true_rig_option
+from hlr_lab.cli.console import console
+from hlr_lab.devices import Links
+from hlr_lab.errors import InputError
+from hlr_lab.rig import SIM_RIG, Rig
+from hlr_lab.rig_control import open_rig
+from hlr_lab.rig_edit import write_calibrated_rig
+
+
+@click.group()
+def calibrate() -> None:
+    """Measure the rig (camera; more to come) and write a calibrated copy of its rig file."""
+
+
+@calibrate.command("camera")
+@click.option(
+    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
+)
+@click.option("--sim", is_flag=True, help="Calibrate the simulated rig (a simulated board on a wedge).")
+@true_rig_option
+@click.option("--views", type=click.IntRange(16, 200), default=24, show_default=True,
+              help="Photographs: half on each face of the wedge, spread over ±55° of turntable.")  # fmt: skip
+@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for the photographs (default: calibration/DATE beside the rig file).")  # fmt: skip
+@click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="The calibrated rig file to write (the input's copy, camera fields replaced).")  # fmt: skip
+@speed_factor_option("With --sim: simulated")
+def camera(rig_path, sim, true_rig, views, out, from_dir, output, speed_factor) -> None:
+    """Calibrate the camera: intrinsics, distortion and its pose against the turntable axis.
+
+    A ChArUco board ([calibration.board] in the rig file) stands on a wedge on the turntable; the
+    turntable turns it through --views angles, half on each face of the wedge (you are asked once to turn
+    the wedge over), lit by the gantry lamp. Every photograph is kept in --out; the solve (OpenCV's
+    calibration, then one least-squares fit of camera pose, board placements and intrinsics) can be run
+    again from them with --from. The result is written to -o: a copy of the rig file with the camera's
+    matrix, distortion, position_m, look_at_m and roll_deg replaced and a [calibration.camera] record.
+
+    \b
+    Examples:
+      hlr-lab calibrate camera --rig rig.toml -o rig-calibrated.toml
+      hlr-lab calibrate camera --sim --true-rig builtin:bench-offsets -o calibrated.toml
+      hlr-lab calibrate camera --rig rig.toml --from calibration/2026-11-30-0930 -o rig-calibrated.toml
+    """
+    from calibration.camera_procedure import board_spec, capture_board_frames, load_board_frames, solve_camera
+
+    if true_rig is not None and not sim:
+        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
+    rig = believed_rig(rig_path, sim)
+    board_spec(rig)  # a rig file without a board is refused before anything moves
+    source = _source_path(rig)
+    if from_dir is not None:
+        images = from_dir
+    else:
+        images = out or source.parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
+        if images.exists() and any(images.iterdir()):
+            raise InputError(
+                "the folder is not empty; give a new --out (or --from to solve again)", path=images
+            )
+        images.mkdir(parents=True, exist_ok=True)
+        with contextlib.ExitStack() as stack:
+            links, turn = _world(stack, rig, sim, true_rig, speed_factor)
+            with console.status("calibrating the camera…") as status, open_rig(rig, links) as opened:
+                capture_board_frames(
+                    opened.instruments,
+                    rig,
+                    images,
+                    views=views,
+                    turn_the_wedge=turn,
+                    progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
+                )
+    with console.status("solving…"):
+        result = solve_camera(load_board_frames(images), rig)
+    calibrated = write_calibrated_rig(source, output, result.rig_fields(), "camera", result.record(images))
+    console.print(_table(rig, calibrated, result))
+    console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+
+
+def _source_path(rig: Rig) -> Path:
+    if rig.source == "builtin:sim":
+        with resources.as_file(resources.files("hlr_lab.data") / SIM_RIG) as path:
+            return Path(path)
+    return Path(rig.source)
+
+
+def _world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
+    """The links to use and what turning the wedge means: the operator, or the simulator."""
+    if not sim:
+
+        def ask(face: int) -> None:
+            what = (
+                "on the wedge's first face"
+                if face == 0
+                else "on the wedge's other face (turn the wedge over)"
+            )
+            click.confirm(f"Put the board {what}, facing the camera. Ready?", abort=True, err=True)
+
+        return Links(), ask
+    # the simulator is reached only from the command line (the composition root)
+    from hlr_lab.cli.sim_world import world_geometry
+    from sim.rig import SimRig
+    from sim.targets import Board, Wedge, charuco_scene
+
+    b = rig.file.calibration.board
+    board = Board(tuple(b.squares), b.square_m, b.marker_m, b.dictionary)
+    faces = [
+        Wedge(tilt_deg=20.0, height_m=b.centre_height_m),
+        Wedge(tilt_deg=45.0, height_m=b.centre_height_m),
+    ]
+    world = stack.enter_context(
+        SimRig(
+            scene=charuco_scene(board, faces[0]),
+            speed_factor=speed_factor,
+            spp=8,
+            **world_geometry(rig, true_rig),
+        )
+    )
+    e = world.endpoints
+    return Links(e.dynamixel, e.modbus, e.camera), lambda face: world.show(charuco_scene(board, faces[face]))
+
+
+def _table(before: Rig, after: Rig, result) -> Table:
+    t = Table(title="camera calibration", title_justify="left")
+    for column in ("", "rig file before", "calibrated"):
+        t.add_column(column, justify="right")
+    kb, ka = before.camera.matrix, after.camera.matrix
+    rows = [
+        ("fx, fy (px)", f"{kb[0, 0]:.1f}, {kb[1, 1]:.1f}", f"{ka[0, 0]:.1f}, {ka[1, 1]:.1f}"),
+        ("cx, cy (px)", f"{kb[0, 2]:.2f}, {kb[1, 2]:.2f}", f"{ka[0, 2]:.2f}, {ka[1, 2]:.2f}"),
+        ("k1, k2", _pair(before.camera.distortion), _pair(after.camera.distortion)),
+        ("position (m)", _vec(before.camera.centre), _vec(after.camera.centre)),
+        ("moved by", "", f"{1e3 * np.linalg.norm(after.camera.centre - before.camera.centre):.2f} mm"),
+        ("view turned by", "", f"{_angle(before.camera.forward, after.camera.forward):.3f}°"),
+        ("roll (°)", f"{before.file.camera.roll_deg:.3f}", f"{after.file.camera.roll_deg:.3f}"),
+        (
+            "reprojection RMS",
+            "",
+            f"{result.pose.rms_px:.3f} px (worst view {result.pose.per_view_rms_px.max():.3f})",
+        ),
+        ("views used", "", f"{sum(len(d.ids) >= 6 for d in result.detections)} of {len(result.frames)}"),
+    ]
+    for row in rows:
+        t.add_row(*row)
+    return t
+
+
+def _pair(d) -> str:
+    d = [*d, 0.0, 0.0]
+    return f"{d[0]:.4f}, {d[1]:.4f}"
+
+
+def _vec(v) -> str:
+    return ", ".join(f"{x:.4f}" for x in v)
+
+
+def _angle(a, b) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0))))
