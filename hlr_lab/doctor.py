@@ -8,8 +8,10 @@ diagnoses are pure functions of the devices' reports, so each rule is tested wit
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Literal
 
 from drivers.dynamixel import DynamixelGantry, ServoReport
@@ -47,9 +49,35 @@ def examine_rig(
     try:
         with hold_devices(used):
             found = _examine_stage(rig, stage_address) + _examine_gantry(rig, gantry_port)
-            return found + (_examine_camera(rig, camera_endpoint) if camera else [])
+            found += _examine_camera(rig, camera_endpoint) if camera else []
     except Busy as exc:
         return [Finding("rig", "problem", str(exc))]
+    return found + calibration_findings(rig, time.time())
+
+
+CALIBRATIONS = ("camera", "gantry", "radiometric")
+STALE_DAYS = 90  # a calibration older than this is worth repeating (a knock, a lamp changed, a season)
+
+
+def calibration_findings(rig: Rig, now: float) -> list[Finding]:
+    """How old each calibration of the rig file is, or that it was never done (``[calibration.*]``)."""
+    found = []
+    for procedure in CALIBRATIONS:
+        record = getattr(rig.file.calibration, procedure)
+        device = f"calibration: {procedure}"
+        if record is None:
+            found.append(Finding(device, "warning", f"never calibrated: run hlr-lab calibrate {procedure}"))
+            continue
+        try:
+            when = datetime.strptime(record.date, "%Y-%m-%dT%H:%M:%S%z").timestamp()
+        except ValueError:
+            found.append(Finding(device, "warning", f"the record's date {record.date!r} cannot be read"))
+            continue
+        days = (now - when) / 86400
+        level = "warning" if days > STALE_DAYS else "ok"
+        advice = f"; older than {STALE_DAYS} days: consider calibrating again" if level == "warning" else ""
+        found.append(Finding(device, level, f"done {record.date[:10]} ({days:.0f} days ago){advice}"))
+    return found
 
 
 def diagnose_servo(report: ServoReport) -> list[Finding]:

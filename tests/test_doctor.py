@@ -11,16 +11,19 @@ from drivers.dynamixel import Axis, ServoReport
 from hlr_lab.cli.main import main
 from hlr_lab.doctor import diagnose_servo, examine_rig
 from hlr_lab.locks import hold_devices
+from hlr_lab.rig import rig_of_snapshot
 from sim.dynamixel.servo import OVERLOAD
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
 
 
 def examine(sim, rig, **kw):
+    """The devices' findings (the calibration records' are tested on their own)."""
     e = sim.endpoints
-    return examine_rig(
+    found = examine_rig(
         rig, gantry_port=kw.get("port", e.dynamixel), stage_address=kw.get("address", e.modbus), camera=False
     )
+    return [f for f in found if not f.device.startswith("calibration")]
 
 
 def by_device(findings):
@@ -125,6 +128,7 @@ def test_cli_exit_status(tmp_path, capsys):
 
 def test_a_port_that_does_not_open_is_one_finding(rig):
     findings = examine_rig(rig, gantry_port="/dev/hlr-lab-no-such-port", stage_address="127.0.0.1:1")
+    findings = [f for f in findings if not f.device.startswith("calibration")]
     assert [(f.device, f.level) for f in findings] == [
         ("turntable", "problem"),
         ("gantry", "problem"),
@@ -147,3 +151,23 @@ def test_a_rig_in_use_by_a_run_is_one_finding_and_left_untouched(rig):
             assert f"is in use by PID {os.getpid()}" in findings[0].message
             assert sim.turntable.requests == requests  # not even the turntable was asked
         assert [f.level for f in examine(sim, rig)] == ["ok"] * 4  # released: examined as usual
+
+
+def test_the_age_of_each_calibration_is_reported(rig):
+    """Never calibrated: a warning saying which command to run; calibrated: its date and age, a warning
+    once older than 90 days."""
+    from datetime import datetime
+
+    from hlr_lab.doctor import calibration_findings
+
+    never = {f.device: f for f in calibration_findings(rig, 0.0)}
+    assert never["calibration: camera"].level == "warning"
+    assert "never calibrated: run hlr-lab calibrate camera" in never["calibration: camera"].message
+    record = {"date": "2026-11-01T10:00:00+0000", "hlr_lab": "0.1.0", "rms_px": 0.1}
+    snapshot = rig.file.model_dump(mode="json")
+    done = rig_of_snapshot({**snapshot, "calibration": {**snapshot["calibration"], "camera": record}}, "test")
+    soon = datetime(2026, 11, 11, 10, tzinfo=datetime.now().astimezone().tzinfo).timestamp()
+    found = {f.device: f for f in calibration_findings(done, soon)}["calibration: camera"]
+    assert (found.level, found.message[:16]) == ("ok", "done 2026-11-01 ")
+    late = {f.device: f for f in calibration_findings(done, soon + 100 * 86400)}["calibration: camera"]
+    assert late.level == "warning"
