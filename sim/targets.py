@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from sim.render.scene import Material, SceneSpec
+from sim.render.scene import Material, MirrorBall, SceneSpec
 
 INK, PAPER = (
     Material((0.04, 0.04, 0.04), (0.0, 0.0, 0.0), 1.0),
@@ -94,3 +94,21 @@ def charuco_scene(board: Board, wedge: Wedge, *, px_per_square: int = 120, power
         region_texture=region_texture,
         normals=np.tile([0.0, 0.0, -1.0], (4, 1)),
     )
+
+
+def mirror_ball_scene(
+    radius_m: float, centre_xy_m: tuple[float, float], *, plate_radius_m: float = 0.35, plate_rd: float = 0.5
+) -> SceneSpec:
+    """A polished ball of ``radius_m`` resting on the turntable's plate at ``centre_xy_m``, and the plate:
+    a matte grey disc, against which the (otherwise black) ball shows its outline."""
+    angles = np.linspace(0.0, 2 * np.pi, 97)[:-1]
+    rim = np.stack(
+        [plate_radius_m * np.cos(angles), plate_radius_m * np.sin(angles), np.zeros_like(angles)], 1
+    )
+    vertices = np.vstack([[0.0, 0.0, 0.0], rim])
+    n = len(angles)
+    faces = np.array([[0, 1 + i, 1 + (i + 1) % n] for i in range(n)])  # counter-clockwise seen from above
+    plate = Material((plate_rd,) * 3, (0.0, 0.0, 0.0), 1.0)
+    ball = MirrorBall((float(centre_xy_m[0]), float(centre_xy_m[1]), radius_m), radius_m)
+    return SceneSpec(vertices, faces, np.zeros(n, np.int64), [plate], np.eye(4), mirror_balls=(ball,),
+                     normals=np.tile([0.0, 0.0, 1.0], (len(vertices), 1)))  # fmt: skip

@@ -54,6 +54,9 @@ class Renderer:
                         }
                     )
                     shapes[f"region_{r}"] = self._mesh(f"region_{r}", faces, vertices, normals, bsdf)
+        for i, ball in enumerate(scene.mirror_balls):  # placed (and turned with the table) in render()
+            bsdf = {"type": "roughconductor", "material": "Al", "alpha": ball.alpha}
+            shapes[f"ball_{i}"] = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "bsdf": bsdf}
         # L convention: a white Lambertian facing the light reads Φ/d² (point) or Φ (directional)
         strength = float(np.pi * scene.power)
         if scene.light == "point":
@@ -152,7 +155,12 @@ class Renderer:
             for name, vertices, normals in self._parts:
                 p[f"{name}.vertex_positions"] = mi.Float((vertices @ rot.T).ravel())
                 p[f"{name}.vertex_normals"] = mi.Float((normals @ rot.T).ravel())
-            self._crop = self.film.object_box(np.concatenate([v for _, v, _ in self._parts]) @ rot.T)
+            points = [v @ rot.T for _, v, _ in self._parts]  # what the crop must hold
+            for i, ball in enumerate(self.spec.mirror_balls):
+                centre = rot @ np.asarray(ball.centre, np.float64)
+                p[f"ball_{i}.to_world"] = mi.Transform4f().translate(centre.tolist()).scale(ball.radius)
+                points.append(centre + ball.radius * _CUBE)
+            self._crop = self.film.object_box(np.concatenate(points))
             p["sensor.film.crop_offset"] = mi.ScalarPoint2u(*self._crop[:2])
             p["sensor.film.crop_size"] = mi.ScalarVector2u(*self._crop[2:])
             self._angle = turntable_deg
@@ -170,6 +178,9 @@ class Renderer:
         film = np.zeros((self.film.height, self.film.width, 3), np.float32)
         film[y : y + h, x : x + w] = crop
         return self.film.to_camera_image(film)
+
+
+_CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)  # a ball's box
 
 
 def _up(direction) -> list[float]:

@@ -40,6 +40,17 @@ class Material:
     n: float
 
 
+@dataclass(frozen=True)
+class MirrorBall:
+    """A polished metal ball (Mitsuba's rough conductor, aluminium, GGX ``alpha``: a real mirror ball is
+    never perfect, and a point lamp's reflection in a perfect one would be a single point no camera
+    samples). Its centre is in the turntable frame, metres; it turns with the turntable."""
+
+    centre: tuple[float, float, float]
+    radius: float
+    alpha: float = 0.01
+
+
 @dataclass(frozen=True, eq=False)
 class SceneSpec:
     """vertices (V, 3) and faces (F, 3) of the mesh in its own frame; face_region (F,) index into
@@ -61,6 +72,7 @@ class SceneSpec:
     vertex_uv: np.ndarray | None = None
     region_texture: np.ndarray | None = None
     normals: np.ndarray | None = None
+    mirror_balls: tuple[MirrorBall, ...] = ()
 
     def vertex_normals(self) -> np.ndarray:
         return self.normals if self.normals is not None else _area_normals(self.vertices, self.faces)
