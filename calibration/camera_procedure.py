@@ -53,10 +53,12 @@ class CameraCalibration:
     frames: list[BoardFrame]
     intrinsics_rms_px: float
 
-    def rig_fields(self) -> dict[str, dict]:
-        """The ``[camera]`` fields the rig file takes from this calibration."""
+    def rig_fields(self, rig: Rig, *, board_along_zero: bool = False) -> dict[str, dict]:
+        """The ``[camera]`` fields the rig file takes from this calibration; with ``board_along_zero`` (the
+        board was mounted along the plate's 0° line) also ``turntable.zero_steps``: the board's azimuth
+        in the fitted world is the turntable's zero error (:mod:`calibration.camera_pose`)."""
         p = self.pose
-        return {
+        fields = {
             "camera": {
                 "matrix": p.matrix,
                 "distortion": p.distortion,
@@ -66,6 +68,12 @@ class CameraCalibration:
                 "roll_deg": p.roll_deg,
             }
         }
+        if board_along_zero:
+            t = rig.turntable_kinematics
+            fields["turntable"] = {
+                "zero_steps": round(t.zero_steps - p.board_azimuth_deg * t.steps_per_degree)
+            }
+        return fields
 
     def record(self, images: Path) -> dict:
         """The ``[calibration.camera]`` provenance: the images used and the residuals."""

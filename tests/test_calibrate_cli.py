@@ -23,7 +23,8 @@ SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.to
 def calibrated(tmp_path_factory):
     folder = tmp_path_factory.mktemp("calibrate")
     command = ["calibrate", "camera", "--sim", "--true-rig", "builtin:bench-offsets", "--out",
-               str(folder / "images"), "-o", str(folder / "calibrated.toml"), "--speed-factor", "40"]  # fmt: skip
+               str(folder / "images"), "-o", str(folder / "calibrated.toml"), "--speed-factor", "40",
+               "--board-along-zero"]  # fmt: skip
     assert main(command) == 0
     return folder
 
@@ -45,6 +46,10 @@ def test_the_calibrated_camera_is_the_true_one(calibrated, rig):
     assert np.linalg.norm(after.camera.centre - true_centre) < 1e-3
     for row in (0, 2):  # the image's x axis (roll) and the optical axis
         assert np.degrees(np.arccos(min(1.0, after.camera.rotation[row] @ true_rotation[row]))) < 0.05
+    # the simulated board stands along the plate's 0° line: in the world turned by a (−0.28°), the plate's
+    # 0° line lies at a, so the turntable's zero is the true one (20 steps) less a: 48 steps
+    true_zero = load_true_rig("builtin:bench-offsets").stage.zero_steps - round(np.degrees(a) * 100)
+    assert abs(after.file.turntable.zero_steps - true_zero) <= 2
     record = after.file.calibration.camera
     assert record.rms_px <= 0.3
     assert record.views_used == record.views == 24
@@ -54,7 +59,7 @@ def test_the_calibrated_camera_is_the_true_one(calibrated, rig):
         "# OpenCV intrinsics; the principal point is off-centre on purpose"
         in (calibrated / "calibrated.toml").read_text()
     )
-    assert after.file.gantry == rig.file.gantry
+    assert after.file.gantry == rig.file.gantry  # what the camera procedure does not measure is kept
 
 
 @pytest.mark.slow

@@ -38,10 +38,12 @@ def calibrate() -> None:
               help="Folder for the photographs (default: calibration/DATE beside the rig file).")  # fmt: skip
 @click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
               help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
+@click.option("--board-along-zero", is_flag=True,
+              help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.")  # fmt: skip
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The calibrated rig file to write (the input's copy, camera fields replaced).")  # fmt: skip
 @speed_factor_option("With --sim: simulated")
-def camera(rig_path, sim, true_rig, views, out, from_dir, output, speed_factor) -> None:
+def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, output, speed_factor) -> None:
     """Calibrate the camera: intrinsics, distortion and its pose against the turntable axis.
 
     A ChArUco board ([calibration.board] in the rig file) stands on a wedge on the turntable; the
@@ -50,6 +52,9 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, output, speed_factor) 
     calibration, then one least-squares fit of camera pose, board placements and intrinsics) can be run
     again from them with --from. The result is written to -o: a copy of the rig file with the camera's
     matrix, distortion, position_m, look_at_m and roll_deg replaced and a [calibration.camera] record.
+    The camera keeps the azimuth about the turntable axis the rig file gives it (no photograph of the
+    turntable can tell it from the turntable's zero); with --board-along-zero the board's measured
+    azimuth corrects turntable.zero_steps. Details: docs/calibration.md.
 
     \b
     Examples:
@@ -86,7 +91,8 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, output, speed_factor) 
                 )
     with console.status("solving…"):
         result = solve_camera(load_board_frames(images), rig)
-    calibrated = write_calibrated_rig(source, output, result.rig_fields(), "camera", result.record(images))
+    fields = result.rig_fields(rig, board_along_zero=board_along_zero)
+    calibrated = write_calibrated_rig(source, output, fields, "camera", result.record(images))
     console.print(_table(rig, calibrated, result))
     console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
 
@@ -147,6 +153,12 @@ def _table(before: Rig, after: Rig, result) -> Table:
         ("moved by", "", f"{1e3 * np.linalg.norm(after.camera.centre - before.camera.centre):.2f} mm"),
         ("view turned by", "", f"{_angle(before.camera.forward, after.camera.forward):.3f}°"),
         ("roll (°)", f"{before.file.camera.roll_deg:.3f}", f"{after.file.camera.roll_deg:.3f}"),
+        (
+            "turntable zero (steps)",
+            str(before.file.turntable.zero_steps),
+            str(after.file.turntable.zero_steps),
+        ),
+        ("board azimuth on the plate", "", f"{result.pose.board_azimuth_deg:.3f}°"),
         (
             "reprojection RMS",
             "",
