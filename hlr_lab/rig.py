@@ -209,6 +209,13 @@ class _BoardSection(_Strict):
         return self
 
 
+class _MirrorBallSection(_Strict):
+    """The polished ball of ``hlr-lab calibrate gantry``, resting on the plate."""
+
+    radius_m: float = Field(gt=0, le=0.2)
+    place_m: Annotated[list[float], _PAIR]  # where it rests on the plate at turntable 0° (x, y), roughly
+
+
 class _Provenance(BaseModel):
     """What a calibration procedure recorded: when, with what, how well (free-form beyond these)."""
 
@@ -219,6 +226,7 @@ class _Provenance(BaseModel):
 
 class _CalibrationSection(_Strict):
     board: _BoardSection | None = None
+    mirror_ball: _MirrorBallSection | None = None
     camera: _Provenance | None = None  # written by hlr-lab calibrate camera
     gantry: _Provenance | None = None
     radiometric: _Provenance | None = None

@@ -86,3 +86,29 @@ def test_a_rig_file_without_a_board_or_a_used_folder_is_refused(tmp_path, capsys
     assert "the folder is not empty" in capsys.readouterr().err
     assert not (tmp_path / "c.toml").exists()
     shutil.rmtree(used)
+
+
+@pytest.mark.slow
+def test_calibrate_gantry_on_the_camera_calibrated_rig(calibrated, tmp_path, capsys):
+    """`calibrate gantry` on the rig file `calibrate camera` wrote (12 lamp poses, to keep it short): the
+    arm and zero ticks move to the true ones (in the camera-defined world the azimuth zero is the true
+    one turned with it: 2062 + 3 ticks), the azimuth limits narrowed to fit one servo turn about the new
+    zero, a [calibration.gantry] record beside the camera's; a rig file without a mirror ball is refused."""
+    command = ["calibrate", "gantry", "--rig", str(calibrated / "calibrated.toml"), "--sim", "--true-rig",
+               "builtin:bench-offsets", "--poses", "12", "--out", str(tmp_path / "images"), "-o",
+               str(tmp_path / "gantry.toml"), "--speed-factor", "40"]  # fmt: skip
+    assert main(command) == 0, capsys.readouterr().err
+    after = load_rig(tmp_path / "gantry.toml")
+    truth = load_true_rig("builtin:bench-offsets").gantry
+    k = after.gantry.kinematics
+    assert abs(k.arm_radius - truth.arm_radius) < 1.5e-3
+    assert abs(k.zero_ticks[0] - (truth.zero_ticks[0] + 3)) <= 3
+    assert abs(k.zero_ticks[1] - truth.zero_ticks[1]) <= 3
+    assert after.file.gantry.azimuth_limits_deg[1] < 180.0  # the zero moved: ±180° no longer fits one turn
+    assert after.file.calibration.gantry.rays >= 20
+    assert after.file.calibration.camera is not None  # the camera's record is kept
+    text = SIM_RIG.read_text()
+    bare = tmp_path / "bare.toml"
+    bare.write_text(text[: text.index("[calibration.mirror_ball]")])
+    assert main(["calibrate", "gantry", "--rig", str(bare), "--sim", "-o", str(tmp_path / "x.toml")]) == 1
+    assert "no [calibration.mirror_ball]" in capsys.readouterr().err

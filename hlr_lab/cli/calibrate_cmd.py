@@ -23,7 +23,7 @@ from hlr_lab.rig_edit import write_calibrated_rig
 
 @click.group()
 def calibrate() -> None:
-    """Measure the rig (camera; more to come) and write a calibrated copy of its rig file."""
+    """Measure the rig (camera, then gantry) and write a calibrated copy of its rig file."""
 
 
 @calibrate.command("camera")
@@ -72,12 +72,7 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
     if from_dir is not None:
         images = from_dir
     else:
-        images = out or source.parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
-        if images.exists() and any(images.iterdir()):
-            raise InputError(
-                "the folder is not empty; give a new --out (or --from to solve again)", path=images
-            )
-        images.mkdir(parents=True, exist_ok=True)
+        images = _new_folder(out or source.parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S"))
         with contextlib.ExitStack() as stack:
             links, turn = _world(stack, rig, sim, true_rig, speed_factor)
             with console.status("calibrating the camera…") as status, open_rig(rig, links) as opened:
@@ -182,3 +177,103 @@ def _vec(v) -> str:
 
 def _angle(a, b) -> float:
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0))))
+
+
+@calibrate.command("gantry")
+@click.option(
+    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
+)
+@click.option("--sim", is_flag=True, help="Calibrate the simulated rig (a simulated mirror ball).")
+@true_rig_option
+@click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True,
+              help="Lamp poses, each photographed with the ball at two turntable angles.")  # fmt: skip
+@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for the photographs (default: calibration/DATE-gantry beside the rig file).")  # fmt: skip
+@click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="The calibrated rig file to write (the input's copy, gantry fields replaced).")  # fmt: skip
+@speed_factor_option("With --sim: simulated")
+def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) -> None:
+    """Calibrate the light gantry from a mirror ball: its centre, arm radius, azimuth axis and zero ticks.
+
+    A polished ball ([calibration.mirror_ball] in the rig file: radius, rough place on the plate) is
+    photographed at two turntable angles half a turn apart: once with the lamp above the camera's side
+    (its outline against the lit plate gives its centre) and once per lamp pose with a short exposure
+    (the lamp's reflection gives the direction of the lamp). The gantry's kinematics are fitted to all
+    directions at once. Calibrate the camera first: every ray comes from it. Details: docs/calibration.md.
+
+    \b
+    Examples:
+      hlr-lab calibrate gantry --rig rig-camera.toml -o rig-calibrated.toml
+      hlr-lab calibrate gantry --sim --true-rig builtin:bench-offsets -o calibrated.toml
+    """
+    from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
+
+    if true_rig is not None and not sim:
+        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
+    rig = believed_rig(rig_path, sim)
+    radius, place = ball_spec(rig)  # a rig file without a ball is refused before anything moves
+    source = _source_path(rig)
+    images = from_dir or _new_folder(
+        out or source.parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
+    )
+    if from_dir is None:
+        with contextlib.ExitStack() as stack:
+            links = _ball_world(stack, rig, sim, true_rig, speed_factor, radius, place)
+            with console.status("calibrating the gantry…") as status, open_rig(rig, links) as opened:
+                capture_ball_frames(
+                    opened.instruments,
+                    rig,
+                    images,
+                    poses=poses,
+                    progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
+                )
+    with console.status("solving…"):
+        result = solve_gantry(load_ball_frames(images), rig)
+    calibrated = write_calibrated_rig(source, output, result.rig_fields(rig), "gantry", result.record(images))
+    k0, k1 = rig.gantry.kinematics, calibrated.gantry.kinematics
+    t = Table(title="gantry calibration", title_justify="left")
+    for column in ("", "rig file before", "calibrated"):
+        t.add_column(column, justify="right")
+    se = result.fit.standard_errors
+    for row in (
+        ("centre (m)", _vec(k0.centre), _vec(k1.centre)),
+        ("arm radius (m)", f"{k0.arm_radius:.4f}", f"{k1.arm_radius:.4f} ± {se['arm_radius_m']:.4f}"),
+        ("zero ticks", f"{k0.zero_ticks[0]}, {k0.zero_ticks[1]}", f"{k1.zero_ticks[0]}, {k1.zero_ticks[1]}"),
+        (
+            "azimuth axis tilt",
+            f"{_angle(k0.frame[:, 2], [0, 0, 1]):.3f}°",
+            f"{_angle(k1.frame[:, 2], [0, 0, 1]):.3f}°",
+        ),
+        ("rays used", "", f"{result.rays} ({result.refused} poses refused: lamp behind the ball)"),
+        ("worst lamp miss", "", f"{result.fit.miss_mm.max():.2f} mm"),
+    ):
+        t.add_row(*row)
+    console.print(t)
+    console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+
+
+def _new_folder(folder: Path) -> Path:
+    if folder.exists() and any(folder.iterdir()):
+        raise InputError("the folder is not empty; give a new --out (or --from to solve again)", path=folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def _ball_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, radius: float, place) -> Links:
+    if not sim:
+        click.confirm(
+            "Put the mirror ball on the plate where the rig file says. Ready?", abort=True, err=True
+        )
+        return Links()
+    from hlr_lab.cli.sim_world import world_geometry
+    from sim.rig import SimRig
+    from sim.targets import mirror_ball_scene
+
+    scene = mirror_ball_scene(radius, place)
+    world = stack.enter_context(
+        SimRig(scene=scene, speed_factor=speed_factor, spp=16, **world_geometry(rig, true_rig))
+    )
+    e = world.endpoints
+    return Links(e.dynamixel, e.modbus, e.camera)

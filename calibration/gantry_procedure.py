@@ -1,0 +1,200 @@
+"""``hlr-lab calibrate gantry``: photograph a mirror ball lit by the gantry lamp at many poses, then fit
+the gantry's kinematics (:mod:`calibration.mirror_ball`).
+
+The ball (``[calibration.mirror_ball]``: radius, rough place on the plate) is photographed at two
+turntable angles half a turn apart. At each: one long exposure with the lamp above the camera's side
+shows its outline against the lit plate (→ its centre), then one short exposure per lamp pose shows the
+lamp's reflection unclipped (→ a ray toward the lamp). Lamp poses cover the reachable range on the
+camera's side of the ball (from behind it, the highlight sits on the ball's edge). Photographs are kept
+as a session's frames are, so ``--from`` solves again without the rig. Needs a calibrated camera.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calibration.charuco import CalibrationError
+from calibration.mirror_ball import GantryFit, ball_centre, fit_gantry, highlight_px, lamp_ray
+from hlr_lab.acquisition import Instruments
+from hlr_lab.errors import InputError
+from hlr_lab.rig import Rig
+from hlr_lab.session.frames import load_frame, read_sidecar, store_frame
+from hlr_lab.session.journal import JOURNAL, Journal, read_journal
+
+DEFAULT_POSES = 30
+TURNS_DEG = (-10.0, 170.0)  # half a turn apart, the ball to either side, inside any turntable limits
+OUTLINE_LAMP_DEG = (-90.0, 45.0)  # gantry azimuth, elevation for the outline frame: the camera's side
+SETTLE_S = 60.0
+
+
+@dataclass(frozen=True)
+class BallFrame:
+    pixels: np.ndarray
+    kind: str  # "outline" or "highlight"
+    turntable_steps: int
+    gantry_ticks: tuple[int, int]
+
+
+def ball_spec(rig: Rig) -> tuple[float, tuple[float, float]]:
+    ball = rig.file.calibration.mirror_ball
+    if ball is None:
+        raise InputError(
+            "no [calibration.mirror_ball]: give its radius_m and place_m on the plate — see docs/calibration.md",
+            path=rig.source,
+            field="calibration.mirror_ball",
+        )
+    return ball.radius_m, tuple(ball.place_m)
+
+
+def lamp_poses(rig: Rig, count: int = DEFAULT_POSES) -> list[tuple[float, float]]:
+    """(azimuth, elevation) degrees: a grid over the reachable elevations and the azimuths within 100° of
+    the camera's (seen from the gantry centre), outside the camera's keep-out cone."""
+    g = rig.gantry
+    to_camera = rig.camera.centre - g.centre
+    cam_az = np.degrees(np.arctan2(to_camera[1], to_camera[0]))
+    el_lo, el_hi = np.degrees(g.elevation_limits)
+    rows = 3
+    per_row = max(count // rows, 2)
+    poses = []
+    for el in np.linspace(max(el_lo, 5.0), min(el_hi, 70.0), rows):
+        for az in cam_az + np.linspace(-100.0, 100.0, per_row + 1):
+            az = (az + 180.0) % 360.0 - 180.0
+            d = g.kinematics.unit_direction(np.radians(az), np.radians(el))
+            if d @ (to_camera / np.linalg.norm(to_camera)) > np.cos(g.camera_keepout):
+                continue
+            if np.degrees(g.azimuth_limits[0]) <= az <= np.degrees(g.azimuth_limits[1]):
+                poses.append((float(az), float(el)))
+    return poses[:count]
+
+
+def capture_ball_frames(
+    instruments: Instruments,
+    rig: Rig,
+    out: Path,
+    *,
+    poses: int = DEFAULT_POSES,
+    place_ball: Callable[[float], None] = lambda _deg: None,
+    progress: Callable[[int, int, str], None] = lambda i, n, what: None,
+) -> None:
+    """Photograph the ball at both turntable angles: an outline frame, then a highlight frame per pose."""
+    k, t = rig.gantry.kinematics, rig.turntable_kinematics
+    plan = lamp_poses(rig, poses)
+    total = len(TURNS_DEG) * (len(plan) + 1)
+    with Journal(out / JOURNAL) as journal:
+        journal.append({"event": "run_start", "at": time.time(), "procedure": "calibrate gantry"})
+        n = 0
+        for turn in TURNS_DEG:
+            place_ball(turn)
+            instruments.turntable.move_to((t.steps_for(turn),))
+            (steps,) = instruments.turntable.wait_settled(SETTLE_S)
+            for kind, angles in [("outline", OUTLINE_LAMP_DEG)] + [("highlight", p) for p in plan]:
+                progress(n, total, f"turntable {turn:g}°, {kind}, lamp at {angles[0]:.0f}°, {angles[1]:.0f}°")
+                instruments.gantry.move_to(k.ticks_for(*angles))
+                ticks = instruments.gantry.wait_settled(SETTLE_S)
+                instruments.lamp.set(True)
+                frame = _exposed(instruments, rig, kind)
+                instruments.lamp.set(False)
+                fields = {
+                    "pose": f"g{n:03d}",
+                    "exposure_index": 0,
+                    "dark": False,
+                    "exposure_s": frame.exposure_s,
+                }
+                sidecar = {**fields, "kind": kind, "turntable_steps": int(steps), "gantry_ticks": list(ticks),
+                           "gain_db": frame.gain_db, "bits": frame.bits}  # fmt: skip
+                stored = store_frame(out, f"g{n:03d}", frame.pixels, sidecar)
+                journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
+                n += 1
+        journal.append({"event": "run_end", "at": time.time(), "frames_taken": n})
+
+
+def _exposed(instruments: Instruments, rig: Rig, kind: str):
+    """Outline: the plate near 70 % of full scale. Highlight: the reflection's peak unclipped, near 60 %."""
+    camera, exposure = instruments.camera, rig.exposure_bracket_s[0]
+    for _ in range(4):
+        camera.set_exposure(exposure)
+        frame = camera.capture()
+        top = (1 << frame.bits) - 1
+        level = float(np.percentile(frame.pixels, 90) if kind == "outline" else frame.pixels.max())
+        goal = 0.7 if kind == "outline" else 0.6
+        if level < top and abs(level / (goal * top) - 1) < 0.3:
+            return frame
+        exposure *= goal * top / max(level, 1.0) if level < top else 1 / 16
+    return frame
+
+
+def load_ball_frames(folder: Path) -> list[BallFrame]:
+    if not (folder / JOURNAL).is_file():
+        raise InputError(
+            "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
+        )
+    frames = []
+    for e in (e for e in read_journal(folder / JOURNAL) if e["event"] == "frame"):
+        s = read_sidecar(folder, e)
+        frames.append(
+            BallFrame(load_frame(folder, e), s["kind"], int(s["turntable_steps"]), tuple(s["gantry_ticks"]))
+        )
+    return frames
+
+
+@dataclass(frozen=True)
+class GantryCalibration:
+    fit: GantryFit
+    rays: int
+    refused: int
+
+    def rig_fields(self, rig: Rig) -> dict[str, dict]:
+        """The ``[gantry]`` fields: centre, arm, axis, zero ticks, and the azimuth limits narrowed to what
+        one servo turn holds about the new zero."""
+        k = self.fit.kinematics
+        per_deg = k.ticks_per_rev / 360.0
+        lo, hi = rig.file.gantry.azimuth_limits_deg
+        z, sense = k.zero_ticks[0], k.directions[0]
+        ends = sorted(((0 - z) / (sense * per_deg), (k.ticks_per_rev - z) / (sense * per_deg)))
+        limits = [max(lo, np.ceil(ends[0] * 10) / 10), min(hi, np.floor(ends[1] * 10) / 10)]
+        return {"gantry": {"centre_m": k.centre, "arm_radius_m": k.arm_radius, "azimuth_axis": list(k.azimuth_axis),
+                           "zero_ticks": list(k.zero_ticks), "azimuth_limits_deg": limits}}  # fmt: skip
+
+    def record(self, images: Path) -> dict:
+        se = self.fit.standard_errors
+        return {"images": str(images.resolve()), "rays": self.rays, "refused_poses": self.refused,
+                "worst_miss_mm": round(float(self.fit.miss_mm.max()), 3),
+                "arm_radius_se_mm": round(1e3 * se["arm_radius_m"], 3),
+                "zero_ticks_se": [round(se["zero_az_ticks"], 2), round(se["zero_el_ticks"], 2)]}  # fmt: skip
+
+
+def solve_gantry(frames: list[BallFrame], rig: Rig) -> GantryCalibration:
+    radius, place = ball_spec(rig)
+    camera, t = rig.camera, rig.turntable_kinematics
+    points, directions, ticks, refused = [], [], [], 0
+    centre = None
+    for f in frames:
+        a = np.radians(t.degrees_for(f.turntable_steps))
+        expected = np.array(
+            [np.cos(a) * place[0] - np.sin(a) * place[1], np.sin(a) * place[0] + np.cos(a) * place[1], radius]
+        )
+        near = camera.project(expected[None])[0][0]
+        if f.kind == "outline":
+            centre = ball_centre(f.pixels, camera, radius, near)
+            continue
+        if centre is None:
+            raise CalibrationError("a highlight frame before any outline frame: the images are incomplete")
+        try:
+            point, direction = lamp_ray(camera, centre, radius, highlight_px(f.pixels, near))
+        except CalibrationError:
+            refused += 1
+            continue
+        points.append(point)
+        directions.append(direction)
+        ticks.append(f.gantry_ticks)
+    if len(points) < 12:
+        raise CalibrationError(
+            f"only {len(points)} usable highlights (need 12): check the ball and the lamp poses"
+        )
+    fit = fit_gantry(np.array(points), np.array(directions), np.array(ticks), rig.gantry.kinematics)
+    return GantryCalibration(fit, len(points), refused)
