@@ -56,7 +56,7 @@ def examine_rig(
 
 
 CALIBRATIONS = ("camera", "gantry", "radiometric")
-HAS_COMMAND = {"camera"}  # the procedures hlr-lab calibrate runs so far
+HAS_COMMAND = {"camera", "gantry"}  # the procedures hlr-lab calibrate runs so far
 STALE_DAYS = 90  # a calibration older than this is worth repeating (a knock, a lamp changed, a season)
 
 
