@@ -112,3 +112,22 @@ def test_calibrate_gantry_on_the_camera_calibrated_rig(calibrated, tmp_path, cap
     bare.write_text(text[: text.index("[calibration.mirror_ball]")])
     assert main(["calibrate", "gantry", "--rig", str(bare), "--sim", "-o", str(tmp_path / "x.toml")]) == 1
     assert "no [calibration.mirror_ball]" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_calibrate_all_writes_one_file_with_both_records(tmp_path):
+    """Camera then gantry on the simulated bench, short runs: one rig file carrying both calibrations,
+    the camera-only file and both sets of photographs kept in --out."""
+    command = ["calibrate", "all", "--sim", "--true-rig", "builtin:bench-offsets", "--views", "16", "--poses",
+               "12", "--board-along-zero", "--out", str(tmp_path / "run"), "-o", str(tmp_path / "all.toml"),
+               "--speed-factor", "40"]  # fmt: skip
+    assert main(command) == 0
+    after = load_rig(tmp_path / "all.toml")
+    assert after.file.calibration.camera is not None
+    assert after.file.calibration.gantry is not None
+    truth = load_true_rig("builtin:bench-offsets")
+    assert abs(after.camera.matrix[0, 0] / truth.camera.matrix[0, 0] - 1) < 0.002
+    assert abs(after.gantry.kinematics.arm_radius - truth.gantry.arm_radius) < 1.5e-3
+    assert (tmp_path / "run" / "rig-camera.toml").is_file()
+    assert len(list((tmp_path / "run" / "camera" / "frames").glob("*.png"))) == 16
+    assert len(list((tmp_path / "run" / "gantry" / "frames").glob("*.png"))) >= 20

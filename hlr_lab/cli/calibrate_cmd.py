@@ -23,7 +23,7 @@ from hlr_lab.rig_edit import write_calibrated_rig
 
 @click.group()
 def calibrate() -> None:
-    """Measure the rig (camera, then gantry) and write a calibrated copy of its rig file."""
+    """Measure the rig (camera, gantry, or all) and write a calibrated copy of its rig file."""
 
 
 @calibrate.command("camera")
@@ -62,17 +62,26 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
       hlr-lab calibrate camera --sim --true-rig builtin:bench-offsets -o calibrated.toml
       hlr-lab calibrate camera --rig rig.toml --from calibration/2026-11-30-0930 -o rig-calibrated.toml
     """
-    from calibration.camera_procedure import board_spec, capture_board_frames, load_board_frames, solve_camera
+    from calibration.camera_procedure import board_spec
 
     if true_rig is not None and not sim:
         raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
     rig = believed_rig(rig_path, sim)
     board_spec(rig)  # a rig file without a board is refused before anything moves
-    source = _source_path(rig)
-    if from_dir is not None:
-        images = from_dir
-    else:
-        images = _new_folder(out or source.parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S"))
+    images = from_dir or _new_folder(
+        out or _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
+    )
+    _run_camera(
+        rig, sim, true_rig, views, images, from_dir is not None, board_along_zero, output, speed_factor
+    )
+
+
+def _run_camera(rig: Rig, sim, true_rig, views, images: Path, solve_only: bool, board_along_zero, output: Path,
+                speed_factor) -> Rig:  # fmt: skip
+    """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
+    from calibration.camera_procedure import capture_board_frames, load_board_frames, solve_camera
+
+    if not solve_only:
         with contextlib.ExitStack() as stack:
             links, turn = _world(stack, rig, sim, true_rig, speed_factor)
             with console.status("calibrating the camera…") as status, open_rig(rig, links) as opened:
@@ -87,9 +96,10 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
     with console.status("solving…"):
         result = solve_camera(load_board_frames(images), rig)
     fields = result.rig_fields(rig, board_along_zero=board_along_zero)
-    calibrated = write_calibrated_rig(source, output, fields, "camera", result.record(images))
+    calibrated = write_calibrated_rig(_source_path(rig), output, fields, "camera", result.record(images))
     console.print(_table(rig, calibrated, result))
     console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+    return calibrated
 
 
 def _source_path(rig: Rig) -> Path:
@@ -208,17 +218,25 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
       hlr-lab calibrate gantry --rig rig-camera.toml -o rig-calibrated.toml
       hlr-lab calibrate gantry --sim --true-rig builtin:bench-offsets -o calibrated.toml
     """
-    from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
+    from calibration.gantry_procedure import ball_spec
 
     if true_rig is not None and not sim:
         raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
     rig = believed_rig(rig_path, sim)
-    radius, place = ball_spec(rig)  # a rig file without a ball is refused before anything moves
-    source = _source_path(rig)
-    images = from_dir or _new_folder(
-        out or source.parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
-    )
-    if from_dir is None:
+    ball_spec(rig)  # a rig file without a ball is refused before anything moves
+    default = _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
+    images = from_dir or _new_folder(out or default)
+    _run_gantry(rig, sim, true_rig, poses, images, from_dir is not None, output, speed_factor)
+
+
+def _run_gantry(
+    rig: Rig, sim, true_rig, poses, images: Path, solve_only: bool, output: Path, speed_factor
+) -> Rig:
+    """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
+    from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
+
+    if not solve_only:
+        radius, place = ball_spec(rig)
         with contextlib.ExitStack() as stack:
             links = _ball_world(stack, rig, sim, true_rig, speed_factor, radius, place)
             with console.status("calibrating the gantry…") as status, open_rig(rig, links) as opened:
@@ -231,7 +249,9 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
                 )
     with console.status("solving…"):
         result = solve_gantry(load_ball_frames(images), rig)
-    calibrated = write_calibrated_rig(source, output, result.rig_fields(rig), "gantry", result.record(images))
+    calibrated = write_calibrated_rig(
+        _source_path(rig), output, result.rig_fields(rig), "gantry", result.record(images)
+    )
     k0, k1 = rig.gantry.kinematics, calibrated.gantry.kinematics
     t = Table(title="gantry calibration", title_justify="left")
     for column in ("", "rig file before", "calibrated"):
@@ -252,6 +272,54 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
         t.add_row(*row)
     console.print(t)
     console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+    return calibrated
+
+
+@calibrate.command("all")
+@click.option(
+    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
+)
+@click.option("--sim", is_flag=True, help="Calibrate the simulated rig.")
+@true_rig_option
+@click.option(
+    "--views", type=click.IntRange(16, 200), default=24, show_default=True, help="Board photographs."
+)
+@click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True, help="Lamp poses.")
+@click.option("--board-along-zero", is_flag=True,
+              help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.")  # fmt: skip
+@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for the photographs and the camera-only rig file (default: calibration/DATE-all).",
+              )  # fmt: skip
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="The calibrated rig file to write.")  # fmt: skip
+@speed_factor_option("With --sim: simulated")
+def all_(rig_path, sim, true_rig, views, poses, board_along_zero, out, output, speed_factor) -> None:
+    """Calibrate the camera, then the gantry with it, into one calibrated rig file.
+
+    The camera procedure (board on a wedge) writes OUT/rig-camera.toml; the gantry procedure (mirror
+    ball) runs on that file and writes -o, which carries both [calibration] records. The radiometric
+    procedure is not part of it yet (see the README's hand calibration).
+
+    
+    Examples:
+      hlr-lab calibrate all --rig rig.toml --board-along-zero -o rig-calibrated.toml
+      hlr-lab calibrate all --sim --true-rig builtin:bench-offsets --board-along-zero -o calibrated.toml
+    """
+    from calibration.camera_procedure import board_spec
+    from calibration.gantry_procedure import ball_spec
+
+    if true_rig is not None and not sim:
+        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
+    rig = believed_rig(rig_path, sim)
+    board_spec(rig), ball_spec(rig)  # both targets described before anything moves
+    folder = _new_folder(
+        out or _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")
+    )
+    with_camera = _run_camera(rig, sim, true_rig, views, _new_folder(folder / "camera"), False, board_along_zero,
+                              folder / "rig-camera.toml", speed_factor)  # fmt: skip
+    _run_gantry(
+        with_camera, sim, true_rig, poses, _new_folder(folder / "gantry"), False, output, speed_factor
+    )
 
 
 def _new_folder(folder: Path) -> Path:

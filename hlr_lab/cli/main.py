@@ -38,7 +38,7 @@ COMMANDS = {
     "sim": ("hlr_lab.cli.sim_cmd:sim",
             "The simulated rig (servo bus on a pseudo-terminal, Modbus turntable and lamp relay, camera)."),
     "calibrate": ("hlr_lab.cli.calibrate_cmd:calibrate",
-                  "Measure the rig (camera, then gantry) and write a calibrated copy of its rig file."),
+                  "Measure the rig (camera, gantry, or all) and write a calibrated copy of its rig file."),
     "doctor": ("hlr_lab.cli.doctor_cmd:doctor",
                "Connect to every device of the rig and report identities, limits, temperatures and alarms."),
     "demo": ("hlr_lab.cli.demo_cmd:demo",
