@@ -23,11 +23,12 @@ import numpy as np
 
 from calibration.camera_pose import CameraPose, refine_pose
 from calibration.charuco import BoardSpec, CalibrationError, Detection, calibrate_intrinsics, detect
+from calibration.images import journaled_images
 from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
 from hlr_lab.rig import Rig
-from hlr_lab.session.frames import load_frame, read_sidecar, store_frame
-from hlr_lab.session.journal import JOURNAL, Journal, read_journal
+from hlr_lab.session.frames import store_frame
+from hlr_lab.session.journal import JOURNAL, Journal
 
 log = logging.getLogger(__name__)
 DEFAULT_VIEWS = 24
@@ -168,16 +169,10 @@ def _exposed(instruments: Instruments, exposure: float):
 
 def load_board_frames(folder: Path) -> list[BoardFrame]:
     """The photographs a capture left in ``folder`` (checked against their journal lines)."""
-    if not (folder / JOURNAL).is_file():
-        raise InputError(
-            "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
-        )
-    frames = []
-    for e in (e for e in read_journal(folder / JOURNAL) if e["event"] == "frame"):
-        sidecar = read_sidecar(folder, e)
-        frames.append(
-            BoardFrame(load_frame(folder, e), int(sidecar["turntable_steps"]), int(sidecar["placement"]))
-        )
+    frames = [
+        BoardFrame(pixels, int(s["turntable_steps"]), int(s["placement"]))
+        for s, pixels in journaled_images(folder)
+    ]
     if not frames:
         raise InputError("the folder has no calibration images", path=folder)
     return frames

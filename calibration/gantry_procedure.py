@@ -19,12 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from calibration.charuco import CalibrationError
+from calibration.images import journaled_images
 from calibration.mirror_ball import GantryFit, ball_centre, fit_gantry, highlight_px, lamp_ray
 from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
 from hlr_lab.rig import Rig
-from hlr_lab.session.frames import load_frame, read_sidecar, store_frame
-from hlr_lab.session.journal import JOURNAL, Journal, read_journal
+from hlr_lab.session.frames import store_frame
+from hlr_lab.session.journal import JOURNAL, Journal
 
 DEFAULT_POSES = 30
 TURNS_DEG = (-10.0, 170.0)  # half a turn apart, the ball to either side, inside any turntable limits
@@ -129,17 +130,11 @@ def _exposed(instruments: Instruments, rig: Rig, kind: str):
 
 
 def load_ball_frames(folder: Path) -> list[BallFrame]:
-    if not (folder / JOURNAL).is_file():
-        raise InputError(
-            "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
-        )
-    frames = []
-    for e in (e for e in read_journal(folder / JOURNAL) if e["event"] == "frame"):
-        s = read_sidecar(folder, e)
-        frames.append(
-            BallFrame(load_frame(folder, e), s["kind"], int(s["turntable_steps"]), tuple(s["gantry_ticks"]))
-        )
-    return frames
+    """The photographs a capture left in ``folder`` (checked against their journal lines)."""
+    return [
+        BallFrame(pixels, s["kind"], int(s["turntable_steps"]), tuple(s["gantry_ticks"]))
+        for s, pixels in journaled_images(folder)
+    ]
 
 
 @dataclass(frozen=True)
