@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from hlr_lab.errors import InputError
-from hlr_lab.session.frames import load_frame, read_sidecar
+from hlr_lab.session.frames import checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, read_journal
 
 
@@ -20,4 +20,7 @@ def journaled_images(folder: Path) -> Iterator[tuple[dict, np.ndarray]]:
             "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
         )
     for e in (e for e in read_journal(folder / JOURNAL) if e["event"] == "frame"):
-        yield read_sidecar(folder, e), load_frame(folder, e)
+        sidecar, problem = checked_sidecar(folder, e)
+        if problem:
+            raise InputError(f"{problem}; take the calibration's photographs again", path=folder)
+        yield sidecar, load_frame(folder, e)

@@ -44,7 +44,7 @@ from hlr_lab.reflectance.views import (
     pose_samples,
 )
 from hlr_lab.rig import Rig, rig_of_snapshot
-from hlr_lab.session.frames import frame_problem, load_frame, read_sidecar
+from hlr_lab.session.frames import checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, load_journal
 from hlr_lab.session.metadata import SESSION, read_record
 from hlr_lab.silhouette import object_window
@@ -62,6 +62,7 @@ class View:
     measured: dict
     frames: list[dict]  # journal lines, lit frames
     darks: dict[int, dict]  # exposure index → journal line of the dark frame
+    sidecars: dict[str, dict] = field(default_factory=dict)  # frame file → its checked sidecar
 
 
 @dataclass(frozen=True)
@@ -164,16 +165,16 @@ def open_session(path: Path, *, allow_incomplete: bool = False) -> Session:
 
 
 def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
-    """The journaled frames that check out (files, checksums, sidecar agreeing with the journal line),
-    grouped into views, and what was wrong with the others. Of the lines for one frame (pose, exposure,
+    """The journaled frames that check out (files there, sidecar checksum, sidecar agreeing with the
+    journal line; each image's checksum when it is read), grouped into views, and what was wrong with the
+    others. Of the lines for one frame (pose, exposure,
     lamp), the last intact one counts (a resumed run retakes a lost frame under a new name)."""
     latest: dict[tuple[str, int, bool], tuple[dict, dict]] = {}
     rejected = []
     for e in events:
         if e.get("event") != "frame":
             continue
-        problem = frame_problem(path, e)
-        sidecar = None if problem else read_sidecar(path, e)
+        sidecar, problem = checked_sidecar(path, e)  # the image's checksum is checked as it is read
         problem = problem or _sidecar_problem(sidecar)
         if problem:
             rejected.append(f"{e['file']}: {problem}")
@@ -188,6 +189,7 @@ def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
             view.darks[k] = e
         else:
             view.frames.append(e)
+            view.sidecars[e["file"]] = sidecar
     return [v for v in groups.values() if v.frames], rejected
 
 
@@ -215,7 +217,10 @@ def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
     object (``mesh``, turntable frame) may appear."""
     sensor = session.rig.file.sensor
     return merge_bracket(
-        [_bracket_frame(session.path, e, view.darks.get(e["exposure_index"])) for e in view.frames],
+        [
+            _bracket_frame(session.path, e, view.sidecars[e["file"]], view.darks.get(e["exposure_index"]))
+            for e in view.frames
+        ],
         sensitivity=sensor.sensitivity,
         black_level_dn=sensor.black_level_dn,
         read_noise_dn=sensor.read_noise_dn,
@@ -368,8 +373,7 @@ def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins
     }
 
 
-def _bracket_frame(session: Path, event: dict, dark: dict | None) -> BracketFrame:
-    sidecar = read_sidecar(session, event)
+def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None) -> BracketFrame:
     pixels = load_frame(session, event)
     return BracketFrame(
         pixels if pixels.ndim == 3 else pixels[..., None],

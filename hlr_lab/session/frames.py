@@ -63,12 +63,12 @@ def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> 
 def frame_problem(session: Path, event: dict) -> str | None:
     """Why a journaled frame cannot be trusted (a file missing or changed, a sidecar that disagrees with
     its journal line), or None when it is intact. ``event`` is a checked journal frame line."""
-    return _read_checked(session, event)[1]
+    return checked_sidecar(session, event)[1] or _checked_image(session, event)[1]
 
 
 def load_frame(session: Path, event: dict) -> np.ndarray:
-    """The pixels of a journaled frame, checked against the journal first (the image is read once)."""
-    image, problem = _read_checked(session, event)
+    """The pixels of a journaled frame, its image checked against the journal as it is read (once)."""
+    image, problem = _checked_image(session, event)
     if problem:
         raise InputError(f"{problem}; run hlr-lab acquire again on this session to retake it", path=session)
     pixels = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
@@ -77,38 +77,46 @@ def load_frame(session: Path, event: dict) -> np.ndarray:
     return pixels[..., ::-1] if pixels.ndim == 3 else pixels
 
 
-def read_sidecar(session: Path, event: dict) -> dict:
-    """The sidecar of a journaled frame that :func:`frame_problem` passed."""
-    return json.loads((session / event["sidecar"]).read_bytes())
-
-
 # what a journal frame line and its sidecar must both say
 _AGREE = ("pose", "exposure_index", "dark", "exposure_s")
 
 
-def _read_checked(session: Path, event: dict) -> tuple[bytes, str | None]:
-    """The image file's bytes, and why the frame cannot be trusted (None when it checks out)."""
-    files = {}
-    for key, digest in (("file", "sha256"), ("sidecar", "sidecar_sha256")):
-        path = session / event[key]
-        if not path.is_file():
-            return b"", f"{event[key]} is missing"
-        data = path.read_bytes()
-        if _sha256(data) != event[digest]:
-            return b"", f"{event[key]} does not match its checksum in the journal"
-        files[key] = data
+def checked_sidecar(session: Path, event: dict) -> tuple[dict | None, str | None]:
+    """The sidecar of a journaled frame, and why the frame cannot be trusted (None when it can): its
+    image is there, the sidecar matches its checksum, is a JSON object and agrees with the journal line
+    (pose, exposure, lamp, and its image's checksum). The image itself is checked when it is read
+    (:func:`load_frame`), so that a fit reads each image once."""
+    if not (session / event["file"]).is_file():
+        return None, f"{event['file']} is missing"
+    path = session / event["sidecar"]
+    if not path.is_file():
+        return None, f"{event['sidecar']} is missing"
+    data = path.read_bytes()
+    if _sha256(data) != event["sidecar_sha256"]:
+        return None, f"{event['sidecar']} does not match its checksum in the journal"
     try:
-        sidecar = json.loads(files["sidecar"])
+        sidecar = json.loads(data)
     except ValueError:
         sidecar = None
     if not isinstance(sidecar, dict):
-        return b"", f"{event['sidecar']} is not a JSON object"
+        return None, f"{event['sidecar']} is not a JSON object"
     if sidecar.get("image_sha256") != event["sha256"]:
-        return b"", f"{event['sidecar']} describes another image than {event['file']}"
+        return None, f"{event['sidecar']} describes another image than {event['file']}"
     differ = [k for k in _AGREE if sidecar.get(k) != event[k]]
     if differ:
-        return b"", f"the journal line of {event['file']} and its sidecar disagree on {', '.join(differ)}"
-    return files["file"], None
+        return None, f"the journal line of {event['file']} and its sidecar disagree on {', '.join(differ)}"
+    return sidecar, None
+
+
+def _checked_image(session: Path, event: dict) -> tuple[bytes, str | None]:
+    """The image file's bytes, and why they cannot be trusted (None when they match the journal)."""
+    path = session / event["file"]
+    if not path.is_file():
+        return b"", f"{event['file']} is missing"
+    data = path.read_bytes()
+    if _sha256(data) != event["sha256"]:
+        return b"", f"{event['file']} does not match its checksum in the journal"
+    return data, None
 
 
 def _sha256(data: bytes) -> str:
