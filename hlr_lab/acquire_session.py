@@ -54,7 +54,9 @@ def acquire_session(
 
     def open_session_directory() -> bool:
         session_held.enter_context(hold_session(session))
-        return start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
+        resumed = start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=force)
+        session_held.enter_context(session_log(session / LOG))  # until after the safe state
+        return resumed
 
     with contextlib.ExitStack() as session_held:  # outlives the rig: the safe state is journaled too
         try:
@@ -64,26 +66,23 @@ def acquire_session(
             with open_rig(rig, links) as opened:
                 if resumed is None:  # only now, with every device answering, is the session created
                     resumed = open_session_directory()
-                with session_log(session / LOG):
-                    on_start(resumed)
-                    outcome = acquire(
-                        plan,
-                        targets,
-                        opened.instruments,
-                        session,
-                        bracket=bracket,
-                        progress=progress,
-                        object_window=object_window,
-                        tolerance=Tolerance(
-                            rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks
-                        ),
-                    )
-                    log.info("run summary: %s", outcome.summary())
+                on_start(resumed)
+                outcome = acquire(
+                    plan,
+                    targets,
+                    opened.instruments,
+                    session,
+                    bracket=bracket,
+                    progress=progress,
+                    object_window=object_window,
+                    tolerance=Tolerance(rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks),
+                )
+                log.info("run summary: %s", outcome.summary())
         except RunStopped as stop:
             if (session / JOURNAL).exists():
-                _record_safe_state(stop.safe, session)
+                _journal_safe_state(stop.safe, session)
             raise
-        _record_safe_state(opened.devices.safe, session)
+        _journal_safe_state(opened.devices.safe, session)
     return outcome
 
 
@@ -99,10 +98,9 @@ def _check_room(plan: PlanFile, rig: Rig, session: Path, bracket: Bracketing) ->
     check_room(session, frames, frame_bytes(rig.camera.width, rig.camera.height))
 
 
-def _record_safe_state(safe: SafeState, session: Path) -> None:
-    """What the devices confirmed when the run ended: a ``safe_state`` journal line and a log line."""
-    with session_log(session / LOG):
-        (log.info if safe.ok else log.error)("safe state: %s", safe.sentence())
+def _journal_safe_state(safe: SafeState, session: Path) -> None:
+    """What the devices confirmed when the run ended, as the journal's ``safe_state`` line (the session
+    log has it already: :meth:`hlr_lab.devices.RigDevices.safe_state` logs it)."""
     try:
         with Journal(session / JOURNAL) as journal:
             journal.append_last(safe.as_event())

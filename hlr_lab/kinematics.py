@@ -1,11 +1,11 @@
 """Kinematics between what plans speak (light positions, turntable degrees) and what devices move
 (servo ticks, stage steps), from the rig file.
 
-Gantry (DESIGN §3): the lamp at ``centre + R·F·(cos el cos az, cos el sin az, sin el)``; azimuth and
+Gantry: the lamp at ``centre + R·F·(cos el cos az, cos el sin az, sin el)``; azimuth and
 elevation servos read ``zero + direction · angle · ticks_per_rev / 360`` ticks. F is the gantry's own
 frame (:func:`gantry_frame`): its azimuth axis ``a`` (the rig file's ``gantry.azimuth_axis``, world +z
 on a rig built to its drawing), azimuth 0 along world +x projected onto the plane perpendicular to
-``a``, elevation measured from that plane. With ``a`` = +z, F is the identity.
+``a``, elevation measured from that plane. With ``a`` = +z, F is the identity (docs/calibration.md).
 """
 
 from __future__ import annotations

@@ -17,6 +17,8 @@ from hlr_lab.signals import stop_once_on_signals
 EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
 EXIT_INTERRUPTED = 130  # Ctrl-C or a signal, and nothing left unsafe
 EXIT_INTERNAL = 70  # a bug in hlr-lab (EX_SOFTWARE)
+# their records go to a session's log (acquire.log); the console has its own lines for the operator
+QUIET_LOGGERS = ("hlr_lab", "drivers", "pymodbus")
 
 # name → (where the command lives, its one-line summary). A command's module is imported only when the
 # command runs, so that `hlr-lab --help` and a typo answer at once instead of loading numpy, trimesh,
@@ -94,11 +96,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; the first SIGINT/SIGTERM stops it (exit status 130), later ones cannot cut its
     safe stop short (:mod:`hlr_lab.signals`)."""
-    for name in (
-        "hlr_lab",
-        "drivers",
-        "pymodbus",
-    ):  # records go to the session's log; the console has its own
+    for name in QUIET_LOGGERS:
         logger = logging.getLogger(name)
         if not any(isinstance(h, logging.NullHandler) for h in logger.handlers):
             logger.addHandler(logging.NullHandler())
@@ -119,7 +117,7 @@ def _run(argv: list[str] | None) -> int:
     except HlrLabError as exc:
         if debug:
             console.print_exception()
-        # a stopped run (hlr_lab.acquire_session.RunStopped) carries its own status: 130 when it was
+        # a stopped run (hlr_lab.rig_control.RunStopped) carries its own status: 130 when it was
         # stopped by a signal and the rig is confirmed safe
         status = getattr(exc, "exit_status", EXIT_ERROR)
         label = "[yellow]interrupted:[/]" if status == EXIT_INTERRUPTED else "[bold red]error:[/]"

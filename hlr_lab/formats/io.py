@@ -55,9 +55,8 @@ def _write_via_temporary(path: Path, data: bytes, publish) -> None:
                 os.fsync(f.fileno())
             publish(tmp, path)
         finally:
-            Path(tmp).unlink(
-                missing_ok=True
-            )  # after os.replace it is gone already; after os.link, a 2nd name
+            # after os.replace it is gone already; after os.link, it is a second name
+            Path(tmp).unlink(missing_ok=True)
         fsync_directory(path.parent)
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
@@ -65,12 +64,16 @@ def _write_via_temporary(path: Path, data: bytes, publish) -> None:
         raise
 
 
+def free_bytes(path: Path) -> int:
+    """Free bytes for this user on the filesystem holding ``path`` (or its nearest existing parent)."""
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return shutil.disk_usage(path).free
+
+
 def disk_full(path: Path, size: int) -> DiskFull:
     """The error for ``path`` (``size`` bytes) not fitting on its filesystem, with what is free there."""
-    where = path.parent
-    while not where.exists() and where != where.parent:
-        where = where.parent
-    free = shutil.disk_usage(where).free
+    free = free_bytes(path.parent)
     return DiskFull(
         f"{path}: no space left on the device ({size / 1e6:.1f} MB to write, {free / 1e6:.1f} MB free); "
         "free some space and run the command again"

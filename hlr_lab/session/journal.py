@@ -14,6 +14,7 @@ At most one process writes a session (:mod:`hlr_lab.locks`).
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -22,7 +23,8 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from hlr_lab.formats.io import atomic_write_bytes, fsync_directory
+from hlr_lab.errors import DiskFull
+from hlr_lab.formats.io import atomic_write_bytes, disk_full, fsync_directory
 
 JOURNAL = "journal.jsonl"  # the session directory's journal (DESIGN §4)
 DAMAGED = "journal.damaged"  # damaged lines set aside by a resumed run, one JSON object per line
@@ -75,11 +77,13 @@ class Journal:
         with self._lock:
             try:
                 written = os.write(self._fd, line)
-            except OSError:
+            except OSError as exc:
+                if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+                    raise
                 written = 0
-            if written != len(line):  # a full disk: cut the part-line so the journal stays whole
+            if written != len(line):  # the disk is full: cut the part-line so the journal stays whole
                 os.ftruncate(self._fd, os.fstat(self._fd).st_size - written)
-                raise OSError(28, f"the disk took {written} of {len(line)} bytes", str(self.path))
+                raise disk_full(self.path, len(line))
             os.fsync(self._fd)
             self.events.append(event)
 
@@ -87,7 +91,7 @@ class Journal:
         """Append the run's last line, using the room kept for it when the disk is full."""
         try:
             self.append(event)
-        except OSError:
+        except DiskFull:
             (self.path.parent / RESERVE).unlink(missing_ok=True)
             self.append(event)
 
@@ -146,7 +150,7 @@ def _parse(line: bytes) -> tuple[dict | None, str | None]:
         return None, f"not JSON ({exc})"
     if not isinstance(event, dict) or not isinstance(event.get("event"), str):
         return None, 'not an event (a JSON object with an "event" name)'
-    problem = _FRAME_CHECKS.get(event["event"], lambda _: None)(event)
+    problem = _frame_problem(event) if event["event"] == "frame" else None
     return (None, problem) if problem else (event, None)
 
 
@@ -172,9 +176,6 @@ def _frame_problem(e: dict) -> str | None:
     if ".." in e["file"] or ".." in e["sidecar"]:
         return "frame line: a file name with '..'"
     return None
-
-
-_FRAME_CHECKS = {"frame": _frame_problem}
 
 
 def _set_aside(path: Path, contents: JournalContents) -> None:

@@ -2,28 +2,19 @@
 
 A night's frames are hundreds of megabytes to gigabytes; a run that finds out at 3 a.m. that they do not
 fit has wasted the night. So before anything moves, the space the missing frames need is compared with
-what the session's filesystem has free. Writing a file that does not fit is a
+what the session's filesystem has free. Writing a file (or a journal line) that does not fit is a
 :class:`hlr_lab.errors.DiskFull` naming it (:func:`hlr_lab.formats.io.disk_full`).
 """
 
 from __future__ import annotations
 
-import errno
-import shutil
 from pathlib import Path
 
 from hlr_lab.errors import DiskFull
-from hlr_lab.formats.io import disk_full
+from hlr_lab.formats.io import free_bytes
 
 MARGIN_BYTES = 64 * 1024 * 1024  # for the journal, the log, sidecars and the fit's outputs
 PNG_OVERHEAD = 1.01  # a raw frame's noise barely compresses: a PNG is at most its raw size and headers
-
-
-def free_bytes(path: Path) -> int:
-    """Free bytes for this user on the filesystem holding ``path`` (or its nearest existing parent)."""
-    while not path.exists() and path != path.parent:
-        path = path.parent
-    return shutil.disk_usage(path).free
 
 
 def frame_bytes(width: int, height: int, channels: int = 3, bytes_per_value: int = 2) -> int:
@@ -43,8 +34,3 @@ def check_room(session: Path, frames: int, bytes_per_frame: int) -> int:
             f"{free / 1e6:,.0f} MB is free there; free space or give another --out"
         )
     return needed
-
-
-def storage_error(exc: OSError, path: Path, size: int) -> Exception:
-    """A full disk while writing ``path`` (``size`` bytes) as :class:`DiskFull`; other errors unchanged."""
-    return disk_full(path, size) if exc.errno in (errno.ENOSPC, errno.EDQUOT) else exc

@@ -24,7 +24,6 @@ import numpy as np
 
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import Journal
-from hlr_lab.session.space import storage_error
 
 log = logging.getLogger(__name__)
 
@@ -79,9 +78,7 @@ class FrameWriter:
                 stored = store_frame(self.session, job.name, job.pixels, job.sidecar)
                 self.journal.append(stored.as_event(**job.event))
                 self.stored += 1
-            except OSError as exc:  # the journal's line (the frame's files raise DiskFull themselves)
-                self._error = storage_error(exc, self.journal.path, job.pixels.nbytes)
-            except BaseException as exc:
+            except BaseException as exc:  # a full disk is a DiskFull naming the file already
                 self._error = exc
 
     def _raise_failure(self) -> None:
