@@ -81,10 +81,9 @@ def acquire_cmd(
       hlr-lab acquire --plan plan.json --rig rig.toml --out sessions/bunny-1
       hlr-lab acquire --plan plan.json --sim --true-rig builtin:bench-offsets   # a rig off its drawing
     """
-    for option, given in (("--scene", scene_path), ("--true-rig", true_rig)):
-        if given is not None and not sim:
-            raise InputError("describes the simulated world: use it with --sim", field=option)
-    rig = believed_rig(rig_path, sim)
+    if scene_path is not None and not sim:
+        raise InputError("describes the simulated world: use it with --sim", field="--scene")
+    rig = believed_rig(rig_path, sim, true_rig)
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
     console.print(_motion_table(plan, targets))

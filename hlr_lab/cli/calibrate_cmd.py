@@ -12,7 +12,7 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import believed_rig, speed_factor_option, true_rig_option
+from hlr_lab.cli.common import believed_rig, rig_options, speed_factor_option
 from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
@@ -27,11 +27,7 @@ def calibrate() -> None:
 
 
 @calibrate.command("camera")
-@click.option(
-    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
-)
-@click.option("--sim", is_flag=True, help="Calibrate the simulated rig (a simulated board on a wedge).")
-@true_rig_option
+@rig_options("Calibrate the simulated rig (a simulated board on a wedge).")
 @click.option("--views", type=click.IntRange(16, 200), default=24, show_default=True,
               help="Photographs: half on each face of the wedge, spread over ±55° of turntable.")  # fmt: skip
 @click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
@@ -64,9 +60,7 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
     """
     from calibration.camera_procedure import board_spec
 
-    if true_rig is not None and not sim:
-        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
-    rig = believed_rig(rig_path, sim)
+    rig = believed_rig(rig_path, sim, true_rig)
     board_spec(rig)  # a rig file without a board is refused before anything moves
     images = from_dir or _new_folder(
         out or _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
@@ -190,11 +184,7 @@ def _angle(a, b) -> float:
 
 
 @calibrate.command("gantry")
-@click.option(
-    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
-)
-@click.option("--sim", is_flag=True, help="Calibrate the simulated rig (a simulated mirror ball).")
-@true_rig_option
+@rig_options("Calibrate the simulated rig (a simulated mirror ball).")
 @click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True,
               help="Lamp poses, each photographed with the ball at two turntable angles.")  # fmt: skip
 @click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
@@ -220,9 +210,7 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
     """
     from calibration.gantry_procedure import ball_spec
 
-    if true_rig is not None and not sim:
-        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
-    rig = believed_rig(rig_path, sim)
+    rig = believed_rig(rig_path, sim, true_rig)
     ball_spec(rig)  # a rig file without a ball is refused before anything moves
     default = _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
     images = from_dir or _new_folder(out or default)
@@ -276,11 +264,7 @@ def _run_gantry(
 
 
 @calibrate.command("all")
-@click.option(
-    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
-)
-@click.option("--sim", is_flag=True, help="Calibrate the simulated rig.")
-@true_rig_option
+@rig_options("Calibrate the simulated rig.")
 @click.option(
     "--views", type=click.IntRange(16, 200), default=24, show_default=True, help="Board photographs."
 )
@@ -308,9 +292,7 @@ def all_(rig_path, sim, true_rig, views, poses, board_along_zero, out, output, s
     from calibration.camera_procedure import board_spec
     from calibration.gantry_procedure import ball_spec
 
-    if true_rig is not None and not sim:
-        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
-    rig = believed_rig(rig_path, sim)
+    rig = believed_rig(rig_path, sim, true_rig)
     board_spec(rig), ball_spec(rig)  # both targets described before anything moves
     folder = _new_folder(
         out or _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")

@@ -59,13 +59,30 @@ def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:
     return sim_rig() if use_sim else load_rig(rig_path)
 
 
-def believed_rig(rig_path: Path | None, use_sim: bool) -> Rig:
+def believed_rig(rig_path: Path | None, use_sim: bool, true_rig: str | None = None) -> Rig:
     """The rig hlr-lab works with: the file given, else with ``use_sim`` the built-in simulated rig.
     Unlike :func:`resolve_rig`, a rig file may come with ``--sim``: the simulated world then takes the
-    file's geometry (or ``--true-rig``'s), and its endpoints replace the file's links."""
+    file's geometry (or ``--true-rig``'s), and its endpoints replace the file's links. ``--true-rig``
+    without ``--sim`` is refused."""
+    if true_rig is not None and not use_sim:
+        raise InputError("describes the simulated world: use it with --sim", field="--true-rig")
     if rig_path is not None:
         return load_rig(rig_path)
     return resolve_rig(None, use_sim)
+
+
+def rig_options(sim_help: str):
+    """``--rig FILE``, ``--sim`` and ``--true-rig`` for commands that drive a rig (read them with
+    :func:`believed_rig`)."""
+
+    def apply(f):
+        f = true_rig_option(f)
+        f = click.option("--sim", is_flag=True, help=sim_help)(f)
+        return click.option(
+            "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
+        )(f)
+
+    return apply
 
 
 def true_rig_option(f):
