@@ -31,6 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calibration.charuco import BoardSpec, CalibrationError, Detection, Intrinsics
+from hlr_lab.sphere import rotation_z
 
 
 @dataclass(frozen=True)
@@ -101,7 +102,7 @@ def refine_pose(
         )
     objects = [spec.corners_m[detections[i].ids] for i in used]
     pixels = [detections[i].pixels for i in used]
-    turns = [_rz(np.radians(turntable_deg[i])) for i in used]
+    turns = [rotation_z(np.radians(turntable_deg[i])) for i in used]
     which = [placements[i] for i in used]
     kinds = sorted(set(which))
     if kinds[0] != 0:
@@ -110,9 +111,8 @@ def refine_pose(
     camera[:3, :3], camera[:3, 3] = believed_rotation, believed_translation
     centre = spec.corners_m.mean(axis=0)
     boards = []
-    for (
-        kind
-    ) in kinds:  # each board from its first view and the believed camera: B = Rz(θ)ᵀ · C⁻¹ · (cam ← board)
+    # each board from its first view and the believed camera: B = Rz(θ)ᵀ · C⁻¹ · (camera ← board)
+    for kind in kinds:
         v = which.index(kind)
         found, rvec, tvec = cv2.solvePnP(objects[v], pixels[v], intrinsics.matrix, intrinsics.distortion)
         if not found:
@@ -162,7 +162,7 @@ def refine_pose(
     believed_centre = -believed_rotation.T @ believed_translation
     centre_now = -cam[:3, :3].T @ cam[:3, 3]
     phi = np.arctan2(believed_centre[1], believed_centre[0]) - np.arctan2(centre_now[1], centre_now[0])
-    cam, brds = cam @ _rz(-phi), {kind: _rz(phi) @ b for kind, b in brds.items()}
+    cam, brds = cam @ rotation_z(-phi), {kind: rotation_z(phi) @ b for kind, b in brds.items()}
     r = fit.fun.reshape(-1, 2)
     bounds = np.cumsum([0] + [len(o) for o in objects])
     per_view = np.array(
@@ -170,12 +170,6 @@ def refine_pose(
     )
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
     return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view)
-
-
-def _rz(angle: float) -> np.ndarray:
-    m = np.eye(4)
-    m[:2, :2] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
-    return m
 
 
 def _pose(rvec, tvec) -> np.ndarray:

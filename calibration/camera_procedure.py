@@ -83,6 +83,7 @@ class CameraCalibration:
             "views": len(self.frames),
             "views_used": int(sum(len(d.ids) >= 6 for d in self.detections)),
             "rms_px": round(self.pose.rms_px, 4),
+            "intrinsics_only_rms_px": round(self.intrinsics_rms_px, 4),
             "worst_view_rms_px": round(float(self.pose.per_view_rms_px.max()), 4),
             "board_azimuth_deg": round(self.pose.board_azimuth_deg, 4),
         }

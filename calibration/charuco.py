@@ -75,9 +75,6 @@ class Intrinsics:
     matrix: np.ndarray  # (3, 3)
     distortion: np.ndarray  # (5,) k1 k2 p1 p2 k3
     rms_px: float  # over every corner of every view used
-    per_view_rms_px: np.ndarray  # (V,)
-    rotations: list[np.ndarray]  # per view, Rodrigues (3,) board → camera
-    translations: list[np.ndarray]  # per view, (3,) metres
 
 
 def usable_views(detections: list[Detection], size: tuple[int, int]) -> list[int]:
@@ -113,15 +110,5 @@ def calibrate_intrinsics(
     objects = [spec.corners_m[detections[i].ids].astype(np.float32) for i in used]
     images = [detections[i].pixels.astype(np.float32).reshape(-1, 1, 2) for i in used]
     flags = 0 if fit_k3 else cv2.CALIB_FIX_K3
-    rms, matrix, dist, rvecs, tvecs = cv2.calibrateCamera(objects, images, size, None, None, flags=flags)
-    per_view = np.array([
-        _rms(cv2.projectPoints(o, r, t, matrix, dist)[0].reshape(-1, 2) - p.reshape(-1, 2))
-        for o, p, r, t in zip(objects, images, rvecs, tvecs, strict=True)
-    ])  # fmt: skip
-    return Intrinsics(
-        matrix, dist.ravel()[:5], float(rms), per_view, [r.ravel() for r in rvecs], [t.ravel() for t in tvecs]
-    )
-
-
-def _rms(residuals: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum(residuals**2, axis=-1))))
+    rms, matrix, dist, _, _ = cv2.calibrateCamera(objects, images, size, None, None, flags=flags)
+    return Intrinsics(matrix, dist.ravel()[:5], float(rms))
