@@ -38,7 +38,7 @@ def _grey(image: np.ndarray) -> np.ndarray:
 def ball_centre(
     image: np.ndarray, camera: Camera, radius_m: float, near_px: tuple[float, float]
 ) -> np.ndarray:
-    """(3,) world centre of the ball whose outline is nearest ``near_px`` (where it is expected, px)."""
+    """(3,) world centre of the ball resting on the plate whose outline is nearest ``near_px`` (px)."""
     grey = _grey(image)
     lit = grey > 0.3 * np.percentile(grey, 90)
     dark = cv2.morphologyEx((~lit).astype(np.uint8), cv2.MORPH_CLOSE, np.ones((7, 7), np.uint8))
@@ -56,10 +56,9 @@ def ball_centre(
         raise CalibrationError("the mirror ball's outline is too small or cut off: bring it into full view")
     _, directions = camera.pixel_rays(arc)
     # the grazing rays form a cone about the line from the camera to the ball's centre: their directions
-    # lie on a circle of the unit sphere, whose plane's normal is that line and whose distance from the
-    # origin is the cosine of the cone's half-angle asin(r / distance)
-    # (the cone's angle gives the distance too, but a third of a pixel of outline is 2 mm of depth here;
-    # the ball rests on the plate, so its centre is where the axis is a radius above it: far sharper)
+    # lie on a circle of the unit sphere whose plane's normal is that line. (The cone's angle gives the
+    # distance too, but a third of a pixel of outline is 2 mm of depth here; the ball rests on the plate,
+    # so its centre is where the line is a radius above it: far sharper.)
     mean = directions.mean(axis=0)
     _, _, vt = np.linalg.svd(directions - mean)
     axis = vt[2] if vt[2] @ mean > 0 else -vt[2]
