@@ -39,6 +39,7 @@ class BallFrame:
     kind: str  # "outline" or "highlight"
     turntable_steps: int
     gantry_ticks: tuple[int, int]
+    bits: int  # the sensor's depth: full scale is 2^bits − 1
 
 
 def ball_spec(rig: Rig) -> tuple[float, tuple[float, float]]:
@@ -132,7 +133,7 @@ def _exposed(instruments: Instruments, rig: Rig, kind: str):
 def load_ball_frames(folder: Path) -> list[BallFrame]:
     """The photographs a capture left in ``folder`` (checked against their journal lines)."""
     return [
-        BallFrame(pixels, s["kind"], int(s["turntable_steps"]), tuple(s["gantry_ticks"]))
+        BallFrame(pixels, s["kind"], int(s["turntable_steps"]), tuple(s["gantry_ticks"]), int(s["bits"]))
         for s, pixels in journaled_images(folder)
     ]
 
@@ -180,7 +181,9 @@ def solve_gantry(frames: list[BallFrame], rig: Rig) -> GantryCalibration:
         if centre is None:
             raise CalibrationError("a highlight frame before any outline frame: the images are incomplete")
         try:
-            point, direction = lamp_ray(camera, centre, radius, highlight_px(f.pixels, near))
+            point, direction = lamp_ray(
+                camera, centre, radius, highlight_px(f.pixels, near, (1 << f.bits) - 1)
+            )
         except CalibrationError:
             refused += 1
             continue

@@ -94,9 +94,12 @@ def _subpixel_arc(grey: np.ndarray, outline: np.ndarray, samples: int = 240) -> 
     return np.array(found)
 
 
-def highlight_px(image: np.ndarray, near_px: tuple[float, float], search_px: int = 150) -> np.ndarray:
+def highlight_px(
+    image: np.ndarray, near_px: tuple[float, float], top: int, search_px: int = 150
+) -> np.ndarray:
     """(2,) sub-pixel centroid of the brightest spot within ``search_px`` of ``near_px``: the values above
-    half its peak, background taken off. Refuses a clipped peak (its centroid would be biased). On the
+    half its peak, background taken off. Refuses a peak at ``top``, the sensor's full scale (a clipped
+    spot's centroid would be biased; a 12-bit sensor's full scale is 4095 in a 16-bit word). On the
     simulated ball (rough conductor, GGX α 0.01) it lands 0.05–0.2 px from the true mirror point: the
     spot is not symmetric in the image (a log-parabola peak fit did worse)."""
     grey = _grey(image)
@@ -104,7 +107,6 @@ def highlight_px(image: np.ndarray, near_px: tuple[float, float], search_px: int
     y_lo, x_lo = max(y0 - search_px, 0), max(x0 - search_px, 0)
     window = grey[y_lo : y0 + search_px, x_lo : x0 + search_px]
     peak = np.unravel_index(np.argmax(window), window.shape)
-    top = np.iinfo(image.dtype).max if np.issubdtype(image.dtype, np.integer) else np.inf
     if window[peak] >= top:
         raise CalibrationError("the highlight on the mirror ball is clipped: use a shorter exposure")
     py, px = peak
@@ -139,7 +141,9 @@ def lamp_ray(
 class GantryFit:
     kinematics: GantryKinematics
     miss_mm: np.ndarray  # (K,) each lamp's distance from its ray(s) at the fit
-    standard_errors: dict[str, float]  # per fitted quantity, in its own unit (m, degrees, ticks)
+    standard_errors: dict[
+        str, float
+    ]  # per fitted quantity, in its own unit (m; the axis's x/z and y/z; ticks)
 
 
 def fit_gantry(

@@ -47,7 +47,7 @@ def observed(rig):
             short = 0.6 * sensor.top / (sensor.sensitivity * radiance.max())  # the highlight unclipped
             frame = sensor.expose(radiance, short, rng)
             try:
-                point, direction = lamp_ray(camera, centre, RADIUS, highlight_px(frame, near))
+                point, direction = lamp_ray(camera, centre, RADIUS, highlight_px(frame, near, sensor.top))
             except CalibrationError:
                 refused += 1  # a lamp behind the ball: its highlight sits on the edge
                 continue
