@@ -26,7 +26,7 @@ from pathlib import Path
 from hlr_lab.errors import DiskFull
 from hlr_lab.formats.io import atomic_write_bytes, disk_full, fsync_directory
 
-JOURNAL = "journal.jsonl"  # the session directory's journal (DESIGN §4)
+JOURNAL = "journal.jsonl"  # the session directory's journal (docs/sessions.md)
 DAMAGED = "journal.damaged"  # damaged lines set aside by a resumed run, one JSON object per line
 RESERVE = "journal.reserve"  # room kept for the stop record when the disk fills up
 RESERVE_BYTES = 64 * 1024
