@@ -44,7 +44,8 @@ class CameraPose:
     translation: np.ndarray  # (3,) world → camera, m
     board_to_turntable: np.ndarray  # (4, 4) where the wedge put the board (first placement)
     rms_px: float
-    per_view_rms_px: np.ndarray  # (V,)
+    per_view_rms_px: np.ndarray  # (U,) over the views used
+    residuals_px: dict[int, np.ndarray]  # view index → (N, 2) projected − detected corners, px (views used)
 
     @property
     def board_azimuth_deg(self) -> float:
@@ -169,7 +170,8 @@ def refine_pose(
         [np.sqrt(np.mean(np.sum(r[a:b] ** 2, axis=1))) for a, b in itertools.pairwise(bounds)]
     )
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
-    return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view)
+    by_view = {v: r[a:b] for v, a, b in zip(used, bounds[:-1], bounds[1:], strict=True)}
+    return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view, by_view)
 
 
 def _pose(rvec, tvec) -> np.ndarray:

@@ -20,12 +20,21 @@ import numpy as np
 
 from calibration.charuco import CalibrationError
 from calibration.images import journaled_images
-from calibration.mirror_ball import GantryFit, ball_centre, fit_gantry, highlight_px, lamp_ray
+from calibration.mirror_ball import (
+    GantryFit,
+    Highlights,
+    ball_centre,
+    ball_centres,
+    fit_gantry,
+    highlight_px,
+    lamp_ray,
+)
 from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
 from hlr_lab.rig import Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
+from hlr_lab.sphere import rotation_z
 
 DEFAULT_POSES = 30
 TURNS_DEG = (-10.0, 170.0)  # half a turn apart, the ball to either side, inside any turntable limits
@@ -141,8 +150,13 @@ def load_ball_frames(folder: Path) -> list[BallFrame]:
 @dataclass(frozen=True)
 class GantryCalibration:
     fit: GantryFit
-    rays: int
+    highlights: Highlights  # the rays fitted
+    frames_used: tuple[int, ...]  # (N,) the frame each ray came from
     refused: int
+
+    @property
+    def rays(self) -> int:
+        return len(self.frames_used)
 
     def rig_fields(self, rig: Rig) -> dict[str, dict]:
         """The ``[gantry]`` fields: centre, arm, axis, zero ticks, and the azimuth limits narrowed to what
@@ -160,39 +174,42 @@ class GantryCalibration:
         se = self.fit.standard_errors
         return {"images": str(images.resolve()), "rays": self.rays, "refused_poses": self.refused,
                 "worst_miss_mm": round(float(self.fit.miss_mm.max()), 3),
+                "ball_place_m": [round(float(v), 6) for v in self.fit.place_xy_m],
                 "arm_radius_se_mm": round(1e3 * se["arm_radius_m"], 3),
                 "zero_ticks_se": [round(se["zero_az_ticks"], 2), round(se["zero_el_ticks"], 2)]}  # fmt: skip
 
 
 def solve_gantry(frames: list[BallFrame], rig: Rig) -> GantryCalibration:
+    """The gantry's kinematics from a capture's frames: each outline frame places the ball (a start for
+    the fit, which places it again from the highlights), each highlight frame gives a pixel."""
     radius, place = ball_spec(rig)
     camera, t = rig.camera, rig.turntable_kinematics
-    points, directions, ticks, refused = [], [], [], 0
+    pixels, turns, ticks, places, used, refused = [], [], [], [], [], 0
     centre = None
-    for f in frames:
+    for i, f in enumerate(frames):
         a = np.radians(t.degrees_for(f.turntable_steps))
-        expected = np.array(
-            [np.cos(a) * place[0] - np.sin(a) * place[1], np.sin(a) * place[0] + np.cos(a) * place[1], radius]
-        )
+        expected = ball_centres(np.asarray(place), radius, np.array([a]))[0]
         near = camera.project(expected[None])[0][0]
         if f.kind == "outline":
             centre = ball_centre(f.pixels, camera, radius, near)
+            places.append(rotation_z(-a)[:2, :2] @ centre[:2])
             continue
         if centre is None:
             raise CalibrationError("a highlight frame before any outline frame: the images are incomplete")
         try:
-            point, direction = lamp_ray(
-                camera, centre, radius, highlight_px(f.pixels, near, (1 << f.bits) - 1)
-            )
+            pixel = highlight_px(f.pixels, near, (1 << f.bits) - 1)
+            lamp_ray(camera, centre, radius, pixel)  # refuses a highlight on the ball's edge
         except CalibrationError:
             refused += 1
             continue
-        points.append(point)
-        directions.append(direction)
+        pixels.append(pixel)
+        turns.append(a)
         ticks.append(f.gantry_ticks)
-    if len(points) < 12:
+        used.append(i)
+    if len(pixels) < 12:
         raise CalibrationError(
-            f"only {len(points)} usable highlights (need 12): check the ball and the lamp poses"
+            f"only {len(pixels)} usable highlights (need 12): check the ball and the lamp poses"
         )
-    fit = fit_gantry(np.array(points), np.array(directions), np.array(ticks), rig.gantry.kinematics)
-    return GantryCalibration(fit, len(points), refused)
+    highlights = Highlights(np.array(pixels), np.array(turns), np.array(ticks, float))
+    fit = fit_gantry(highlights, camera, radius, rig.gantry.kinematics, np.mean(places, axis=0))
+    return GantryCalibration(fit, highlights, tuple(used), refused)

@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 import contextlib
-import functools
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import click
-import numpy as np
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hlr_lab.acquire_session import acquire_session
 from hlr_lab.acquisition import Bracketing, Outcome, Step
 from hlr_lab.cli.common import believed_rig, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
@@ -21,9 +18,8 @@ from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
-from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.pipeline import acquire_plan
 from hlr_lab.rig import Rig
-from hlr_lab.silhouette import object_window
 
 
 @click.command("acquire")
@@ -94,36 +90,23 @@ def acquire_cmd(
             f"{len(targets)} poses, {frames} frames: within limits; about {duration:.0f} s on this rig"
         )
         return
-    if rig.file.lamp is None:
-        raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
-    object_windows = _object_windows(rig, plan, plan_path)
     with contextlib.ExitStack() as stack:  # the simulated world, when there is one, outlives the run
-        links = _links(stack, rig, plan, plan_path, scene_path, sim, true_rig, speed_factor)
+        links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor) if sim else Links()
         with _progress_bar(len(targets)) as show:
-            outcome = acquire_session(
-                plan,
+            outcome = acquire_plan(
                 plan_path,
-                targets,
                 rig,
                 session,
                 links=links,
                 bracket=Bracketing(dark_frames=dark_frames),
                 force=force,
                 progress=show,
-                object_window=object_windows,
                 on_start=lambda resumed: console.print(
                     f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
                 ),
             )
     console.print(_summary_table(outcome, session))
-
-
-def _object_windows(rig: Rig, plan: PlanFile, plan_path: Path) -> Callable[[float], np.ndarray]:
-    """Turntable angle → where the object may appear in a frame (computed once per angle): adaptive
-    bracketing looks for clipped pixels there, not on a background that may have bright spots."""
-    vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
-    return functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
 
 
 @contextlib.contextmanager
@@ -161,11 +144,12 @@ def _summary_table(outcome: Outcome, session: Path) -> Table:
     return t
 
 
-def _links(
-    stack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, sim: bool, true_rig, speed_factor
+def sim_links(
+    stack: contextlib.ExitStack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, true_rig, speed_factor
 ) -> Links:
-    if not sim:
-        return Links()  # every device as the rig file says
+    """Start the simulated world for ``plan`` (kept open by ``stack``) and return its endpoints: the
+    scene file's world, or the plan's mesh with a default material per region; its rig as ``true_rig``
+    says, else as ``rig``."""
     # the simulator is reached only from the command line (the composition root)
     from hlr_lab.cli.sim_world import sim_scene, world_geometry
     from sim.rig import SimRig

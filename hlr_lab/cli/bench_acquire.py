@@ -20,18 +20,18 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.net_camera import NetworkCamera
 from drivers.protocols import Camera, Positioner, RawFrame
 from hlr_lab.acquisition import Instruments, Step, acquire
 from hlr_lab.cli.sim_world import sim_scene, world_geometry
-from hlr_lab.devices import open_devices
-from hlr_lab.formats.plan import PlanFile, build_plan, write_plan
+from hlr_lab.devices import Links
+from hlr_lab.formats.plan import PlanFile, write_plan
 from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import motion_targets
-from hlr_lab.planning.geometry import placement
-from hlr_lab.planning.planner import PlanSettings, plan_lights
+from hlr_lab.pipeline import plan_object
+from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.procedural import builtin_object
 from hlr_lab.rig import Rig, sim_rig
+from hlr_lab.rig_control import open_rig
 from hlr_lab.segment import segment
 from hlr_lab.session.metadata import start_or_resume
 from sim.rig import SimRig
@@ -40,7 +40,7 @@ BENCH_OBJECT = "builtin:pebble"
 
 
 @dataclass
-class _Stopwatch:
+class Stopwatch:
     seconds: float = 0.0
 
     def timed(self, call, *args):
@@ -52,11 +52,11 @@ class _Stopwatch:
 
 
 @dataclass
-class _TimedPositioner:
+class TimedPositioner:
     """A Positioner whose waits for arrival are clocked."""
 
     inner: Positioner
-    waiting: _Stopwatch
+    waiting: Stopwatch
 
     def move_to(self, goal: tuple[int, ...]) -> None:
         self.inner.move_to(goal)
@@ -72,11 +72,12 @@ class _TimedPositioner:
 
 
 @dataclass
-class _TimedCamera:
-    """A Camera whose captures (exposure, readout, transfer) are clocked."""
+class TimedCamera:
+    """A Camera whose captures (exposure, readout, transfer) are clocked, and their exposures summed."""
 
     inner: Camera
-    capturing: _Stopwatch
+    capturing: Stopwatch
+    exposed_s: float = 0.0
 
     def set_exposure(self, seconds: float) -> float:
         return self.inner.set_exposure(seconds)
@@ -85,7 +86,9 @@ class _TimedCamera:
         return self.inner.set_gain(db)
 
     def capture(self) -> RawFrame:
-        return self.capturing.timed(self.inner.capture)
+        frame = self.capturing.timed(self.inner.capture)
+        self.exposed_s += frame.exposure_s
+        return frame
 
 
 @dataclass
@@ -116,21 +119,10 @@ class AcquireFigures:
 def builtin_plan(rig: Rig) -> PlanFile:
     """builtin:pebble planned on ``rig`` with the default settings, as ``hlr-lab plan`` would."""
     mesh = builtin_object(BENCH_OBJECT).mesh
-    seg = segment(mesh)
-    to_turntable = placement(mesh)
-    result = plan_lights(mesh.transformed(to_turntable), seg, rig, PlanSettings())
-    return build_plan(
-        result,
-        seg,
-        mesh_ref=BENCH_OBJECT,
-        sha256=mesh.sha256 or "",
-        texture_ref=None,
-        mesh_to_turntable=to_turntable,
-        up="z",
-        scale=1.0,
-        exposures_s=rig.exposure_bracket_s,
-        rig_name=rig.name,
+    plan, _ = plan_object(
+        mesh, segment(mesh), rig, PlanSettings(), mesh_spec=BENCH_OBJECT, plan_folder=Path.cwd()
     )
+    return plan
 
 
 def repeated_poses(plan: PlanFile, n: int) -> PlanFile:
@@ -145,7 +137,7 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
     rig = sim_rig()
     plan = repeated_poses(builtin_plan(rig), poses)
     targets = motion_targets(plan, rig)
-    waiting, capturing = _Stopwatch(), _Stopwatch()
+    waiting, capturing = Stopwatch(), Stopwatch()
     figures = AcquireFigures()
     scene = sim_scene(plan, Path.cwd(), None)  # a built-in object: no file is read
     with (
@@ -158,33 +150,29 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
             write_plan(plan_path, plan)
             start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
         e = world.endpoints
-        with open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus) as devices:
-            devices.connect()
-            camera = NetworkCamera(e.camera)
-            try:
-                marks = [_mark(world, waiting, capturing)]
+        with open_rig(rig, Links(e.dynamixel, e.modbus, e.camera)) as opened:
+            marks = [_mark(world, waiting, capturing)]
 
-                def on_step(step: Step) -> None:
-                    if step.action == "done":
-                        marks.append(_mark(world, waiting, capturing))
+            def on_step(step: Step) -> None:
+                if step.action == "done":
+                    marks.append(_mark(world, waiting, capturing))
 
-                started = time.perf_counter()
-                outcome = acquire(
-                    plan,
-                    targets,
-                    Instruments(
-                        _TimedPositioner(devices.stage, waiting),
-                        _TimedPositioner(devices.gantry, waiting),
-                        _TimedCamera(camera, capturing),
-                        devices.lamp,
-                        (devices.gantry,),
-                    ),
-                    session,
-                    progress=on_step,
-                )
-                figures.total_s = time.perf_counter() - started
-            finally:
-                camera.close()
+            i = opened.instruments
+            started = time.perf_counter()
+            outcome = acquire(
+                plan,
+                targets,
+                Instruments(
+                    TimedPositioner(i.turntable, waiting),
+                    TimedPositioner(i.gantry, waiting),
+                    TimedCamera(i.camera, capturing),
+                    i.lamp,
+                    i.thermometers,
+                ),
+                session,
+                progress=on_step,
+            )
+            figures.total_s = time.perf_counter() - started
     figures.frames = outcome.taken
     figures.drain_s = figures.total_s - (marks[-1][0] - started)
     figures.poses = [
@@ -194,7 +182,7 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
     return figures
 
 
-def _mark(world: SimRig, waiting: _Stopwatch, capturing: _Stopwatch) -> tuple:
+def _mark(world: SimRig, waiting: Stopwatch, capturing: Stopwatch) -> tuple:
     """Cumulative clocks and counters at a pose boundary (consecutive differences make a PoseFigures)."""
     return (
         time.perf_counter(),

@@ -63,7 +63,7 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
     rig = believed_rig(rig_path, sim, true_rig)
     board_spec(rig)  # a rig file without a board is refused before anything moves
     images = from_dir or _new_folder(
-        out or _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
+        out or rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
     )
     _run_camera(
         rig, sim, true_rig, views, images, from_dir is not None, board_along_zero, output, speed_factor
@@ -74,10 +74,11 @@ def _run_camera(rig: Rig, sim, true_rig, views, images: Path, solve_only: bool, 
                 speed_factor) -> Rig:  # fmt: skip
     """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
     from calibration.camera_procedure import capture_board_frames, load_board_frames, solve_camera
+    from calibration.summary import camera_summary
 
     if not solve_only:
         with contextlib.ExitStack() as stack:
-            links, turn = _world(stack, rig, sim, true_rig, speed_factor)
+            links, turn = board_world(stack, rig, sim, true_rig, speed_factor)
             with console.status("calibrating the camera…") as status, open_rig(rig, links) as opened:
                 capture_board_frames(
                     opened.instruments,
@@ -90,20 +91,20 @@ def _run_camera(rig: Rig, sim, true_rig, views, images: Path, solve_only: bool, 
     with console.status("solving…"):
         result = solve_camera(load_board_frames(images), rig)
     fields = result.rig_fields(rig, board_along_zero=board_along_zero)
-    calibrated = write_calibrated_rig(_source_path(rig), output, fields, "camera", result.record(images))
+    calibrated = write_calibrated_rig(rig_source_path(rig), output, fields, "camera", result.record(images))
     console.print(_table(rig, calibrated, result))
-    console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+    _say_written(images, output, lambda: camera_summary(result, rig, images))
     return calibrated
 
 
-def _source_path(rig: Rig) -> Path:
+def rig_source_path(rig: Rig) -> Path:
     if rig.source == "builtin:sim":
         with resources.as_file(resources.files("hlr_lab.data") / SIM_RIG) as path:
             return Path(path)
     return Path(rig.source)
 
 
-def _world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
+def board_world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
     """The links to use and what turning the wedge means: the operator, or the simulator."""
     if not sim:
 
@@ -212,7 +213,7 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
 
     rig = believed_rig(rig_path, sim, true_rig)
     ball_spec(rig)  # a rig file without a ball is refused before anything moves
-    default = _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
+    default = rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
     images = from_dir or _new_folder(out or default)
     _run_gantry(rig, sim, true_rig, poses, images, from_dir is not None, output, speed_factor)
 
@@ -222,11 +223,12 @@ def _run_gantry(
 ) -> Rig:
     """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
     from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
+    from calibration.summary import gantry_summary
 
     if not solve_only:
         radius, place = ball_spec(rig)
         with contextlib.ExitStack() as stack:
-            links = _ball_world(stack, rig, sim, true_rig, speed_factor, radius, place)
+            links = ball_world(stack, rig, sim, true_rig, speed_factor, radius, place)
             with console.status("calibrating the gantry…") as status, open_rig(rig, links) as opened:
                 capture_ball_frames(
                     opened.instruments,
@@ -236,9 +238,10 @@ def _run_gantry(
                     progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
                 )
     with console.status("solving…"):
-        result = solve_gantry(load_ball_frames(images), rig)
+        frames = load_ball_frames(images)
+        result = solve_gantry(frames, rig)
     calibrated = write_calibrated_rig(
-        _source_path(rig), output, result.rig_fields(rig), "gantry", result.record(images)
+        rig_source_path(rig), output, result.rig_fields(rig), "gantry", result.record(images)
     )
     k0, k1 = rig.gantry.kinematics, calibrated.gantry.kinematics
     t = Table(title="gantry calibration", title_justify="left")
@@ -259,8 +262,18 @@ def _run_gantry(
     ):
         t.add_row(*row)
     console.print(t)
-    console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+    _say_written(images, output, lambda: gantry_summary(result, frames, rig, images))
     return calibrated
+
+
+def _say_written(images: Path, output: Path, write_summary) -> None:
+    """Where everything went; the summary page is a convenience: a folder it cannot be written to
+    (photographs on read-only media) costs a warning, not the calibration."""
+    try:
+        summary = f"; summary {escape(str(write_summary()))}"
+    except OSError as exc:
+        summary = f"; [yellow]no summary page ({escape(exc.strerror or str(exc))})[/]"
+    console.print(f"photographs in {escape(str(images))}{summary}; wrote {escape(str(output))}")
 
 
 @calibrate.command("all")
@@ -295,7 +308,7 @@ def all_(rig_path, sim, true_rig, views, poses, board_along_zero, out, output, s
     rig = believed_rig(rig_path, sim, true_rig)
     board_spec(rig), ball_spec(rig)  # both targets described before anything moves
     folder = _new_folder(
-        out or _source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")
+        out or rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")
     )
     with_camera = _run_camera(rig, sim, true_rig, views, _new_folder(folder / "camera"), False, board_along_zero,
                               folder / "rig-camera.toml", speed_factor)  # fmt: skip
@@ -311,7 +324,7 @@ def _new_folder(folder: Path) -> Path:
     return folder
 
 
-def _ball_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, radius: float, place) -> Links:
+def ball_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, radius: float, place) -> Links:
     if not sim:
         click.confirm(
             "Put the mirror ball on the plate where the rig file says. Ready?", abort=True, err=True

@@ -8,8 +8,6 @@ import click
 from rich.table import Table
 
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import ColouredMesh, load_mesh
-from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.rig import Rig, load_rig, sim_rig
 from hlr_lab.segment import Region
 
@@ -38,14 +36,6 @@ def output_option(what: str):
         required=True,
         help=f"Where to write {what}.",
     )
-
-
-def load_coloured_mesh(spec: str, texture: Path | None) -> ColouredMesh:
-    if spec.startswith(BUILTIN_PREFIX):
-        if texture is not None:
-            raise InputError("--texture cannot be used with a built-in object", field="--texture")
-        return builtin_object(spec).mesh
-    return load_mesh(spec, texture, need_colour=True)
 
 
 def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:

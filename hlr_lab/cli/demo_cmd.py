@@ -1,12 +1,13 @@
 """``hlr-lab demo``: the whole instrument on the simulated rig in one command — segment, plan, acquire,
 fit, report, export — then the fitted materials against the simulated world's truth.
 
-It runs the very commands a user runs (same options, same output), one after the other. It is the one
-place that reads the simulator's ground truth, to show the error.
+Each step is the library function its command calls (:mod:`hlr_lab.pipeline`), with the command's
+defaults. It is the one place that reads the simulator's ground truth, to show the error.
 """
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import click
@@ -14,16 +15,23 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import speed_factor_option, true_rig_option
+from hlr_lab.cli.acquire_cmd import sim_links
+from hlr_lab.cli.common import region_table, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
+from hlr_lab.cli.fit_cmd import materials_table
+from hlr_lab.cli.plan_cmd import coverage_table
 from hlr_lab.cli.sim_world import scene_file_object, sim_scene
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials
-from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.formats.plan import PlanFile, write_plan
+from hlr_lab.formats.regions import write_regions
+from hlr_lab.pipeline import acquire_plan, export_materials, fit_into, load_object, plan_object, report_into
+from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.reflectance.session_fit import MATERIALS
+from hlr_lab.rig import sim_rig
+from hlr_lab.segment import segment
 
 DEFAULT_OBJECT = "builtin:pebble"
-EXIT_UNCOVERED = 3  # plan's status when some region cannot be covered: the demo goes on
 
 
 @click.command("demo")
@@ -48,7 +56,7 @@ def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor:
     """Run the whole measurement on the simulated rig and compare the result with the truth.
 
     \b
-    Steps (each is the hlr-lab command of the same name):
+    Steps (each does what the hlr-lab command of the same name does, with its defaults):
       segment → plan → acquire (simulated rig) → fit → report → export (OBJ, glTF, Mitsuba)
 
     \b
@@ -60,44 +68,58 @@ def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor:
     if out.exists() and any(out.iterdir()):
         raise InputError("the folder is not empty; give a new --out", path=out, field="--out")
     out.mkdir(parents=True, exist_ok=True)
-    mesh = _object(scene_path)
-    regions, plan_path, session = out / "regions.json", out / "plan.json", out / "session"
-    run = _runner()
-    run("segment", "--mesh", mesh, "-o", regions)
-    if run("plan", "--mesh", mesh, "--regions", regions, "--sim", "-o", plan_path) == EXIT_UNCOVERED:
+    mesh_spec = _object(scene_path)
+    regions_path, plan_path, session = out / "regions.json", out / "plan.json", out / "session"
+    rig = sim_rig()
+
+    _step("segment", f"{mesh_spec} → {regions_path}")
+    mesh = load_object(mesh_spec)
+    seg = segment(mesh)
+    write_regions(regions_path, mesh, seg, mesh_name=mesh_spec, regions_requested=None)
+    console.print(region_table(seg.regions, f"{seg.n_regions} regions of {mesh_spec}"))
+
+    _step("plan", f"→ {plan_path}")
+    with console.status("planning…"):
+        plan, planned = plan_object(mesh, seg, rig, PlanSettings(), mesh_spec=mesh_spec, plan_folder=out)
+    write_plan(plan_path, plan)
+    console.print(coverage_table(planned, seg))
+    if planned.uncovered:
         console.print("[yellow]some regions cannot be covered; the demo goes on with the others[/]")
-    world = (["--scene", scene_path] if scene_path else []) + (["--true-rig", true_rig] if true_rig else [])
-    run("acquire", "--plan", plan_path, "--sim", *world, "--out", session, "--speed-factor", speed_factor)
-    run("fit", session)
-    run("report", session)
+
+    _step("acquire", f"on the simulated rig{f' built as {true_rig}' if true_rig else ''} → {session}")
+    with contextlib.ExitStack() as stack:
+        links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor)
+        with console.status("acquiring…") as status:
+            outcome = acquire_plan(
+                plan_path, rig, session, links=links,
+                progress=lambda s: status.update(escape(f"pose {s.index + 1}/{s.poses}: {s.pose}: {s.action}")),
+            )  # fmt: skip
+    console.print(f"{outcome.taken} frames in {outcome.duration_s:.1f} s")
+
+    _step("fit", f"{session}")
+    with console.status("fitting…"):
+        fitted = fit_into(session)
+    console.print(materials_table(fitted.materials))
+
+    _step("report", f"{session / 'report.html'}")
+    with console.status("building the report…"):
+        report, _, _ = report_into(session)
+
     exports = out / "export"
     exports.mkdir()
-    common = [session / MATERIALS, "--mesh", mesh, "--regions", regions]
-    run("export", *common, "--format", "obj", "-o", exports / "object.obj")
-    run("export", *common, "--format", "gltf", "-o", exports / "object.glb")
-    run("export", *common, "--format", "mitsuba", "-o", exports / "mitsuba")
-    plan = read_plan(plan_path)
+    for fmt, name in (("obj", "object.obj"), ("gltf", "object.glb"), ("mitsuba", "mitsuba")):
+        _step("export", f"{fmt} → {exports / name}")
+        export_materials(session / MATERIALS, mesh, fmt, exports / name, regions_path=regions_path)
     console.print(_truth_table(plan, plan_path, scene_path, session))
-    console.print(f"report: [bold]{escape(str(session / 'report.html'))}[/] — open it in a browser")
+    console.print(f"report: [bold]{escape(str(report))}[/] — open it in a browser")
 
 
 def _object(scene_path: Path | None) -> str:
     return DEFAULT_OBJECT if scene_path is None else str(scene_file_object(scene_path).mesh)
 
 
-def _runner():
-    """Run an hlr-lab command in this process, as typed; a failure stops the demo with its error."""
-    group = click.get_current_context().find_root().command
-
-    def run(*args) -> int:
-        words = [str(a) for a in args]
-        console.rule(f"hlr-lab {' '.join(escape(w) for w in words)}")
-        code = group.main(args=words, prog_name="hlr-lab", standalone_mode=False) or 0
-        if code not in (0, EXIT_UNCOVERED):
-            raise InputError(f"hlr-lab {words[0]} ended with status {code}")
-        return code
-
-    return run
+def _step(name: str, what: str) -> None:
+    console.rule(escape(f"{name}: {what}"))
 
 
 def _truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, session: Path) -> Table:

@@ -6,18 +6,9 @@ from pathlib import Path
 
 import click
 
-from hlr_lab.cli.common import load_coloured_mesh, mesh_options
+from hlr_lab.cli.common import mesh_options
 from hlr_lab.cli.console import console
-from hlr_lab.errors import InputError
-from hlr_lab.export.gltf import write_gltf
-from hlr_lab.export.mitsuba import write_mitsuba
-from hlr_lab.export.obj import write_obj
-from hlr_lab.export.regions import region_parts
-from hlr_lab.formats.materials import read_materials
-from hlr_lab.formats.regions import read_regions
-from hlr_lab.segment import segment
-
-WRITERS = {"obj": (write_obj, ".obj"), "gltf": (write_gltf, ".glb"), "mitsuba": (write_mitsuba, "")}
+from hlr_lab.pipeline import EXPORT_FORMATS, export_materials, load_object
 
 
 @click.command()
@@ -29,7 +20,7 @@ WRITERS = {"obj": (write_obj, ".obj"), "gltf": (write_gltf, ".glb"), "mitsuba": 
     type=click.Path(dir_okay=False, path_type=Path),
     help="regions.json the materials were fitted with (default: segment the mesh again).",
 )
-@click.option("--format", "fmt", type=click.Choice(sorted(WRITERS)), required=True)
+@click.option("--format", "fmt", type=click.Choice(sorted(EXPORT_FORMATS)), required=True)
 @click.option(
     "-o",
     "--output",
@@ -45,17 +36,9 @@ def export(materials_path, mesh_spec, texture, regions_file, fmt, output) -> int
       hlr-lab export materials.json --mesh bunny8.ply --regions regions.json --format gltf -o bunny.glb
       hlr-lab export materials.json --mesh builtin:pebble --format mitsuba -o pebble-scene/
     """
-    materials = read_materials(materials_path)
-    mesh = load_coloured_mesh(mesh_spec, texture)
-    if materials.sha256 and mesh.sha256 and materials.sha256 != mesh.sha256:
-        raise InputError(
-            f"made for another mesh ({materials.mesh}) than {mesh_spec}", path=materials_path, field="sha256"
-        )
-    seg = read_regions(regions_file, mesh) if regions_file else segment(mesh)
-    parts = region_parts(mesh, seg, materials, source=str(materials_path))
-    writer, suffix = WRITERS[fmt]
-    if suffix and output.suffix.lower() != suffix:
-        raise InputError(f"a {fmt} export is written to a {suffix} file", field="--output")
-    for path in writer(output, parts):
+    mesh = load_object(mesh_spec, texture)
+    for path in export_materials(
+        materials_path, mesh, fmt, output, regions_path=regions_file, mesh_spec=mesh_spec
+    ):
         console.print(f"wrote {path}")
     return 0

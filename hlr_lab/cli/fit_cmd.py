@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
@@ -11,10 +10,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from hlr_lab.cli.console import console
-from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_write_text
-from hlr_lab.formats.materials import MaterialsFile, write_materials
-from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, FitStep, fit_session, open_session
+from hlr_lab.formats.materials import MaterialsFile
+from hlr_lab.pipeline import fit_into
+from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, FitStep
 
 
 def _theta_c(value: str) -> float | str:
@@ -71,17 +69,6 @@ def fit(session: Path, theta_c, method: str, output: Path | None, allow_incomple
       hlr-lab fit sessions/bunny-1 --theta-c 10 --method paper -o bunny-materials.json
       hlr-lab fit sessions/stopped-run --allow-incomplete
     """
-    s = open_session(session, allow_incomplete=allow_incomplete)
-    for note in s.gaps.notes():
-        console.print(f"[yellow]not used:[/] {escape(note)}", soft_wrap=True)
-    if s.gaps.missing_frames:
-        console.print(
-            f"[yellow]incomplete:[/] {len(s.gaps.missing_frames)} planned frame(s) missing; fitting what "
-            "is there (recorded in materials.json)",
-            soft_wrap=True,
-        )
-    if not s.views:
-        raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
     output = output or session / MATERIALS
     columns = (
         TextColumn("{task.fields[stage]:8}"),
@@ -100,18 +87,27 @@ def fit(session: Path, theta_c, method: str, output: Path | None, allow_incomple
                     bar.update(task, completed=bar.tasks[task].total)
             bar.update(tasks[step.stage], completed=step.index, description=escape(step.label))
 
-        result = fit_session(s, theta_c_deg=theta_c, method=method, progress=show)
-    write_materials(output, result.materials)
-    diagnostics = output.with_name(DIAGNOSTICS)
-    atomic_write_text(diagnostics, json.dumps(result.diagnostics, indent=1) + "\n")
-    console.print(_table(result.materials))
+        result = fit_into(session, output, theta_c_deg=theta_c, method=method, allow_incomplete=allow_incomplete,
+                          progress=show, on_gaps=_say_gaps)  # fmt: skip
+    console.print(materials_table(result.materials))
     for d in result.diagnostics["regions"]:
         if "note" in d:
             console.print(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")
-    console.print(f"wrote {escape(str(output))} and {escape(str(diagnostics))}")
+    console.print(f"wrote {escape(str(output))} and {escape(str(output.with_name(DIAGNOSTICS)))}")
 
 
-def _table(materials: MaterialsFile) -> Table:
+def _say_gaps(notes: list[str], missing: int) -> None:
+    for note in notes:
+        console.print(f"[yellow]not used:[/] {escape(note)}", soft_wrap=True)
+    if missing:
+        console.print(
+            f"[yellow]incomplete:[/] {missing} planned frame(s) missing; fitting what is there (recorded in "
+            "materials.json)",
+            soft_wrap=True,
+        )
+
+
+def materials_table(materials: MaterialsFile) -> Table:
     t = Table(title="fitted materials (± standard error)", title_justify="left")
     for column in ("region", "Rd (linear RGB)", "Rs", "n", "θc", "pixels diffuse / highlight"):
         t.add_column(column, justify="right")

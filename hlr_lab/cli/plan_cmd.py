@@ -8,14 +8,14 @@ import click
 import numpy as np
 from rich.table import Table
 
-from hlr_lab.cli.common import load_coloured_mesh, mesh_options, output_option, resolve_rig, swatch
+from hlr_lab.cli.common import mesh_options, output_option, resolve_rig, swatch
 from hlr_lab.cli.console import console
 from hlr_lab.cli.segment_cmd import segmentation_options
 from hlr_lab.errors import InputError
-from hlr_lab.formats.plan import build_plan, write_plan
-from hlr_lab.formats.regions import mesh_reference, read_regions
-from hlr_lab.planning.geometry import placement
-from hlr_lab.planning.planner import PlanResult, PlanSettings, plan_lights
+from hlr_lab.formats.plan import write_plan
+from hlr_lab.formats.regions import read_regions
+from hlr_lab.pipeline import load_object, plan_object
+from hlr_lab.planning.planner import PlanResult, PlanSettings
 from hlr_lab.segment import Segmentation
 from hlr_lab.segment import segment as segment_mesh
 
@@ -160,7 +160,7 @@ def plan(
     rig = resolve_rig(rig_path, sim)
     views = parse_views(views_text)
     with console.status("loading the mesh…"):
-        mesh = load_coloured_mesh(mesh_spec, texture)
+        mesh = load_object(mesh_spec, texture)
     if regions_file is not None:
         seg = read_regions(regions_file, mesh)
     else:
@@ -168,7 +168,6 @@ def plan(
             seg = segment_mesh(
                 mesh, delta_e=delta_e, split_connected=split_connected, min_fragment=min_fragment
             )
-    to_turntable = placement(mesh, up=up, scale=scale)
     settings = PlanSettings(
         theta_c_deg=theta_c,
         min_samples=min_samples,
@@ -185,20 +184,9 @@ def plan(
     with console.status(
         f"planning on {rig.name} ({len(mesh.vertices):,} vertices, {seg.n_regions} regions)…"
     ):
-        result = plan_lights(mesh.transformed(to_turntable), seg, rig, settings)
-    texture_ref = None if mesh.texture_source is None else mesh_reference(mesh.texture_source, output.parent)
-    plan_file = build_plan(
-        result,
-        seg,
-        mesh_ref=mesh_reference(mesh_spec, output.parent),
-        sha256=mesh.sha256 or "",
-        texture_ref=texture_ref,
-        mesh_to_turntable=to_turntable,
-        up=up,
-        scale=scale,
-        exposures_s=rig.exposure_bracket_s,
-        rig_name=rig.name,
-    )
+        plan_file, result = plan_object(
+            mesh, seg, rig, settings, mesh_spec=mesh_spec, plan_folder=output.parent, up=up, scale=scale
+        )
     write_plan(output, plan_file)
     console.print(coverage_table(result, seg))
     _print_summary(result, output)

@@ -8,8 +8,7 @@ import click
 from rich.markup import escape
 
 from hlr_lab.cli.console import console
-from hlr_lab.reflectance.session_fit import open_session
-from hlr_lab.report.build import build_report, write_report
+from hlr_lab.pipeline import report_into
 
 
 @click.command("report")
@@ -30,11 +29,10 @@ def report(session: Path, output: Path | None) -> None:
       hlr-lab fit plan-session && hlr-lab report plan-session
       hlr-lab report sessions/bunny-1 -o bunny-report.html
     """
-    s = open_session(session, allow_incomplete=True)  # fit said what is missing (so does materials.json)
     with console.status("building the report…") as status:
-        page, figures = build_report(s, progress=lambda what: status.update(escape(what)))
-    output = output or session / "report.html"
-    write_report(output, page)
+        output, figures, size = report_into(
+            session, output, progress=lambda what: status.update(escape(what))
+        )
     for pose, psnr in figures.psnr_db.items():
         console.print(f"{escape(pose)}: captured vs fitted materials rendered back, PSNR {psnr:.1f} dB")
-    console.print(f"wrote {escape(str(output))} ({len(page) / 1e6:.1f} MB)")
+    console.print(f"wrote {escape(str(output))} ({size / 1e6:.1f} MB)")

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import click
 
-from hlr_lab.cli.common import load_coloured_mesh, mesh_options, output_option, region_table
+from hlr_lab.cli.common import mesh_options, output_option, region_table
 from hlr_lab.cli.console import console
 from hlr_lab.formats.regions import write_regions
+from hlr_lab.pipeline import load_object
 from hlr_lab.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
 from hlr_lab.segment import segment as segment_mesh
 
@@ -53,7 +54,7 @@ def segment(mesh_spec, texture, n_regions, delta_e, split_connected, min_fragmen
       hlr-lab segment --mesh spot_triangulated.obj --texture spot_texture.png --regions 6 -o regions.json
     """
     with console.status("loading the mesh…"):
-        mesh = load_coloured_mesh(mesh_spec, texture)
+        mesh = load_object(mesh_spec, texture)
     with console.status(f"segmenting {len(mesh.vertices):,} vertices…"):
         seg = segment_mesh(
             mesh,

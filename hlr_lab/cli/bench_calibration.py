@@ -1,0 +1,220 @@
+"""``hlr-lab bench calibration``: calibrate the simulated bench built as a true rig file while hlr-lab
+believes the drawing, then measure what the calibration is worth.
+
+1. ``calibrate camera`` (board along the plate's zero) and ``calibrate gantry`` on its result, through
+   the same library functions as the commands, the rig's motion and exposures clocked: the
+   simulated-rig time (motion waits × the speed factor + exposures; rendering is not rig time).
+2. Recovery: the calibrated rig file against the true one, turned into the world the calibration
+   defines (the camera keeps its drawn azimuth about the turntable axis: docs/calibration.md).
+3. End to end: builtin:pebble planned, acquired (in the true world) and fitted with the drawing, then
+   with the calibrated file; each region's worst-channel error against the simulated truth.
+
+Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hlr_lab.acquisition import Instruments
+from hlr_lab.cli.bench_acquire import Stopwatch, TimedCamera, TimedPositioner
+from hlr_lab.cli.calibrate_cmd import ball_world, board_world, rig_source_path
+from hlr_lab.cli.sim_world import sim_scene, world_geometry
+from hlr_lab.devices import Links
+from hlr_lab.formats.plan import write_plan
+from hlr_lab.pipeline import acquire_plan, fit_into, load_object, plan_object
+from hlr_lab.planning.planner import PlanSettings
+from hlr_lab.rig import Rig, sim_rig
+from hlr_lab.rig_control import open_rig
+from hlr_lab.rig_edit import write_calibrated_rig
+from hlr_lab.segment import segment
+from hlr_lab.sphere import rotation_z
+from sim.rig import SimRig
+from sim.true_rig import TrueRig, load_true_rig
+
+OBJECT = "builtin:pebble"
+
+
+@dataclass
+class RigClock:
+    """What the rig spent: waiting for the axes (wall seconds, at the speed factor) and exposing."""
+
+    waiting: Stopwatch = field(default_factory=Stopwatch)
+    camera: TimedCamera | None = None
+
+    def clocked(self, i: Instruments) -> Instruments:
+        """``i`` with its positioners' waits and its camera's exposures counted here."""
+        self.camera = TimedCamera(i.camera, Stopwatch())
+        return Instruments(TimedPositioner(i.turntable, self.waiting), TimedPositioner(i.gantry, self.waiting),
+                           self.camera, i.lamp, i.thermometers)  # fmt: skip
+
+    def rig_seconds(self, speed_factor: float) -> float:
+        """Simulated-rig time: the waits at real speed, plus the exposures (an upper bound: the drivers'
+        polling between arrivals is counted as motion too)."""
+        return self.waiting.seconds * speed_factor + (self.camera.exposed_s if self.camera else 0.0)
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """Calibrated against true, each in its unit (see :func:`recovery`)."""
+
+    focal_pct: float
+    principal_point_px: float
+    rms_px: float
+    camera_position_mm: float
+    view_direction_deg: float
+    roll_deg: float
+    turntable_zero_steps: int
+    gantry_zero_ticks: int
+    arm_radius_mm: float
+    azimuth_axis_deg: float
+    lamp_worst_mm: float
+
+
+@dataclass(frozen=True)
+class RegionErrors:
+    rd_pct: float  # worst channel
+    rs_pct: float
+    n_pct: float
+
+
+@dataclass
+class CalibrationFigures:
+    camera_rig_s: float = 0.0
+    gantry_rig_s: float = 0.0
+    camera_wall_s: float = 0.0
+    gantry_wall_s: float = 0.0
+    recovery: Recovery | None = None
+    end_to_end: dict[str, dict[int, RegionErrors]] = field(default_factory=dict)
+
+
+def calibration_figures(
+    folder: Path,
+    *,
+    true_rig: str = "builtin:bench-offsets",
+    views: int = 24,
+    poses: int = 30,
+    speed_factor: float = 40.0,
+    progress: Callable[[str], None] = lambda _: None,
+) -> CalibrationFigures:
+    """Run the three parts (module docstring) in ``folder`` (photographs, rig files, sessions kept)."""
+    import time
+
+    from calibration.camera_procedure import board_spec, capture_board_frames, load_board_frames, solve_camera
+    from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
+
+    drawing, figures = sim_rig(), CalibrationFigures()
+    board_spec(drawing), ball_spec(drawing)
+    for part in ("camera", "gantry"):
+        (folder / part).mkdir(parents=True)
+    with contextlib.ExitStack() as stack:
+        progress("calibrate camera: photographing the board")
+        clock, started = RigClock(), time.perf_counter()
+        links, turn = board_world(stack, drawing, True, true_rig, speed_factor)
+        with open_rig(drawing, links) as opened:
+            capture_board_frames(clock.clocked(opened.instruments), drawing, folder / "camera", views=views,
+                                 turn_the_wedge=turn)  # fmt: skip
+        figures.camera_rig_s, figures.camera_wall_s = (
+            clock.rig_seconds(speed_factor),
+            time.perf_counter() - started,
+        )
+    camera = solve_camera(load_board_frames(folder / "camera"), drawing)
+    with_camera = write_calibrated_rig(rig_source_path(drawing), folder / "rig-camera.toml",
+                                       camera.rig_fields(drawing, board_along_zero=True), "camera",
+                                       camera.record(folder / "camera"))  # fmt: skip
+    with contextlib.ExitStack() as stack:
+        progress("calibrate gantry: photographing the mirror ball")
+        clock, started = RigClock(), time.perf_counter()
+        links = ball_world(stack, with_camera, True, true_rig, speed_factor, *ball_spec(with_camera))
+        with open_rig(with_camera, links) as opened:
+            capture_ball_frames(
+                clock.clocked(opened.instruments), with_camera, folder / "gantry", poses=poses
+            )
+        figures.gantry_rig_s, figures.gantry_wall_s = (
+            clock.rig_seconds(speed_factor),
+            time.perf_counter() - started,
+        )
+    gantry = solve_gantry(load_ball_frames(folder / "gantry"), with_camera)
+    calibrated = write_calibrated_rig(
+        folder / "rig-camera.toml", folder / "rig-calibrated.toml", gantry.rig_fields(with_camera), "gantry",
+        gantry.record(folder / "gantry"),
+    )  # fmt: skip
+    truth = load_true_rig(true_rig)
+    figures.recovery = recovery(calibrated, drawing, truth, camera.pose.rms_px)
+    for name, believed in (("drawing", drawing), ("calibrated", calibrated)):
+        progress(f"end to end with the {name} rig file: plan, acquire, fit")
+        figures.end_to_end[name] = end_to_end(folder / f"e2e-{name}", believed, true_rig, speed_factor)
+    return figures
+
+
+def recovery(calibrated: Rig, drawing: Rig, truth: TrueRig, rms_px: float) -> Recovery:
+    """The calibrated file against the true one turned about the turntable axis by the angle that puts
+    the true camera at the drawing's azimuth (the world the camera calibration defines)."""
+    drawn, real = drawing.camera.centre, truth.camera.centre
+    a = np.arctan2(drawn[1], drawn[0]) - np.arctan2(real[1], real[0])
+    turn = rotation_z(a)[:3, :3]
+    cam, k, true_k = calibrated.camera, calibrated.camera.matrix, truth.camera.matrix
+    true_rotation = truth.camera.rotation @ turn.T
+    g, tg = calibrated.gantry.kinematics, truth.gantry
+    steps_per_degree = calibrated.turntable_kinematics.steps_per_degree
+    lo, hi = np.degrees(calibrated.gantry.azimuth_limits)
+    el_lo, el_hi = np.degrees(calibrated.gantry.elevation_limits)
+    ticks = [g.ticks_for(az, el) for az in np.linspace(lo, hi, 19) for el in np.linspace(el_lo, el_hi, 7)]
+    lamps = np.array([g.light_position(t) for t in ticks])
+    true_lamps = np.array([turn @ tg.light_position(*t) for t in ticks])
+    true_axis = turn @ (np.asarray(tg.azimuth_axis) / np.linalg.norm(tg.azimuth_axis))
+    # the world turned by a: azimuth 0 lies where the true servo read a degrees less
+    true_zero = (tg.zero_ticks[0] - g.directions[0] * np.degrees(a) * g.ticks_per_rev / 360, tg.zero_ticks[1])
+    return Recovery(
+        focal_pct=100 * abs(k[0, 0] / true_k[0, 0] - 1),
+        principal_point_px=float(np.hypot(k[0, 2] - true_k[0, 2], k[1, 2] - true_k[1, 2])),
+        rms_px=rms_px,
+        camera_position_mm=1e3 * float(np.linalg.norm(cam.centre - turn @ real)),
+        view_direction_deg=_angle_deg(cam.rotation[2], true_rotation[2]),
+        roll_deg=_angle_deg(cam.rotation[0], true_rotation[0]),
+        turntable_zero_steps=calibrated.file.turntable.zero_steps
+        - round(truth.stage.zero_steps - np.degrees(a) * steps_per_degree),
+        gantry_zero_ticks=round(float(np.abs(np.subtract(g.zero_ticks, true_zero)).max())),
+        arm_radius_mm=1e3 * abs(g.arm_radius - tg.arm_radius),
+        azimuth_axis_deg=_angle_deg(np.asarray(g.azimuth_axis) / np.linalg.norm(g.azimuth_axis), true_axis),
+        lamp_worst_mm=1e3 * float(np.linalg.norm(lamps - true_lamps, axis=1).max()),
+    )
+
+
+def end_to_end(folder: Path, believed: Rig, true_rig: str, speed_factor: float) -> dict[int, RegionErrors]:
+    """Plan builtin:pebble on ``believed``, acquire it in the world built as ``true_rig``, fit: per region
+    the worst channel's error of Rd and Rs and the error of n, in per cent of the truth."""
+    folder.mkdir(parents=True)
+    mesh = load_object(OBJECT)
+    plan, _ = plan_object(mesh, segment(mesh), believed, PlanSettings(), mesh_spec=OBJECT, plan_folder=folder)
+    plan_path = folder / "plan.json"
+    write_plan(plan_path, plan)
+    scene = sim_scene(plan, plan_path, None)
+    with SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(believed, true_rig)) as world:
+        e = world.endpoints
+        acquire_plan(plan_path, believed, folder / "session", links=Links(e.dynamixel, e.modbus, e.camera))
+    fitted = fit_into(folder / "session").materials
+    truth = dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))
+    errors = {}
+    for entry in fitted.regions:
+        true = truth[entry.id]
+        measured = entry.specular == "measured"
+        errors[entry.id] = RegionErrors(
+            rd_pct=_worst_pct(entry.rd, true.rd),
+            rs_pct=_worst_pct(entry.rs, true.rs) if measured else float("nan"),
+            n_pct=100 * abs(entry.n / true.n - 1) if measured else float("nan"),
+        )
+    return errors
+
+
+def _worst_pct(got, true) -> float:
+    return 100 * float(np.max(np.abs(np.asarray(got) / np.asarray(true) - 1)))
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0))))

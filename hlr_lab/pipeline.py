@@ -1,0 +1,182 @@
+"""The measurement's steps as functions: load an object, plan it, acquire a plan, fit a session, report
+it, export its materials. ``hlr-lab segment|plan|acquire|fit|report|export``, ``hlr-lab demo``, the
+benchmarks and the tests all call these; the commands only parse options and print.
+
+Each step reads and writes the files of docs/file-formats.md, so any step can be run again alone.
+Opening the rig (devices, camera, the safe state on every exit) is :func:`hlr_lab.rig_control.open_rig`,
+which :func:`acquire_plan` uses through :func:`hlr_lab.acquire_session.acquire_session`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from hlr_lab.acquire_session import PLANNED_ONLY, acquire_session
+from hlr_lab.acquisition import Bracketing, Outcome, Step
+from hlr_lab.devices import Links
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.formats.materials import read_materials, write_materials
+from hlr_lab.formats.plan import PlanFile, build_plan, read_plan
+from hlr_lab.formats.regions import mesh_reference, read_regions
+from hlr_lab.mesh import ColouredMesh, load_mesh
+from hlr_lab.motion import motion_targets
+from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.planner import PlanResult, PlanSettings, plan_lights
+from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
+from hlr_lab.reflectance.session_fit import (
+    DIAGNOSTICS,
+    MATERIALS,
+    FitResult,
+    FitStep,
+    fit_session,
+    open_session,
+)
+from hlr_lab.rig import Rig
+from hlr_lab.rig_control import NO_OVERRIDES
+from hlr_lab.segment import Segmentation, segment
+from hlr_lab.silhouette import object_window
+
+if TYPE_CHECKING:
+    from hlr_lab.report.build import ReportFigures
+
+EXPORT_FORMATS = {"obj": ".obj", "gltf": ".glb", "mitsuba": ""}  # format → the file's suffix ("": a folder)
+
+
+def load_object(spec: str, texture: Path | None = None) -> ColouredMesh:
+    """The object to measure: a mesh file with colours (or ``texture``), or ``builtin:NAME``."""
+    if spec.startswith(BUILTIN_PREFIX):
+        if texture is not None:
+            raise InputError("--texture cannot be used with a built-in object", field="--texture")
+        return builtin_object(spec).mesh
+    return load_mesh(spec, texture, need_colour=True)
+
+
+def plan_object(
+    mesh: ColouredMesh,
+    segmentation: Segmentation,
+    rig: Rig,
+    settings: PlanSettings,
+    *,
+    mesh_spec: str,
+    plan_folder: Path,
+    up: str = "z",
+    scale: float = 1.0,
+) -> tuple[PlanFile, PlanResult]:
+    """Plan light positions for ``mesh`` (its ``segmentation``'s regions) on ``rig``: the plan file's
+    contents (to write with :func:`hlr_lab.formats.plan.write_plan`; the mesh is referred to as
+    ``mesh_spec``, relative to ``plan_folder`` where the plan will be) and the planner's full result.
+    ``up``, ``scale``: how the mesh stands on the plate (its up axis; mesh units → metres)."""
+    to_turntable = placement(mesh, up=up, scale=scale)
+    result = plan_lights(mesh.transformed(to_turntable), segmentation, rig, settings)
+    texture = None if mesh.texture_source is None else mesh_reference(mesh.texture_source, plan_folder)
+    plan = build_plan(
+        result,
+        segmentation,
+        mesh_ref=mesh_reference(mesh_spec, plan_folder),
+        sha256=mesh.sha256 or "",
+        texture_ref=texture,
+        mesh_to_turntable=to_turntable,
+        up=up,
+        scale=scale,
+        exposures_s=rig.exposure_bracket_s,
+        rig_name=rig.name,
+    )
+    return plan, result
+
+
+def acquire_plan(
+    plan_path: Path,
+    rig: Rig,
+    session: Path,
+    *,
+    links: Links = NO_OVERRIDES,
+    bracket: Bracketing = PLANNED_ONLY,
+    force: bool = False,
+    progress: Callable[[Step], None] = lambda _: None,
+    on_start: Callable[[bool], None] = lambda _resumed: None,
+) -> Outcome:
+    """Run the plan at ``plan_path`` on ``rig`` into ``session`` (created, or resumed): the motions are
+    checked against the rig's limits before anything moves; adaptive bracketing watches the object's
+    own pixels. ``links`` replace the rig file's device addresses (the simulated rig's endpoints)."""
+    plan = read_plan(plan_path)
+    targets = motion_targets(plan, rig, plan_path)
+    if rig.file.lamp is None:
+        raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
+    vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
+    # where the object may appear at each turntable angle, computed once per angle
+    windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
+    return acquire_session(plan, plan_path, targets, rig, session, links=links, bracket=bracket, force=force,
+                           progress=progress, object_window=windows, on_start=on_start)  # fmt: skip
+
+
+def fit_into(
+    session: Path,
+    output: Path | None = None,
+    *,
+    theta_c_deg: float | str = "auto",
+    method: str = "robust",
+    allow_incomplete: bool = False,
+    progress: Callable[[FitStep], None] = lambda _: None,
+    on_gaps: Callable[[list[str], int], None] = lambda _notes, _missing: None,
+) -> FitResult:
+    """Fit ``session``'s frames and write materials.json (``output``, default SESSION/materials.json)
+    with its diagnostics beside it. ``on_gaps(notes, missing frames)`` hears what was left out before
+    the fit starts. Refuses a session without frames."""
+    s = open_session(session, allow_incomplete=allow_incomplete)
+    on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
+    if not s.views:
+        raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
+    result = fit_session(s, theta_c_deg=theta_c_deg, method=method, progress=progress)
+    output = output or session / MATERIALS
+    write_materials(output, result.materials)
+    atomic_write_text(output.with_name(DIAGNOSTICS), json.dumps(result.diagnostics, indent=1) + "\n")
+    return result
+
+
+def report_into(
+    session: Path, output: Path | None = None, *, progress: Callable[[str], None] = lambda _: None
+) -> tuple[Path, ReportFigures, int]:
+    """Write ``session``'s HTML report (``output``, default SESSION/report.html); returns its path, its
+    figures (PSNR per pose) and its size in bytes."""
+    from hlr_lab.report.build import build_report, write_report
+
+    s = open_session(session, allow_incomplete=True)  # fit said what is missing (so does materials.json)
+    page, figures = build_report(s, progress=progress)
+    output = output or session / "report.html"
+    write_report(output, page)
+    return output, figures, output.stat().st_size
+
+
+def export_materials(
+    materials_path: Path,
+    mesh: ColouredMesh,
+    fmt: str,
+    output: Path,
+    *,
+    regions_path: Path | None = None,
+    mesh_spec: str = "the mesh",
+) -> list[Path]:
+    """Write ``materials_path``'s materials on ``mesh`` as ``fmt`` (obj, gltf or mitsuba) to ``output``;
+    the regions are ``regions_path``'s (default: the mesh segmented again). Returns the files written."""
+    from hlr_lab.export.gltf import write_gltf
+    from hlr_lab.export.mitsuba import write_mitsuba
+    from hlr_lab.export.obj import write_obj
+    from hlr_lab.export.regions import region_parts
+
+    writers = {"obj": write_obj, "gltf": write_gltf, "mitsuba": write_mitsuba}
+    suffix = EXPORT_FORMATS[fmt]
+    if suffix and output.suffix.lower() != suffix:
+        raise InputError(f"a {fmt} export is written to a {suffix} file", field="--output")
+    materials = read_materials(materials_path)
+    if materials.sha256 and mesh.sha256 and materials.sha256 != mesh.sha256:
+        raise InputError(
+            f"made for another mesh ({materials.mesh}) than {mesh_spec}", path=materials_path, field="sha256"
+        )
+    seg = read_regions(regions_path, mesh) if regions_path else segment(mesh)
+    return writers[fmt](output, region_parts(mesh, seg, materials, source=str(materials_path)))
