@@ -57,7 +57,8 @@ class CameraCalibration:
     def rig_fields(self, rig: Rig, *, board_along_zero: bool = False) -> dict[str, dict]:
         """The ``[camera]`` fields the rig file takes from this calibration; with ``board_along_zero`` (the
         board was mounted along the plate's 0° line) also ``turntable.zero_steps``: the board's azimuth
-        in the fitted world is the turntable's zero error (:mod:`calibration.camera_pose`)."""
+        in the fitted world is the turntable's zero error (:mod:`calibration.camera_pose`); and
+        ``turntable.limits_deg`` narrowed to the stage steps the old limits allowed."""
         p = self.pose
         fields = {
             "camera": {
@@ -71,9 +72,14 @@ class CameraCalibration:
         }
         if board_along_zero:
             t = rig.turntable_kinematics
-            fields["turntable"] = {
-                "zero_steps": round(t.zero_steps - p.board_azimuth_deg * t.steps_per_degree)
-            }
+            zero = round(t.zero_steps - p.board_azimuth_deg * t.steps_per_degree)
+            # the limits narrowed so that no goal lands outside the step range the old ones allowed
+            # (the drive's own travel limits were set for it): a zero moved by 48 steps puts +180° at
+            # 18 048 steps, past a drive that stops at 18 000
+            lo, hi = rig.file.turntable.limits_deg
+            ends = sorted((t.steps_for(d) - zero) / t.steps_per_degree for d in (lo, hi))
+            limits = [max(lo, np.ceil(ends[0] * 100) / 100), min(hi, np.floor(ends[1] * 100) / 100)]
+            fields["turntable"] = {"zero_steps": zero, "limits_deg": limits}
         return fields
 
     def record(self, images: Path) -> dict:
@@ -172,7 +178,7 @@ def load_board_frames(folder: Path) -> list[BoardFrame]:
     """The photographs a capture left in ``folder`` (checked against their journal lines)."""
     frames = [
         BoardFrame(pixels, int(s["turntable_steps"]), int(s["placement"]))
-        for s, pixels in journaled_images(folder)
+        for s, pixels in journaled_images(folder, "calibrate camera", ("turntable_steps", "placement"))
     ]
     if not frames:
         raise InputError("the folder has no calibration images", path=folder)

@@ -40,6 +40,7 @@ DEFAULT_POSES = 30
 TURNS_DEG = (-10.0, 170.0)  # half a turn apart, the ball to either side, inside any turntable limits
 OUTLINE_LAMP_DEG = (-90.0, 45.0)  # gantry azimuth, elevation for the outline frame: the camera's side
 SETTLE_S = 60.0
+BALL_FIELDS = ("kind", "turntable_steps", "gantry_ticks", "bits")  # what the solve reads of each sidecar
 
 
 @dataclass(frozen=True)
@@ -143,7 +144,7 @@ def load_ball_frames(folder: Path) -> list[BallFrame]:
     """The photographs a capture left in ``folder`` (checked against their journal lines)."""
     return [
         BallFrame(pixels, s["kind"], int(s["turntable_steps"]), tuple(s["gantry_ticks"]), int(s["bits"]))
-        for s, pixels in journaled_images(folder)
+        for s, pixels in journaled_images(folder, "calibrate gantry", BALL_FIELDS)
     ]
 
 

@@ -13,14 +13,32 @@ from hlr_lab.session.frames import checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, read_journal
 
 
-def journaled_images(folder: Path) -> Iterator[tuple[dict, np.ndarray]]:
-    """(sidecar, pixels) of every photograph in ``folder``, each checked against its journal line."""
+def journaled_images(
+    folder: Path, procedure: str, fields: tuple[str, ...]
+) -> Iterator[tuple[dict, np.ndarray]]:
+    """(sidecar, pixels) of every photograph in ``folder``, each checked against its journal line; the
+    folder must hold ``procedure``'s photographs (e.g. "calibrate gantry", as its journal's run_start
+    line says) and every sidecar the ``fields`` that procedure's solve reads."""
     if not (folder / JOURNAL).is_file():
         raise InputError(
             "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
         )
-    for e in (e for e in read_journal(folder / JOURNAL) if e["event"] == "frame"):
+    events = read_journal(folder / JOURNAL)
+    taken_by = next((e.get("procedure") for e in events if e["event"] == "run_start"), None)
+    if taken_by != procedure:
+        raise InputError(
+            f"these are not the photographs of hlr-lab {procedure} (the journal says "
+            f"{taken_by or 'nothing of a procedure'}); give the --out of a {procedure} run",
+            path=folder,
+        )
+    for e in (e for e in events if e["event"] == "frame"):
         sidecar, problem = checked_sidecar(folder, e)
         if problem:
             raise InputError(f"{problem}; take the calibration's photographs again", path=folder)
+        missing = [f for f in fields if f not in sidecar]
+        if missing:
+            raise InputError(
+                f"{e.get('file', 'a frame')}'s sidecar lacks {', '.join(missing)}; take the photographs again",
+                path=folder,
+            )
         yield sidecar, load_frame(folder, e)

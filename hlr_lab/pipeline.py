@@ -2,9 +2,10 @@
 it, export its materials. ``hlr-lab segment|plan|acquire|fit|report|export``, ``hlr-lab demo``, the
 benchmarks and the tests all call these; the commands only parse options and print.
 
-Each step reads and writes the files of docs/file-formats.md, so any step can be run again alone.
-Opening the rig (devices, camera, the safe state on every exit) is :func:`hlr_lab.rig_control.open_rig`,
-which :func:`acquire_plan` uses through :func:`hlr_lab.acquire_session.acquire_session`.
+Each step reads and writes files (plan.json, a session folder: docs/sessions.md, materials.json), so
+any step can be run again alone. Opening the rig (devices, camera, the safe state on every exit) is
+:func:`hlr_lab.rig_control.open_rig`, which :func:`acquire_plan` uses through
+:func:`hlr_lab.acquire_session.acquire_session`. The layers: docs/architecture.md.
 """
 
 from __future__ import annotations

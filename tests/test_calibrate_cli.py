@@ -50,6 +50,9 @@ def test_the_calibrated_camera_is_the_true_one(calibrated, rig):
     # 0° line lies at a, so the turntable's zero is the true one (20 steps) less a: 48 steps
     true_zero = load_true_rig("builtin:bench-offsets").stage.zero_steps - round(np.degrees(a) * 100)
     assert abs(after.file.turntable.zero_steps - true_zero) <= 2
+    # the limits follow the zero: no goal beyond the stage steps the drawing's ±180° allowed
+    t = after.turntable_kinematics
+    assert [t.steps_for(d) for d in after.file.turntable.limits_deg] == [-18000 + t.zero_steps, 18000]
     record = after.file.calibration.camera
     assert record.rms_px <= 0.3
     assert record.views_used == record.views == 24
@@ -77,6 +80,13 @@ def test_the_photographs_are_solved_again_without_the_rig(calibrated, tmp_path, 
         == 24
     )
     assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", page)
+    # the camera's photographs handed to the gantry's solve: one line, nothing written, photographs kept
+    wrong = ["calibrate", "gantry", "--rig", str(calibrated / "calibrated.toml"), "--from",
+             str(calibrated / "images"), "-o", str(tmp_path / "g.toml")]  # fmt: skip
+    assert main(wrong) == 1
+    assert "not the photographs of hlr-lab calibrate gantry" in capsys.readouterr().err
+    assert not (tmp_path / "g.toml").exists()
+    assert len(list((calibrated / "images" / "frames").glob("*.png"))) == 24
 
 
 def test_a_rig_file_without_a_board_or_a_used_folder_is_refused(tmp_path, capsys):
