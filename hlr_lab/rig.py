@@ -183,6 +183,17 @@ class _LightSection(_Strict):
 
     type: Literal["point", "directional"] = "point"
     power: float = Field(default=1.0, gt=0)  # Φ, in the unit the fitted reflectances are relative to
+    drift: _DriftSection | None = None  # a simulated world's lamp (true rig files); hlr-lab measures its own
+
+
+class _DriftSection(_Strict):
+    """How a simulated world's lamp drifts (``--true-rig`` files; see sim/lamp.py). A real rig's lamp is
+    not described: hlr-lab measures it."""
+
+    warm_up: float = Field(default=0.0, ge=-0.5, le=0.5)
+    warm_up_s: float = Field(default=1.0, gt=0)
+    per_hour: float = Field(default=0.0, ge=-0.5, le=0.5)
+    flicker: float = Field(default=0.0, ge=0, le=0.1)
 
 
 class _SensorSection(_Strict):
@@ -191,6 +202,7 @@ class _SensorSection(_Strict):
     sensitivity: float = Field(default=4095.0, gt=0)  # DN per (radiance unit · second) at 0 dB
     black_level_dn: float = Field(default=0.0, ge=0)
     read_noise_dn: float = Field(default=1.5, ge=0)  # below a few of these a value is dark-noise dominated
+    conversion_gain_dn_per_e: float | None = Field(default=None, gt=0)  # photon noise: var = gain · signal
 
 
 class _BoardSection(_Strict):
@@ -216,6 +228,23 @@ class _MirrorBallSection(_Strict):
     place_m: Annotated[list[float], _PAIR]  # where it rests on the plate at turntable 0° (x, y), roughly
 
 
+class _WhiteReferenceSection(_Strict):
+    """The white reference of ``hlr-lab calibrate radiometric``: a flat Lambertian square lying on the
+    plate."""
+
+    reflectance: Vec3 = [0.99, 0.99, 0.99]  # per channel (linear RGB), from its certificate
+    size_m: float = Field(default=0.1, gt=0, le=0.5)  # the square's side
+    place_m: Annotated[list[float], _PAIR] = [0.0, 0.0]  # its centre on the plate at turntable 0° (x, y)
+    thickness_m: float = Field(default=0.0, ge=0, le=0.05)  # its face above the plate
+
+    @field_validator("reflectance")
+    @classmethod
+    def _a_reflectance(cls, v):
+        if not all(0 < r <= 1 for r in v):
+            raise ValueError("each channel's reflectance lies in (0, 1]")
+        return v
+
+
 class _Provenance(BaseModel):
     """What a calibration procedure recorded: when, with what, how well (free-form beyond these)."""
 
@@ -227,6 +256,7 @@ class _Provenance(BaseModel):
 class _CalibrationSection(_Strict):
     board: _BoardSection | None = None
     mirror_ball: _MirrorBallSection | None = None
+    white_reference: _WhiteReferenceSection | None = None
     camera: _Provenance | None = None  # written by hlr-lab calibrate camera
     gantry: _Provenance | None = None
     radiometric: _Provenance | None = None

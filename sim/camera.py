@@ -7,12 +7,14 @@ drivers show up in the frames, as they would on the real rig. The lamp is the re
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.dynamixel.bus import SimBus
+from sim.lamp import LampModel
 from sim.render.sensor import SensorModel
 from sim.turntable.server import TurntableServer
 
@@ -65,7 +67,10 @@ class SimCamera:
     gantry: GantryGeometry = GantryGeometry()
     stage: StageGeometry = StageGeometry()
     seed: int = 0
+    lamp: LampModel = field(default_factory=LampModel)
+    speed_factor: float = 1.0  # simulated seconds per wall second: the lamp drifts in simulated time
     frames: int = field(default=0, init=False)
+    started: float = field(default_factory=time.monotonic, init=False)
 
     def pose(self) -> dict:
         """Where the axes are now: light position (m), turntable angle (degrees), lamp."""
@@ -91,7 +96,15 @@ class SimCamera:
         radiance = self.renderer.render(
             pose["turntable_deg"], light, lamp_on=pose["lamp"], seed=self.seed + self.frames
         )
+        simulated_s = (time.monotonic() - self.started) * self.speed_factor
+        lamp_output = self.lamp.output(simulated_s, np.random.default_rng([self.seed, self.frames, 1]))
         rng = np.random.default_rng([self.seed, self.frames])
         self.frames += 1
-        frame = self.sensor.expose(radiance, exposure_s, rng, gain_db)
-        return frame, {**pose, "exposure_s": exposure_s, "gain_db": gain_db, "bits": self.sensor.bits}
+        frame = self.sensor.expose(radiance * lamp_output, exposure_s, rng, gain_db)
+        truth = {
+            "exposure_s": exposure_s,
+            "gain_db": gain_db,
+            "bits": self.sensor.bits,
+            "lamp_output": lamp_output,
+        }
+        return frame, {**pose, **truth}

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from sim.camera import GantryGeometry, SimCamera, StageGeometry
 from sim.dynamixel.bus import SimBus
+from sim.lamp import LampModel
 from sim.render.camera import CameraSpec
 from sim.render.scene import SceneSpec
 from sim.render.sensor import SensorModel
@@ -59,6 +60,7 @@ class SimRig:
         scene: SceneSpec | None = None,
         camera: CameraSpec | None = None,
         sensor: SensorModel | None = None,
+        lamp: LampModel | None = None,
         gantry: GantryGeometry = GANTRY,
         stage: StageGeometry = STAGE,
         spp: int = 16,
@@ -85,6 +87,8 @@ class SimRig:
                     gantry,
                     stage,
                     seed,
+                    lamp or LampModel(),
+                    speed_factor,
                 )
                 self.camera_server = CameraServer(self.camera)
                 camera_endpoint = self.camera_server.serve_tcp()

@@ -1,4 +1,5 @@
-"""Calibration targets the simulated camera can photograph: a ChArUco board on a wedge on the turntable.
+"""Calibration targets the simulated camera can photograph: a ChArUco board on a wedge on the turntable,
+a mirror ball and a white reference lying on the plate.
 
 The board is printed with OpenCV's own aruco module (so its markers are exactly what a detector expects)
 onto a flat quad: a two-material textured scene (black ink, white paper; both matte), which the
@@ -111,4 +112,32 @@ def mirror_ball_scene(
     plate = Material((plate_rd,) * 3, (0.0, 0.0, 0.0), 1.0)
     ball = MirrorBall((float(centre_xy_m[0]), float(centre_xy_m[1]), radius_m), radius_m)
     return SceneSpec(vertices, faces, np.zeros(n, np.int64), [plate], np.eye(4), mirror_balls=(ball,),
+                     normals=np.tile([0.0, 0.0, 1.0], (len(vertices), 1)))  # fmt: skip
+
+
+def white_reference_scene(
+    reflectance: tuple[float, float, float],
+    size_m: float,
+    centre_xy_m: tuple[float, float],
+    *,
+    height_m: float = 0.0,
+    plate_radius_m: float = 0.35,
+    plate_rd: float = 0.05,
+) -> SceneSpec:
+    """A flat Lambertian square of ``reflectance`` (per channel) and side ``size_m`` lying on the plate
+    with its centre at ``centre_xy_m`` and its face ``height_m`` above the plate (half a millimetre at
+    least: two surfaces in one plane would flicker), and the plate: a dark matte disc around it."""
+    angles = np.linspace(0.0, 2 * np.pi, 97)[:-1]
+    n = len(angles)
+    rim = np.stack([plate_radius_m * np.cos(angles), plate_radius_m * np.sin(angles), np.zeros(n)], 1)
+    x, y, h, z = float(centre_xy_m[0]), float(centre_xy_m[1]), size_m / 2, max(height_m, 5e-4)
+    square = np.array([[x - h, y - h, z], [x + h, y - h, z], [x + h, y + h, z], [x - h, y + h, z]])
+    vertices = np.vstack([[0.0, 0.0, 0.0], rim, square])
+    plate_faces = [[0, 1 + i, 1 + (i + 1) % n] for i in range(n)]  # counter-clockwise seen from above
+    s = n + 1
+    faces = np.array([*plate_faces, [s, s + 1, s + 2], [s, s + 2, s + 3]])
+    regions = np.array([0] * n + [1, 1], np.int64)
+    materials = [Material((plate_rd,) * 3, (0.0, 0.0, 0.0), 1.0),
+                 Material(tuple(float(r) for r in reflectance), (0.0, 0.0, 0.0), 1.0)]  # fmt: skip
+    return SceneSpec(vertices, faces, regions, materials, np.eye(4),
                      normals=np.tile([0.0, 0.0, 1.0], (len(vertices), 1)))  # fmt: skip

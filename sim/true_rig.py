@@ -4,22 +4,27 @@ hlr-lab believes one rig file (the drawing, or its calibration); the simulated w
 another, the *true* rig (``--true-rig``), so that calibration has something to find. The simulator
 reads it in its own words — its own TOML reading, camera pose and gantry kinematics, no code shared
 with hlr-lab — so that it stays an independent truth. Only what shapes the world is read: the
-camera's intrinsics and pose, the gantry's geometry and tick mapping, the turntable's step mapping.
+camera's intrinsics and pose, the gantry's geometry and tick mapping, the turntable's step mapping,
+the sensor's response and noise (``[sensor]``) and the lamp's power and drift (``[light]``).
 
-Built-in true rigs live in ``sim/data`` (``builtin:bench-offsets``).
+Built-in true rigs live in ``sim/data`` (``builtin:bench-offsets``: geometry off its drawing;
+``builtin:bench-night``: the same bench, its sensor and lamp off their nominal values too, and a lamp
+that drifts).
 """
 
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from sim.camera import GantryGeometry, StageGeometry
+from sim.lamp import LampModel
 from sim.render.camera import CameraSpec
+from sim.render.sensor import SensorModel
 
 BUILTIN = "builtin:"
 
@@ -35,6 +40,8 @@ class TrueRig:
     stage: StageGeometry
     servo_ids: tuple[int, int]  # azimuth, elevation
     source: str
+    sensor: SensorModel = field(default_factory=SensorModel)  # [sensor]: what the camera's pixels really do
+    lamp: LampModel = field(default_factory=LampModel)  # [light] power and drift: what the lamp really gives
 
 
 def builtin_true_rigs() -> list[str]:
@@ -64,7 +71,9 @@ def load_true_rig(spec: str | Path) -> TrueRig:
     except (KeyError, TypeError, ValueError) as exc:
         if isinstance(exc, TrueRigError):
             raise
-        raise TrueRigError(f"{spec}: {exc!r} in the camera, gantry or turntable section") from exc
+        raise TrueRigError(
+            f"{spec}: {exc!r} in the camera, gantry, turntable, sensor or light section"
+        ) from exc
 
 
 def _world(data: dict, source: str) -> TrueRig:
@@ -81,7 +90,33 @@ def _world(data: dict, source: str) -> TrueRig:
         azimuth_axis=tuple(float(v) for v in g.get("azimuth_axis", (0.0, 0.0, 1.0))),
     )
     stage = StageGeometry(float(t["steps_per_degree"]), int(t.get("zero_steps", 0)))
-    return TrueRig(_camera(c), gantry, stage, ids, source)
+    return TrueRig(_camera(c), gantry, stage, ids, source, _sensor(data.get("sensor", {})),
+                   _lamp(data.get("light", {})))  # fmt: skip
+
+
+def _sensor(s: dict) -> SensorModel:
+    """[sensor] as the simulator takes it: sensitivity (DN per radiance · s), black level and read noise
+    (DN), conversion gain (DN per electron: sets the photon noise)."""
+    d = SensorModel()
+    gain = float(s.get("conversion_gain_dn_per_e", 1.0 / d.electrons_per_dn))
+    if not (gain > 0 and float(s.get("sensitivity", d.sensitivity)) > 0):
+        raise ValueError("sensitivity and conversion_gain_dn_per_e must be positive")
+    return SensorModel(
+        sensitivity=float(s.get("sensitivity", d.sensitivity)),
+        electrons_per_dn=1.0 / gain,
+        read_noise_dn=float(s.get("read_noise_dn", d.read_noise_dn)),
+        black_level_dn=float(s.get("black_level_dn", d.black_level_dn)),
+    )
+
+
+def _lamp(light: dict) -> LampModel:
+    """[light] power and drift (:mod:`sim.lamp`). The scene's own power stays the unit: the world's lamp
+    gives ``power`` times it."""
+    drift = light.get("drift", {})
+    unknown = set(drift) - {"warm_up", "warm_up_s", "per_hour", "flicker"}
+    if unknown:
+        raise ValueError(f"[light] drift: unknown keys {sorted(unknown)}")
+    return LampModel(float(light.get("power", 1.0)), **{k: float(v) for k, v in drift.items()})
 
 
 def _camera(c: dict) -> CameraSpec:

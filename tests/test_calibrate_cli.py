@@ -136,22 +136,30 @@ def test_calibrate_gantry_on_the_camera_calibrated_rig(calibrated, tmp_path, cap
 
 
 @pytest.mark.slow
-def test_calibrate_all_writes_one_file_with_both_records(tmp_path):
-    """Camera then gantry on the simulated bench, short runs: one rig file carrying both calibrations,
-    the camera-only file and both sets of photographs kept in --out."""
-    command = ["calibrate", "all", "--sim", "--true-rig", "builtin:bench-offsets", "--views", "16", "--poses",
-               "12", "--board-along-zero", "--out", str(tmp_path / "run"), "-o", str(tmp_path / "all.toml"),
-               "--speed-factor", "40"]  # fmt: skip
+def test_calibrate_all_writes_one_file_with_all_three_records(tmp_path):
+    """Camera, gantry, then radiometry on the simulated bench whose sensor and lamp are off too
+    (builtin:bench-night), short runs: one rig file carrying all three calibrations, the intermediate
+    files and every set of photographs kept in --out. (Its lamp is warming up while it runs: S·Φ is
+    that moment's; the radiometric figures are measured on a steady lamp elsewhere.)"""
+    command = ["calibrate", "all", "--sim", "--true-rig", "builtin:bench-night", "--views", "16", "--poses",
+               "12", "--positions", "3", "--board-along-zero", "--out", str(tmp_path / "run"), "-o",
+               str(tmp_path / "all.toml"), "--speed-factor", "40"]  # fmt: skip
     assert main(command) == 0
     after = load_rig(tmp_path / "all.toml")
     assert after.file.calibration.camera is not None
     assert after.file.calibration.gantry is not None
-    truth = load_true_rig("builtin:bench-offsets")
+    assert after.file.calibration.radiometric is not None
+    truth = load_true_rig("builtin:bench-night")
     assert abs(after.camera.matrix[0, 0] / truth.camera.matrix[0, 0] - 1) < 0.002
     assert abs(after.gantry.kinematics.arm_radius - truth.gantry.arm_radius) < 1.5e-3
+    assert abs(after.file.sensor.black_level_dn - 64.0) < 0.5
+    assert after.file.sensor.conversion_gain_dn_per_e == pytest.approx(0.31, rel=0.05)
+    assert after.file.sensor.sensitivity == pytest.approx(3600 * 0.88, rel=0.05)  # within the warm-up's +4 %
     assert (tmp_path / "run" / "rig-camera.toml").is_file()
+    assert (tmp_path / "run" / "rig-gantry.toml").is_file()
     assert len(list((tmp_path / "run" / "camera" / "frames").glob("*.png"))) == 16
     assert len(list((tmp_path / "run" / "gantry" / "frames").glob("*.png"))) >= 20
+    assert len(list((tmp_path / "run" / "radiometric" / "frames").glob("*.png"))) == 2 * 3 + 3 * 8 + 3
 
 
 @pytest.mark.slow

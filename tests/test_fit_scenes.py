@@ -120,7 +120,7 @@ def measure(
     vertices = mesh.transformed(to_tt).vertices
     with contextlib.ExitStack() as stack:
         world = stack.enter_context(
-            SimRig(scene=scene, sensor=sensor, speed_factor=40.0, spp=4, **world_geometry(rig))
+            SimRig(scene=scene, speed_factor=40.0, spp=4, **{**world_geometry(rig), "sensor": sensor})
         )
         e = world.endpoints
         devices = stack.enter_context(open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus))

@@ -276,45 +276,144 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
     console.print(f"photographs in {escape(str(images))}{summary}; wrote {escape(str(output))}")
 
 
+@calibrate.command("radiometric")
+@rig_options("Calibrate the simulated rig (a simulated white reference).")
+@click.option("--positions", type=click.IntRange(3, 60), default=6, show_default=True,
+              help="Lamp positions over the white reference.")  # fmt: skip
+@click.option("--levels", type=click.IntRange(4, 40), default=8, show_default=True,
+              help="Exposures of the photon transfer.")  # fmt: skip
+@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
+              help="Folder for the photographs (a new one; default: calibration/DATE-radiometric).")  # fmt: skip
+@click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="The calibrated rig file to write (the input's copy, [sensor] fields replaced).")  # fmt: skip
+@speed_factor_option("With --sim: simulated")
+def radiometric(rig_path, sim, true_rig, positions, levels, out, from_dir, output, speed_factor) -> None:
+    """Calibrate the radiometry: black level, read noise, conversion gain and sensitivity × lamp power.
+
+    Dark frames (the lamp off) at every exposure of the bracket; a white reference of known reflectance
+    ([calibration.white_reference]: reflectance per channel, side, place on the plate) photographed in
+    pairs at several exposures (photon transfer: conversion gain, and the response checked linear), then
+    lit from --positions lamp positions (sensitivity × power, which makes fitted reflectances absolute,
+    and a check that the lamp follows 1/d²). Writes [sensor] sensitivity, black_level_dn, read_noise_dn
+    and conversion_gain_dn_per_e. Calibrate the camera and the gantry first: every pixel's distance to
+    the lamp comes from them. Details: docs/calibration.md.
+
+    \b
+    Examples:
+      hlr-lab calibrate radiometric --rig rig-calibrated.toml -o rig-calibrated-2.toml
+      hlr-lab calibrate radiometric --sim --true-rig builtin:bench-night -o calibrated.toml
+    """
+    from calibration.radiometric_procedure import reference_pixels, white_spec
+
+    rig = believed_rig(rig_path, sim, true_rig)
+    reference_pixels(rig, white_spec(rig))  # no reference, or one out of view: refused before anything moves
+    default = rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-radiometric")
+    images = from_dir or _new_folder(out or default)
+    _run_radiometric(
+        rig, sim, true_rig, positions, levels, images, from_dir is not None, output, speed_factor
+    )
+
+
+def _run_radiometric(rig: Rig, sim, true_rig, positions, levels, images: Path, solve_only: bool, output: Path,
+                     speed_factor) -> Rig:  # fmt: skip
+    """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
+    from calibration.radiometric_procedure import (
+        capture_radiometric_frames,
+        load_radiometric_frames,
+        solve_radiometric,
+        white_spec,
+    )
+
+    if not solve_only:
+        with contextlib.ExitStack() as stack:
+            links = white_world(stack, rig, sim, true_rig, speed_factor, white_spec(rig))
+            with console.status("calibrating the radiometry…") as status, open_rig(rig, links) as opened:
+                capture_radiometric_frames(
+                    opened.instruments, rig, images, positions=positions, levels=levels,
+                    progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
+                )  # fmt: skip
+    with console.status("solving…"):
+        result = solve_radiometric(load_radiometric_frames(images), rig)
+    calibrated = write_calibrated_rig(
+        rig_source_path(rig), output, result.rig_fields(), "radiometric", result.record(images)
+    )
+    before, after = rig.file.sensor, calibrated.file.sensor
+    t = Table(title="radiometric calibration", title_justify="left")
+    for column in ("", "rig file before", "calibrated"):
+        t.add_column(column, justify="right")
+    gain = before.conversion_gain_dn_per_e
+    sp = result.lamp.sensitivity_times_power
+    for row in (
+        ("black level (DN)", f"{before.black_level_dn:.2f}", f"{after.black_level_dn:.2f}"),
+        ("read noise (DN)", f"{before.read_noise_dn:.3f}", f"{after.read_noise_dn:.3f}"),
+        ("conversion gain (DN/e⁻)", "—" if gain is None else f"{gain:.4f}", f"{after.conversion_gain_dn_per_e:.4f}"),
+        ("sensitivity × power", f"{before.sensitivity * rig.file.light.power:.1f}",
+         f"{np.mean(sp):.1f} (channels {', '.join(f'{v:.1f}' for v in sp)})"),
+        ("worst deviation from linear", "", f"{100 * result.transfer.worst_nonlinearity:.2f} %"),
+        ("1/d² residual over the lamp positions", "", f"{100 * result.lamp.inverse_square_residual:.2f} %"),
+    ):  # fmt: skip
+        t.add_row(*row)
+    console.print(t)
+    if not result.lamp.follows_inverse_square:
+        console.print(
+            "[yellow]the lamp does not follow 1/d² within 2 %: it may need a diffuser, or another [light] type[/]"
+        )
+    console.print(f"photographs in {escape(str(images))}; wrote {escape(str(output))}")
+    return calibrated
+
+
 @calibrate.command("all")
 @rig_options("Calibrate the simulated rig.")
 @click.option(
     "--views", type=click.IntRange(16, 200), default=24, show_default=True, help="Board photographs."
 )
 @click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True, help="Lamp poses.")
+@click.option("--positions", type=click.IntRange(3, 60), default=6, show_default=True,
+              help="Lamp positions over the white reference.")  # fmt: skip
+@click.option("--no-radiometric", is_flag=True, help="Camera and gantry only (no white reference).")
 @click.option("--board-along-zero", is_flag=True,
               help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.")  # fmt: skip
 @click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for the photographs and the camera-only rig file (default: calibration/DATE-all).",
+              help="Folder for the photographs and the intermediate rig files (default: calibration/DATE-all).",
               )  # fmt: skip
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The calibrated rig file to write.")  # fmt: skip
 @speed_factor_option("With --sim: simulated")
-def all_(rig_path, sim, true_rig, views, poses, board_along_zero, out, output, speed_factor) -> None:
-    """Calibrate the camera, then the gantry with it, into one calibrated rig file.
+def all_(rig_path, sim, true_rig, views, poses, positions, no_radiometric, board_along_zero, out, output,
+         speed_factor) -> None:  # fmt: skip
+    """Calibrate the camera, then the gantry with it, then the radiometry, into one calibrated rig file.
 
     The camera procedure (board on a wedge) writes OUT/rig-camera.toml; the gantry procedure (mirror
-    ball) runs on that file and writes -o, which carries both [calibration] records. The radiometric
-    procedure is not part of it yet (see the README's hand calibration).
+    ball) runs on that file and writes OUT/rig-gantry.toml; the radiometric procedure (white reference)
+    runs on that one and writes -o, which carries all three [calibration] records. Each step needs the
+    one before: the gantry's rays come from the camera, every pixel's distance to the lamp from both.
 
-    
+    \b
     Examples:
       hlr-lab calibrate all --rig rig.toml --board-along-zero -o rig-calibrated.toml
-      hlr-lab calibrate all --sim --true-rig builtin:bench-offsets --board-along-zero -o calibrated.toml
+      hlr-lab calibrate all --sim --true-rig builtin:bench-night --board-along-zero -o calibrated.toml
     """
     from calibration.camera_procedure import board_spec
     from calibration.gantry_procedure import ball_spec
+    from calibration.radiometric_procedure import white_spec
 
     rig = believed_rig(rig_path, sim, true_rig)
-    board_spec(rig), ball_spec(rig)  # both targets described before anything moves
+    board_spec(rig), ball_spec(rig)  # every target described before anything moves
+    if not no_radiometric:
+        white_spec(rig)
     folder = _new_folder(
         out or rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")
     )
     with_camera = _run_camera(rig, sim, true_rig, views, _new_folder(folder / "camera"), False, board_along_zero,
                               folder / "rig-camera.toml", speed_factor)  # fmt: skip
-    _run_gantry(
-        with_camera, sim, true_rig, poses, _new_folder(folder / "gantry"), False, output, speed_factor
-    )
+    gantry_output = output if no_radiometric else folder / "rig-gantry.toml"
+    with_gantry = _run_gantry(with_camera, sim, true_rig, poses, _new_folder(folder / "gantry"), False,
+                              gantry_output, speed_factor)  # fmt: skip
+    if not no_radiometric:
+        _run_radiometric(with_gantry, sim, true_rig, positions, 8, _new_folder(folder / "radiometric"), False,
+                         output, speed_factor)  # fmt: skip
 
 
 def _new_folder(folder: Path) -> Path:
@@ -325,18 +424,40 @@ def _new_folder(folder: Path) -> Path:
 
 
 def ball_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, radius: float, place) -> Links:
+    """The links for the gantry procedure: the rig's (once the operator has put the ball down), or a
+    simulated world with the ball where the rig file says."""
+
+    def scene():
+        from sim.targets import mirror_ball_scene
+
+        return mirror_ball_scene(radius, place)
+
+    return _target_world(stack, rig, sim, true_rig, speed_factor, "the mirror ball", scene, spp=16)
+
+
+def white_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, white) -> Links:
+    """The links for the radiometric procedure: the rig's (once the operator has laid the white
+    reference down), or a simulated world with it where the rig file says."""
+
+    def scene():
+        from sim.targets import white_reference_scene
+
+        return white_reference_scene(tuple(white.reflectance), white.size_m, white.place_m,
+                                     height_m=white.thickness_m)  # fmt: skip
+
+    return _target_world(stack, rig, sim, true_rig, speed_factor, "the white reference", scene, spp=8)
+
+
+def _target_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, what: str, scene, *, spp: int) -> Links:
     if not sim:
-        click.confirm(
-            "Put the mirror ball on the plate where the rig file says. Ready?", abort=True, err=True
-        )
+        click.confirm(f"Put {what} on the plate where the rig file says. Ready?", abort=True, err=True)
         return Links()
+    # the simulator is reached only from the command line (the composition root)
     from hlr_lab.cli.sim_world import world_geometry
     from sim.rig import SimRig
-    from sim.targets import mirror_ball_scene
 
-    scene = mirror_ball_scene(radius, place)
     world = stack.enter_context(
-        SimRig(scene=scene, speed_factor=speed_factor, spp=16, **world_geometry(rig, true_rig))
+        SimRig(scene=scene(), speed_factor=speed_factor, spp=spp, **world_geometry(rig, true_rig))
     )
     e = world.endpoints
     return Links(e.dynamixel, e.modbus, e.camera)

@@ -26,7 +26,7 @@ DEFAULT_RS, DEFAULT_N, RD_SCALE = (0.25, 0.25, 0.25), 40.0, 0.8  # Rd + Rs ≤ 1
 
 
 def world_geometry(rig: Rig, true_rig: str | Path | None = None) -> dict:
-    """The simulated world's camera, gantry, turntable and servo ids, as :class:`sim.rig.SimRig` takes
+    """The simulated world's camera, gantry, turntable, servo ids, sensor and lamp, as :class:`sim.rig.SimRig` takes
     them: from ``true_rig`` (a rig file or ``builtin:NAME``: the world as it really is, while hlr-lab
     keeps believing ``rig``), else from ``rig``'s own file (the world is as hlr-lab believes). Either way
     the simulator reads the file itself (:mod:`sim.true_rig`)."""
@@ -47,6 +47,8 @@ def world_geometry(rig: Rig, true_rig: str | Path | None = None) -> dict:
         "gantry": world.gantry,
         "stage": world.stage,
         "servo_ids": world.servo_ids,
+        "sensor": world.sensor,
+        "lamp": world.lamp,
     }
 
 

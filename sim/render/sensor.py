@@ -1,8 +1,8 @@
 """The camera sensor: radiance in, raw digital numbers out (seeded, reproducible).
 
-DN = response(gain · (radiance · exposure · sensitivity + ambient)) with photon (Poisson) noise on the
-electrons and Gaussian read noise before the analogue gain, quantisation to ``bits`` and clipping at the
-top code.
+DN = response(gain · (radiance · exposure · sensitivity + ambient)) + black level, with photon (Poisson)
+noise on the electrons (``electrons_per_dn`` is the inverse of the conversion gain) and Gaussian read
+noise before the analogue gain, quantisation to ``bits`` and clipping at the top code.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ class SensorModel:
     response: Literal["linear", "gamma"] = "linear"
     gamma: float = 2.2
     ambient: float = 0.0  # radiance added everywhere (stray light), same units as the render
+    black_level_dn: float = 0.0  # the ADC's offset: what a dark pixel reads on average
 
     @property
     def top(self) -> int:
@@ -39,4 +40,4 @@ class SensorModel:
         signal = (signal + rng.normal(0.0, self.read_noise_dn, signal.shape)) * 10 ** (gain_db / 20)
         if self.response == "gamma":
             signal = self.top * (np.clip(signal, 0, None) / self.top) ** (1.0 / self.gamma)
-        return np.clip(np.round(signal), 0, self.top).astype(np.uint16)
+        return np.clip(np.round(signal + self.black_level_dn), 0, self.top).astype(np.uint16)

@@ -1,0 +1,319 @@
+"""``hlr-lab calibrate radiometric``: dark frames, photon transfer and a white reference under the gantry
+lamp → ``[sensor]`` black level, read noise, conversion gain and sensitivity (:mod:`calibration.radiometry`).
+
+The white reference (``[calibration.white_reference]``: reflectance per channel, side, place on the
+plate) lies flat on the plate, the turntable at 0°. The middle of it (60 % of its side, away from its
+edges) is what is measured; each of its pixels gets its point on the reference from the calibrated
+camera and, under each lamp position the calibrated gantry gives, its cos θ / d². In order:
+
+1. dark frames: the lamp off, a pair at each exposure of the rig's bracket;
+2. photon transfer: the lamp above the reference, pairs at ``levels`` exposures from 5 % to 85 % of full
+   scale, each pair after a reference frame at one fixed exposure (to see a drifting lamp for what it is);
+3. white: the lamp at ``positions`` places over the reachable range, one frame each near half scale.
+
+Needs the camera and gantry calibrated first (the geometry of every pixel comes from them). Photographs
+are kept as the other procedures keep theirs, so ``--from`` solves again without the rig.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calibration.charuco import CalibrationError
+from calibration.images import journaled_images
+from calibration.radiometry import (
+    Dark,
+    LampSensitivity,
+    PhotonTransfer,
+    dark_statistics,
+    lamp_sensitivity,
+    photon_transfer,
+)
+from hlr_lab.acquisition import Instruments
+from hlr_lab.errors import InputError
+from hlr_lab.rig import Rig
+from hlr_lab.session.frames import store_frame
+from hlr_lab.session.journal import JOURNAL, Journal
+
+PROCEDURE = "calibrate radiometric"
+DEFAULT_POSITIONS, DEFAULT_LEVELS = 6, 8
+MIDDLE = 0.6  # of the reference's side: what is measured
+ABOVE_DEG = (-90.0, 75.0)  # gantry azimuth, elevation of the photon-transfer frames: high, camera's side
+SETTLE_S = 60.0
+FIELDS = ("kind", "level", "exposure_s", "gain_db", "gantry_ticks", "turntable_steps", "bits")
+
+
+@dataclass(frozen=True)
+class WhiteReference:
+    reflectance: np.ndarray  # (3,)
+    size_m: float
+    place_m: tuple[float, float]
+    thickness_m: float
+
+
+def white_spec(rig: Rig) -> WhiteReference:
+    w = rig.file.calibration.white_reference
+    if w is None:
+        raise InputError(
+            "no [calibration.white_reference]: give its reflectance, size_m and place_m on the plate — see "
+            "docs/calibration.md",
+            path=rig.source,
+            field="calibration.white_reference",
+        )
+    return WhiteReference(np.asarray(w.reflectance, float), w.size_m, tuple(w.place_m), w.thickness_m)
+
+
+def reference_pixels(rig: Rig, white: WhiteReference) -> tuple[np.ndarray, np.ndarray]:
+    """The middle of the reference as the camera sees it (turntable at its zero): pixel indices (M, 2)
+    as (row, column) and their points on the reference (M, 3), world metres. Refuses a reference not
+    wholly in view."""
+    cam = rig.camera
+    half = MIDDLE * white.size_m / 2
+    x, y = white.place_m
+    corners = np.array(
+        [[x - half, y - half], [x + half, y - half], [x + half, y + half], [x - half, y + half]]
+    )
+    corners3 = np.column_stack([corners, np.full(4, white.thickness_m)])
+    uv, _ = cam.project(corners3)
+    if (
+        not np.isfinite(uv).all()
+        or (uv < 0).any()
+        or (uv[:, 0] > cam.width - 1).any()
+        or (uv[:, 1] > cam.height - 1).any()
+    ):
+        raise CalibrationError(
+            f"the white reference at {list(white.place_m)} m is not wholly in view: put it where the camera "
+            "sees it (near the plate's centre) and give its place_m"
+        )
+    mask = np.zeros((cam.height, cam.width), np.uint8)
+    cv2.fillConvexPoly(mask, np.round(uv).astype(np.int32), 1)
+    rows, cols = np.nonzero(mask)
+    origins, rays = cam.pixel_rays(np.column_stack([cols, rows]).astype(np.float64))
+    s = (white.thickness_m - origins[:, 2]) / rays[:, 2]
+    return np.column_stack([rows, cols]), origins + s[:, None] * rays
+
+
+def white_positions(rig: Rig, count: int) -> list[tuple[float, float]]:
+    """(azimuth, elevation) degrees for the white frames: three elevations from 40° to the highest
+    reachable (≤ 80°) at azimuths spread ±60° about the camera's side (the lamp never between the
+    camera and the reference)."""
+    g = rig.gantry
+    to_camera = rig.camera.centre - g.centre
+    cam_az = float(np.degrees(np.arctan2(to_camera[1], to_camera[0])))
+    el_hi = min(float(np.degrees(g.elevation_limits[1])), 80.0)
+    per_row = max(count // 3, 1)
+    positions = []
+    for el in np.linspace(40.0, el_hi, 3):
+        for az in cam_az + 180.0 + np.linspace(-60.0, 60.0, per_row + 2)[1:-1]:
+            positions.append((float((az + 180.0) % 360.0 - 180.0), float(el)))
+    return positions[:count]
+
+
+def capture_radiometric_frames(
+    instruments: Instruments,
+    rig: Rig,
+    out: Path,
+    *,
+    positions: int = DEFAULT_POSITIONS,
+    levels: int = DEFAULT_LEVELS,
+    progress: Callable[[int, int, str], None] = lambda i, n, what: None,
+) -> None:
+    """Take the three kinds of frames (module docstring) into ``out``."""
+    white = white_spec(rig)
+    rows_cols, _ = reference_pixels(rig, white)
+    k, t = rig.gantry.kinematics, rig.turntable_kinematics
+    bracket = list(rig.exposure_bracket_s)
+    total = 2 * len(bracket) + 3 * levels + positions
+    n = 0
+    with Journal(out / JOURNAL) as journal:
+        journal.append({"event": "run_start", "at": time.time(), "procedure": PROCEDURE})
+
+        def take(kind: str, level: int, exposure_s: float, ticks, steps) -> float:
+            nonlocal n
+            progress(n, total, f"{kind} frame, {exposure_s * 1e3:.2f} ms")
+            instruments.camera.set_exposure(exposure_s)
+            frame = instruments.camera.capture()
+            fields = {
+                "pose": f"r{n:03d}",
+                "exposure_index": 0,
+                "dark": kind == "dark",
+                "exposure_s": frame.exposure_s,
+            }
+            sidecar = {**fields, "kind": kind, "level": level, "gain_db": frame.gain_db, "bits": frame.bits,
+                       "gantry_ticks": list(ticks), "turntable_steps": int(steps)}  # fmt: skip
+            stored = store_frame(out, f"r{n:03d}", frame.pixels, sidecar)
+            journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
+            n += 1
+            return float(_mean(frame.pixels, rows_cols))
+
+        instruments.turntable.move_to((t.steps_for(0.0),))
+        (steps,) = instruments.turntable.wait_settled(SETTLE_S)
+        instruments.gantry.move_to(k.ticks_for(*ABOVE_DEG))
+        ticks = instruments.gantry.wait_settled(SETTLE_S)
+        instruments.lamp.set(False)
+        for i, exposure in enumerate(bracket):
+            for _ in range(2):
+                take("dark", i, exposure, ticks, steps)
+        instruments.lamp.set(True)
+        longest = _exposure_for(instruments, bracket[0], rows_cols, 0.85)
+        reference = 0.3 * longest
+        for i, exposure in enumerate(longest * np.geomspace(0.05, 1.0, levels)):
+            take("reference", i, reference, ticks, steps)
+            for _ in range(2):
+                take("flat", i, float(exposure), ticks, steps)
+        exposure = longest
+        for i, (az, el) in enumerate(white_positions(rig, positions)):
+            instruments.gantry.move_to(k.ticks_for(az, el))
+            ticks = instruments.gantry.wait_settled(SETTLE_S)
+            exposure = _exposure_for(instruments, exposure, rows_cols, 0.5)
+            take("white", i, exposure, ticks, steps)
+        instruments.lamp.set(False)
+        journal.append({"event": "run_end", "at": time.time(), "frames_taken": n})
+
+
+def _mean(pixels: np.ndarray, rows_cols: np.ndarray) -> float:
+    return float(np.asarray(pixels, np.float64)[rows_cols[:, 0], rows_cols[:, 1]].mean())
+
+
+def _exposure_for(instruments: Instruments, exposure: float, rows_cols: np.ndarray, fill: float) -> float:
+    """The exposure that puts the reference's middle near ``fill`` of full scale (a few test frames)."""
+    camera = instruments.camera
+    for _ in range(4):
+        camera.set_exposure(exposure)
+        frame = camera.capture()
+        top = (1 << frame.bits) - 1
+        level = _mean(frame.pixels, rows_cols)
+        if abs(level / (fill * top) - 1) < 0.1:
+            return frame.exposure_s
+        exposure = frame.exposure_s * (fill * top / max(level, 1.0) if level < 0.95 * top else 0.25)
+    return exposure
+
+
+@dataclass(frozen=True)
+class RadiometricFrame:
+    pixels: np.ndarray
+    kind: str  # "dark", "reference", "flat" or "white"
+    level: int  # which exposure (dark: of the bracket; reference and flat: of the transfer; white: position)
+    exposure_s: float
+    gain_db: float
+    gantry_ticks: tuple[int, int]
+    bits: int
+
+
+def load_radiometric_frames(folder: Path) -> list[RadiometricFrame]:
+    """The photographs a capture left in ``folder`` (checked against their journal lines)."""
+    frames = [
+        RadiometricFrame(
+            pixels,
+            s["kind"],
+            int(s["level"]),
+            float(s["exposure_s"]),
+            float(s["gain_db"]),
+            tuple(s["gantry_ticks"]),
+            int(s["bits"]),
+        )
+        for s, pixels in journaled_images(folder, PROCEDURE, FIELDS)
+    ]
+    if not frames:
+        raise InputError("the folder has no calibration images", path=folder)
+    return frames
+
+
+@dataclass(frozen=True)
+class RadiometricCalibration:
+    dark: Dark
+    transfer: PhotonTransfer
+    lamp: LampSensitivity
+    power: float  # the rig file's [light] power, kept: sensitivity = S·Φ / power
+
+    @property
+    def sensitivity(self) -> float:
+        """The rig file's scalar sensitivity: S · Φ over the channels, divided by the file's power."""
+        return float(np.mean(self.lamp.sensitivity_times_power) / self.power)
+
+    def rig_fields(self) -> dict[str, dict]:
+        return {"sensor": {"sensitivity": self.sensitivity, "black_level_dn": float(np.mean(self.dark.black_level_dn)),
+                           "read_noise_dn": self.dark.read_noise_dn,
+                           "conversion_gain_dn_per_e": self.transfer.conversion_gain_dn_per_e}}  # fmt: skip
+
+    def record(self, images: Path) -> dict:
+        sp = self.lamp.sensitivity_times_power
+        return {"images": str(images.resolve()),
+                "black_level_per_channel_dn": [round(float(v), 3) for v in self.dark.black_level_dn],
+                "sensitivity_times_power_per_channel": [round(float(v), 3) for v in sp],
+                "channel_spread": round(float(sp.max() / sp.min() - 1), 5),
+                "worst_nonlinearity": round(self.transfer.worst_nonlinearity, 5),
+                "inverse_square_residual": round(self.lamp.inverse_square_residual, 5),
+                "follows_inverse_square": self.lamp.follows_inverse_square}  # fmt: skip
+
+
+def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCalibration:
+    """Dark statistics, photon transfer and S · Φ from a capture's frames (module docstring)."""
+    white = white_spec(rig)
+    rows_cols, points = reference_pixels(rig, white)
+
+    def in_ref(f: RadiometricFrame) -> np.ndarray:
+        """(M, C): the reference's middle in a frame."""
+        return np.asarray(f.pixels)[rows_cols[:, 0], rows_cols[:, 1]].reshape(len(rows_cols), -1)
+
+    def of(kind: str) -> list[RadiometricFrame]:
+        return [f for f in frames if f.kind == kind]
+
+    darks = of("dark")
+    dark = dark_statistics([(a.pixels, b.pixels) for a, b in _pairs(darks)])
+    top = (1 << frames[0].bits) - 1
+    refs = {f.level: f for f in of("reference")}
+    flats = _pairs(of("flat"))
+    transfer = photon_transfer(
+        [(in_ref(a), in_ref(b)) for a, b in flats],
+        np.array([a.exposure_s for a, _ in flats]),
+        np.array([in_ref(refs[a.level]).mean() for a, _ in flats]),
+        dark,
+        top,
+    )
+    whites = of("white")
+    if len(whites) < 3:
+        raise CalibrationError(
+            f"only {len(whites)} white-reference frames (need 3): take the photographs again"
+        )
+    k = rig.gantry.kinematics
+    geometry = []
+    for f in whites:
+        values = in_ref(f)
+        if values.max() >= top:
+            raise CalibrationError(
+                "the white reference is saturated in a frame: use a shorter exposure or less light"
+            )
+        if values.mean() - dark.black_level_dn.mean() < 20 * max(dark.read_noise_dn, 0.5):
+            raise CalibrationError(
+                "a lit frame of the white reference is as dark as the dark frames: the lamp did not light it "
+                "(check the lamp, the room light and the reference's place)"
+            )
+        lamp = k.light_position(f.gantry_ticks)
+        to_lamp = lamp - points
+        d2 = np.einsum("ij,ij->i", to_lamp, to_lamp)
+        geometry.append((to_lamp[:, 2] / np.sqrt(d2)) / d2)  # cos θ / d²: the reference faces +z
+    sensitivity = lamp_sensitivity(
+        [in_ref(f) for f in whites],
+        np.array([f.exposure_s for f in whites]),
+        np.array([f.gain_db for f in whites]),
+        geometry,
+        white.reflectance[: in_ref(whites[0]).shape[1]],
+        dark,
+    )
+    return RadiometricCalibration(dark, transfer, sensitivity, rig.file.light.power)
+
+
+def _pairs(frames: list[RadiometricFrame]) -> list[tuple[RadiometricFrame, RadiometricFrame]]:
+    """Consecutive frames of one level, two by two."""
+    pairs = []
+    for level in sorted({f.level for f in frames}):
+        same = [f for f in frames if f.level == level]
+        pairs += [(same[i], same[i + 1]) for i in range(0, len(same) - 1, 2)]
+    return pairs
