@@ -7,9 +7,10 @@ edges) is what is measured; each of its pixels gets its point on the reference f
 camera and, under each lamp position the calibrated gantry gives, its cos θ / d². In order:
 
 1. dark frames: the lamp off, a pair at each exposure of the rig's bracket;
-2. photon transfer: the lamp above the reference, pairs at ``levels`` exposures from 5 % to 85 % of full
+2. (with a warm-up) the lamp kept on above the reference until its output is stable;
+3. photon transfer: the lamp above the reference, pairs at ``levels`` exposures from 5 % to 85 % of full
    scale, each pair after a reference frame at one fixed exposure (to see a drifting lamp for what it is);
-3. white: the lamp at ``positions`` places over the reachable range, one frame each near half scale.
+4. white: the lamp at ``positions`` places over the reachable range, one frame each near half scale.
 
 Needs the camera and gantry calibrated first (the geometry of every pixel comes from them). Photographs
 are kept as the other procedures keep theirs, so ``--from`` solves again without the rig.
@@ -37,6 +38,7 @@ from calibration.radiometry import (
 )
 from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
+from hlr_lab.lamp_watch import UNWATCHED, LampWatch, WarmUp, warm_up
 from hlr_lab.rig import Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
@@ -122,9 +124,13 @@ def capture_radiometric_frames(
     *,
     positions: int = DEFAULT_POSITIONS,
     levels: int = DEFAULT_LEVELS,
+    warm: LampWatch = UNWATCHED,
     progress: Callable[[int, int, str], None] = lambda i, n, what: None,
-) -> None:
-    """Take the three kinds of frames (module docstring) into ``out``."""
+) -> WarmUp | None:
+    """Take the three kinds of frames (module docstring) into ``out``; after the dark frames, with
+    ``warm.warm_up_s``, keep the lamp on until it is stable (:func:`hlr_lab.lamp_watch.warm_up`: S · Φ is
+    then the warm lamp's, as a run that warms up the same way will see it). Returns how the warm-up
+    ended (None: no warm-up)."""
     white = white_spec(rig)
     rows_cols, _ = reference_pixels(rig, white)
     k, t = rig.gantry.kinematics, rig.turntable_kinematics
@@ -157,10 +163,19 @@ def capture_radiometric_frames(
         instruments.gantry.move_to(k.ticks_for(*ABOVE_DEG))
         ticks = instruments.gantry.wait_settled(SETTLE_S)
         instruments.lamp.set(False)
-        for i, exposure in enumerate(bracket):
-            for _ in range(2):
-                take("dark", i, exposure, ticks, steps)
+        dark_levels = [
+            take("dark", i, exposure, ticks, steps) for i, exposure in enumerate(bracket) for _ in range(2)
+        ]
         instruments.lamp.set(True)
+        warmed = None
+        if warm.warm_up_s > 0:
+            exposure = _exposure_for(instruments, bracket[0], rows_cols, 0.5)
+            black = float(
+                np.mean(dark_levels)
+            )  # the dark frames' just taken: the lamp's share alone compared
+            warmed = warm_up(lambda: take("warm_up", 0, exposure, ticks, steps) - black, warm,
+                             lambda what: progress(n, total, what))  # fmt: skip
+            journal.append(warmed.as_event())
         longest = _exposure_for(instruments, bracket[0], rows_cols, 0.85)
         reference = 0.3 * longest
         for i, exposure in enumerate(longest * np.geomspace(0.05, 1.0, levels)):
@@ -175,6 +190,7 @@ def capture_radiometric_frames(
             take("white", i, exposure, ticks, steps)
         instruments.lamp.set(False)
         journal.append({"event": "run_end", "at": time.time(), "frames_taken": n})
+    return warmed
 
 
 def _mean(pixels: np.ndarray, rows_cols: np.ndarray) -> float:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from hlr_lab.acquisition import Bracketing, Outcome, Step, Tolerance, acquire
 from hlr_lab.devices import Links, SafeState
 from hlr_lab.errors import HlrLabError
 from hlr_lab.formats.plan import PlanFile
+from hlr_lab.lamp_watch import UNWATCHED, LampWatch
 from hlr_lab.locks import hold_session
 from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import PoseTarget
@@ -46,6 +48,7 @@ def acquire_session(
     progress: Callable[[Step], None] = lambda _: None,
     object_window: Callable[[float], np.ndarray] | None = None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
+    lamp: LampWatch = UNWATCHED,
 ) -> Outcome:
     """Run ``plan`` on ``rig`` into ``session`` (created, or resumed when it exists); see the module's
     docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready."""
@@ -76,6 +79,7 @@ def acquire_session(
                     progress=progress,
                     object_window=object_window,
                     tolerance=Tolerance(rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks),
+                    lamp=replace(lamp, black_level_dn=rig.file.sensor.black_level_dn),
                 )
                 log.info("run summary: %s", outcome.summary())
         except RunStopped as stop:

@@ -25,8 +25,9 @@ from drivers.errors import RETRY, ChecksumError, DeviceError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
+from hlr_lab.lamp_watch import UNWATCHED, LampWatch, compared_pixels, relative_output, warm_up
 from hlr_lab.motion import PoseTarget
-from hlr_lab.session.frames import FRAMES, frame_problem
+from hlr_lab.session.frames import FRAMES, frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 from hlr_lab.session.writer import FrameWriter
 
@@ -118,6 +119,7 @@ def acquire(
     progress: Callable[[Step], None] = lambda _: None,
     object_window: Callable[[float], np.ndarray] | None = None,
     tolerance: Tolerance = Tolerance(),
+    lamp: LampWatch = UNWATCHED,
 ) -> Outcome:
     """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``, which
     this process alone writes (:func:`hlr_lab.locks.hold_session`).
@@ -126,6 +128,8 @@ def acquire(
     counted there only (:mod:`hlr_lab.silhouette`); None counts the whole frame.
     tolerance: after each exposure the axes are read again; a frame during which one left its goal by
     more than this is not kept but taken again after the rig settles (twice: :class:`AxisMoved`).
+    lamp: how the lamp is watched (:mod:`hlr_lab.lamp_watch`): a warm-up, and the plan's first pose
+    photographed again before the first pose, every ``lamp.every`` poses moved to and at the end.
     """
     outcome, started = Outcome(), time.monotonic()
     remove_temporaries(session)
@@ -141,13 +145,26 @@ def acquire(
             with writer:
                 run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket, object_window,
                            tolerance)  # fmt: skip
+                watch = _LampReference(run, lamp, plan.poses[0], targets[0]) if lamp.active else None
+                if watch:
+                    watch.warm_up(partial(_report, progress, 0, len(targets), "lamp"))
+                since_reference: int | None = None  # poses moved to since the last reference frame
                 for i, (pose, target) in enumerate(zip(plan.poses, targets, strict=True)):
                     retries.pose = pose.id
                     have = done.get(pose.id, {})
                     outcome.already_done += len(have)
                     report = partial(_report, progress, i, len(targets), pose.id)
-                    outcome.poses_moved += run.take_pose(pose, target, have, report) > 0
+                    due = since_reference is None or since_reference >= lamp.every
+                    if watch and lamp.every and due and len(have) < len(pose.exposures_s):  # a pose to take
+                        watch.shoot(report)
+                        since_reference = 0
+                    moved = run.take_pose(pose, target, have, report) > 0
+                    outcome.poses_moved += moved
+                    if since_reference is not None:
+                        since_reference += moved
                     report("done")
+                if watch and lamp.every and since_reference:
+                    watch.shoot(partial(_report, progress, len(targets) - 1, len(targets), "lamp"))
         except BaseException as exc:  # an interrupt too: the journal says why the run ended
             _finish(outcome, started, retries.count, writer.stored)
             reason = str(exc) or type(exc).__name__
@@ -319,6 +336,97 @@ class _Run:
             clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
         )
         return clipped
+
+
+LAMP_REFERENCE = "lamp-reference"  # the pose id of the reference frames (never a plan's: ids are p000…)
+
+
+class _LampReference:
+    """The run's lamp watch (:mod:`hlr_lab.lamp_watch`): the reference pose, the session's baseline frame
+    (the first reference after any warm-up, read back on a resumed run) and its compared pixels."""
+
+    def __init__(self, run: _Run, watch: LampWatch, pose: PlanPose, target: PoseTarget):
+        self.run, self.watch, self.target = run, watch, target
+        self.pose = pose.model_copy(update={"id": LAMP_REFERENCE})
+        self.exposure_s = pose.exposures_s[0]
+        self.first, self.compared, self.baseline = None, None, None
+        taken = [e for e in run.journal.events if e.get("event") == "lamp_reference"]
+        self.count = len(taken)
+        for e in (e for e in taken if e.get("baseline")):
+            if frame_problem(run.session, e) is None:  # a damaged baseline: a new one is taken
+                self._set_baseline(load_frame(run.session, e), e["file"], e["bits"])
+
+    def _set_baseline(self, pixels: np.ndarray, name: str, bits: int) -> None:
+        self.first, self.baseline = pixels, name
+        self.compared = self._compared(pixels, bits, name)
+
+    def _compared(self, pixels: np.ndarray, bits: int, name: str) -> np.ndarray:
+        compared = compared_pixels(pixels, bits, self.watch.black_level_dn)
+        if not compared.any():
+            raise InputError(
+                f"the lamp's reference frame {name} has no well-exposed pixel at {self.exposure_s:g} s: choose a "
+                "plan whose first pose shows the object lit, or run without --lamp-every and --warm-up",
+                field="--lamp-every",
+            )
+        return compared
+
+    def shoot(self, progress: Callable[[str], None]) -> float:
+        """Photograph the reference pose and journal the lamp's output relative to the baseline (this
+        frame is the baseline when there is none yet). Returns the output."""
+        frame, name = self._photograph(progress, warming=False)
+        if self.first is None:
+            self._set_baseline(frame.pixels, name, frame.bits)
+        output = relative_output(frame.pixels, self.first, self.compared, self.watch.black_level_dn)
+        self.run.journal.append({"event": "lamp", "at": frame.captured_at, "output": output,
+                                 "baseline": self.baseline})  # fmt: skip
+        log.info("lamp: %.4f of the baseline (%s)", output, self.baseline)
+        return output
+
+    def warm_up(self, progress: Callable[[str], None]) -> None:
+        """Keep the lamp on at the reference pose, photographing it, until its output is stable or the
+        warm-up's time is up (:func:`hlr_lab.lamp_watch.warm_up`; then a warning: the run goes on, its
+        lamp lines show the drift). A resumed run's lamp, measured against its baseline already, is not
+        waited for."""
+        w = self.watch
+        if w.warm_up_s <= 0 or self.baseline is not None:
+            return
+        compared = None
+
+        def brightness() -> float:
+            nonlocal compared
+            frame, name = self._photograph(progress, warming=True)
+            if compared is None:
+                compared = self._compared(frame.pixels, frame.bits, name)
+            return float((np.asarray(frame.pixels, np.float64)[compared] - w.black_level_dn).sum())
+
+        result = warm_up(brightness, w, progress)
+        self.run.journal.append(result.as_event())
+        if not result.stable:
+            log.warning("the lamp still changes by %.2f %% per minute after %.0f minutes of warm-up",
+                        100 * result.per_minute, result.minutes)  # fmt: skip
+        self.run.instruments.lamp.set(False)
+
+    def _photograph(self, progress: Callable[[str], None], *, warming: bool) -> tuple[RawFrame, str]:
+        """The reference pose photographed at its exposure, stored at once (a ``lamp`` line must never
+        name a frame that is not on disk) and journaled; the lamp left on while ``warming``."""
+        progress("lamp reference" if not warming else "warming the lamp up")
+        i = self.run.instruments
+        place = _Place(self.run, self.pose, self.target)
+        i.lamp.set(True)
+        i.camera.set_exposure(self.exposure_s)
+        frame = _retry_capture(i.camera)
+        if not warming:
+            i.lamp.set(False)
+        name = _free_name(self.run.session, f"lamp_{self.count:03d}")
+        self.count += 1
+        sidecar = {"pose": LAMP_REFERENCE, "exposure_index": 0, "dark": False, "exposure_s": frame.exposure_s,
+                   "gain_db": frame.gain_db, "bits": frame.bits, "captured_at": frame.captured_at,
+                   **place.state, "camera": frame.meta}  # fmt: skip
+        stored = store_frame(self.run.session, name, frame.pixels, sidecar)
+        fields = {"pose": LAMP_REFERENCE, "exposure_index": 0, "exposure_s": frame.exposure_s, "dark": False,
+                  "bits": frame.bits, "baseline": self.first is None and not warming, "warm_up": warming}  # fmt: skip
+        self.run.journal.append(stored.as_event(**fields, event="lamp_reference"))
+        return frame, stored.file
 
 
 def _clipped(pixels: np.ndarray, bits: int, window: np.ndarray | None) -> int:

@@ -24,6 +24,7 @@ from hlr_lab.formats.io import atomic_write_text
 from hlr_lab.formats.materials import read_materials, write_materials
 from hlr_lab.formats.plan import PlanFile, build_plan, read_plan
 from hlr_lab.formats.regions import mesh_reference, read_regions
+from hlr_lab.lamp_watch import UNWATCHED, LampWatch
 from hlr_lab.mesh import ColouredMesh, load_mesh
 from hlr_lab.motion import motion_targets
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
@@ -101,10 +102,12 @@ def acquire_plan(
     force: bool = False,
     progress: Callable[[Step], None] = lambda _: None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
+    lamp: LampWatch = UNWATCHED,
 ) -> Outcome:
     """Run the plan at ``plan_path`` on ``rig`` into ``session`` (created, or resumed): the motions are
     checked against the rig's limits before anything moves; adaptive bracketing watches the object's
-    own pixels. ``links`` replace the rig file's device addresses (the simulated rig's endpoints)."""
+    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.lamp_watch`). ``links`` replace the
+    rig file's device addresses (the simulated rig's endpoints)."""
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
     if rig.file.lamp is None:
@@ -113,7 +116,7 @@ def acquire_plan(
     # where the object may appear at each turntable angle, computed once per angle
     windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
     return acquire_session(plan, plan_path, targets, rig, session, links=links, bracket=bracket, force=force,
-                           progress=progress, object_window=windows, on_start=on_start)  # fmt: skip
+                           progress=progress, object_window=windows, on_start=on_start, lamp=lamp)  # fmt: skip
 
 
 def fit_into(
@@ -123,13 +126,15 @@ def fit_into(
     theta_c_deg: float | str = "auto",
     method: str = "robust",
     allow_incomplete: bool = False,
+    correct_lamp: bool = True,
     progress: Callable[[FitStep], None] = lambda _: None,
     on_gaps: Callable[[list[str], int], None] = lambda _notes, _missing: None,
 ) -> FitResult:
     """Fit ``session``'s frames and write materials.json (``output``, default SESSION/materials.json)
-    with its diagnostics beside it. ``on_gaps(notes, missing frames)`` hears what was left out before
-    the fit starts. Refuses a session without frames."""
-    s = open_session(session, allow_incomplete=allow_incomplete)
+    with its diagnostics beside it; each pose's light scaled by the lamp's output the run measured
+    (unless not ``correct_lamp``). ``on_gaps(notes, missing frames)`` hears what was left out before the
+    fit starts. Refuses a session without frames."""
+    s = open_session(session, allow_incomplete=allow_incomplete, correct_lamp=correct_lamp)
     on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)

@@ -17,6 +17,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.lamp_watch import LampWatch, RigTime
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
 from hlr_lab.rig import Rig
@@ -54,11 +55,41 @@ from hlr_lab.rig import Rig
     is_flag=True,
     help="Also take each exposure with the lamp off (ambient light to subtract).",
 )
+@click.option(
+    "--lamp-every",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    metavar="N",
+    help="Watch the lamp: photograph the plan's first pose again before the first pose, every N poses and "
+    "at the end; fit divides each pose's light by the lamp's output then (0: do not watch).",
+)
+@click.option(
+    "--warm-up",
+    "warm_up_min",
+    type=click.FloatRange(min=0),
+    default=0.0,
+    show_default=True,
+    metavar="MINUTES",
+    help="Before the first pose, keep the lamp on until its output changes by less than 0.2 % per minute, "
+    "for at most MINUTES (0: no wait). A resumed run does not wait again.",
+)
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
 def acquire_cmd(
-    plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames, dry_run, force, speed_factor
+    plan_path,
+    rig_path,
+    sim,
+    true_rig,
+    scene_path,
+    out,
+    dark_frames,
+    lamp_every,
+    warm_up_min,
+    dry_run,
+    force,
+    speed_factor,
 ):
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
@@ -76,6 +107,7 @@ def acquire_cmd(
       hlr-lab acquire --plan plan.json --rig rig.toml --dry-run
       hlr-lab acquire --plan plan.json --rig rig.toml --out sessions/bunny-1
       hlr-lab acquire --plan plan.json --sim --true-rig builtin:bench-offsets   # a rig off its drawing
+      hlr-lab acquire --plan plan.json --rig rig.toml --warm-up 30 --lamp-every 5   # overnight
     """
     if scene_path is not None and not sim:
         raise InputError("describes the simulated world: use it with --sim", field="--scene")
@@ -102,6 +134,9 @@ def acquire_cmd(
                 bracket=Bracketing(dark_frames=dark_frames),
                 force=force,
                 progress=show,
+                lamp=LampWatch(
+                    every=lamp_every, warm_up_s=60 * warm_up_min, clock=RigTime(speed_factor if sim else 1.0)
+                ),
                 on_start=lambda resumed: console.print(
                     f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
                 ),

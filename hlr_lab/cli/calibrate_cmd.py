@@ -16,6 +16,7 @@ from hlr_lab.cli.common import believed_rig, rig_options, speed_factor_option
 from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
+from hlr_lab.lamp_watch import LampWatch, RigTime
 from hlr_lab.rig import SIM_RIG, Rig
 from hlr_lab.rig_control import open_rig
 from hlr_lab.rig_edit import write_calibrated_rig
@@ -282,6 +283,9 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
               help="Lamp positions over the white reference.")  # fmt: skip
 @click.option("--levels", type=click.IntRange(4, 40), default=8, show_default=True,
               help="Exposures of the photon transfer.")  # fmt: skip
+@click.option("--warm-up", "warm_up_min", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              metavar="MINUTES", help="After the dark frames, keep the lamp on until its output changes by "
+              "less than 0.2 % per minute, for at most MINUTES (use the same as for acquire).")  # fmt: skip
 @click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
               help="Folder for the photographs (a new one; default: calibration/DATE-radiometric).")  # fmt: skip
 @click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
@@ -289,7 +293,9 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="The calibrated rig file to write (the input's copy, [sensor] fields replaced).")  # fmt: skip
 @speed_factor_option("With --sim: simulated")
-def radiometric(rig_path, sim, true_rig, positions, levels, out, from_dir, output, speed_factor) -> None:
+def radiometric(
+    rig_path, sim, true_rig, positions, levels, warm_up_min, out, from_dir, output, speed_factor
+) -> None:
     """Calibrate the radiometry: black level, read noise, conversion gain and sensitivity × lamp power.
 
     Dark frames (the lamp off) at every exposure of the bracket; a white reference of known reflectance
@@ -317,7 +323,7 @@ def radiometric(rig_path, sim, true_rig, positions, levels, out, from_dir, outpu
 
 
 def _run_radiometric(rig: Rig, sim, true_rig, positions, levels, images: Path, solve_only: bool, output: Path,
-                     speed_factor) -> Rig:  # fmt: skip
+                     speed_factor, warm_up_min: float = 0.0) -> Rig:  # fmt: skip
     """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
     from calibration.radiometric_procedure import (
         capture_radiometric_frames,
@@ -330,10 +336,15 @@ def _run_radiometric(rig: Rig, sim, true_rig, positions, levels, images: Path, s
         with contextlib.ExitStack() as stack:
             links = white_world(stack, rig, sim, true_rig, speed_factor, white_spec(rig))
             with console.status("calibrating the radiometry…") as status, open_rig(rig, links) as opened:
-                capture_radiometric_frames(
-                    opened.instruments, rig, images, positions=positions, levels=levels,
+                warm = LampWatch(warm_up_s=60 * warm_up_min, clock=RigTime(speed_factor if sim else 1.0))
+                warmed = capture_radiometric_frames(
+                    opened.instruments, rig, images, positions=positions, levels=levels, warm=warm,
                     progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
                 )  # fmt: skip
+            if warmed is not None:
+                state = "stable" if warmed.stable else "[yellow]NOT stable[/]"
+                console.print(f"lamp {state} after {warmed.minutes:.1f} min of warm-up "
+                              f"({100 * warmed.per_minute:.2f} % per minute)")  # fmt: skip
     with console.status("solving…"):
         result = solve_radiometric(load_radiometric_frames(images), rig)
     calibrated = write_calibrated_rig(

@@ -50,7 +50,15 @@ def _theta_c(value: str) -> float | str:
     help="Fit although planned frames are missing (a stopped run, damaged journal lines); materials.json "
     "records what was missing.",
 )
-def fit(session: Path, theta_c, method: str, output: Path | None, allow_incomplete: bool) -> None:
+@click.option(
+    "--no-lamp-correction",
+    is_flag=True,
+    help="Ignore the lamp's output the run measured (acquire --lamp-every): every pose under the rig "
+    "file's power, to see what the correction is worth.",
+)
+def fit(
+    session: Path, theta_c, method: str, output: Path | None, allow_incomplete: bool, no_lamp_correction
+) -> None:
     """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
 
     Each pose's bracket is merged into linear radiance (no clipped or noise-dominated value used, dark
@@ -61,7 +69,8 @@ def fit(session: Path, theta_c, method: str, output: Path | None, allow_incomple
 
     Every frame is checked against its journal line (checksums, what its sidecar says); a damaged
     journal line or a frame that does not check out is named and left out, and a session that lacks
-    planned frames is refused unless --allow-incomplete.
+    planned frames is refused unless --allow-incomplete. When the run watched its lamp (acquire
+    --lamp-every), each pose's light is the rig file's power times the output measured at its time.
 
     \b
     Examples:
@@ -88,7 +97,7 @@ def fit(session: Path, theta_c, method: str, output: Path | None, allow_incomple
             bar.update(tasks[step.stage], completed=step.index, description=escape(step.label))
 
         result = fit_into(session, output, theta_c_deg=theta_c, method=method, allow_incomplete=allow_incomplete,
-                          progress=show, on_gaps=_say_gaps)  # fmt: skip
+                          correct_lamp=not no_lamp_correction, progress=show, on_gaps=_say_gaps)  # fmt: skip
     console.print(materials_table(result.materials))
     for d in result.diagnostics["regions"]:
         if "note" in d:

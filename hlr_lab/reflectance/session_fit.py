@@ -31,6 +31,7 @@ from hlr_lab.formats.materials import (
 )
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.lamp_watch import lamp_at
 from hlr_lab.mesh import ColouredMesh, file_sha256
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.raycast import RayCaster
@@ -91,6 +92,31 @@ class Session:
     views: list[View]
     record: dict  # session.json
     gaps: Gaps = Gaps()
+    lamp: LampRecord = field(default_factory=lambda: LampRecord(np.zeros(0), np.zeros(0)))
+
+
+@dataclass(frozen=True, eq=False)
+class LampRecord:
+    """The lamp's output through the run, relative to the session's baseline reference frame
+    (:mod:`hlr_lab.lamp_watch`): Unix times (K,) and outputs (K,); empty when the run did not watch it."""
+
+    times: np.ndarray
+    outputs: np.ndarray
+
+    @classmethod
+    def of_journal(cls, events: list[dict]) -> LampRecord:
+        """The ``lamp`` lines measured against the latest baseline (a resumed run whose baseline frame was
+        lost starts another; the poses before it then take the nearest later measurement)."""
+        lines = [e for e in events if e.get("event") == "lamp"]
+        if not lines:
+            return cls(np.zeros(0), np.zeros(0))
+        baseline = lines[-1].get("baseline")
+        kept = sorted((e["at"], e["output"]) for e in lines if e.get("baseline") == baseline)
+        times, outputs = (np.array(v, float) for v in zip(*kept, strict=True))
+        return cls(times, outputs)
+
+    def at(self, t: float) -> float:
+        return lamp_at(self.times, self.outputs, t)
 
 
 @dataclass
@@ -130,10 +156,11 @@ class FitResult:
     seconds: dict[str, float]  # per stage: hdr, g-buffer, selection, shadows, fitting
 
 
-def open_session(path: Path, *, allow_incomplete: bool = False) -> Session:
+def open_session(path: Path, *, allow_incomplete: bool = False, correct_lamp: bool = True) -> Session:
     """Read ``session.json`` and the journal: the plan, the rig as recorded, and the views. Every frame
     is checked against its journal line; a session missing planned frames is refused (saying which and
-    why) unless ``allow_incomplete``, and then :attr:`Session.gaps` says what is missing."""
+    why) unless ``allow_incomplete``, and then :attr:`Session.gaps` says what is missing. The lamp's
+    measured output (when the run watched it) scales each view's light unless not ``correct_lamp``."""
     record = read_record(path)
     plan_path = Path(record["plan"]["path"])
     if not plan_path.is_file():
@@ -161,7 +188,8 @@ def open_session(path: Path, *, allow_incomplete: bool = False) -> Session:
             "acquire on this session again to take them, or fit with --allow-incomplete",
             path=path,
         )
-    return Session(path, plan, plan_path, rig, views, record, gaps)
+    lamp = LampRecord.of_journal(journal.events) if correct_lamp else LampRecord(np.zeros(0), np.zeros(0))
+    return Session(path, plan, plan_path, rig, views, record, gaps, lamp)
 
 
 def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
@@ -229,14 +257,20 @@ def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
 
 
 def view_pose(session: Session, view: View) -> PoseGeometry:
-    """The turntable angle and lamp position the axes measured for this view."""
+    """The turntable angle and lamp position the axes measured for this view, and the lamp's power then
+    (the rig file's, times the output the run measured at the view's time)."""
     rig = session.rig
     return PoseGeometry(
         rig.turntable_kinematics.degrees_for(view.measured["turntable_steps"]),
         rig.gantry.kinematics.light_position(tuple(view.measured["gantry_ticks"])),
-        rig.file.light.power,
+        rig.file.light.power * session.lamp.at(view_time(view)),
         rig.gantry.centre if rig.file.light.type == "directional" else None,
     )
+
+
+def view_time(view: View) -> float:
+    """When the view was taken: the mean Unix time its frames arrived."""
+    return float(np.mean([s["captured_at"] for s in view.sidecars.values()]))
 
 
 def placed_mesh(session: Session) -> ColouredMesh:

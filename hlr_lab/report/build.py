@@ -24,6 +24,7 @@ from hlr_lab.reflectance.session_fit import (
     placed_mesh,
     view_pose,
     view_radiance,
+    view_time,
 )
 from hlr_lab.reflectance.views import DEFAULT_SELECTION, pose_geometry
 from hlr_lab.report import html as h
@@ -67,6 +68,8 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
         "away from silhouettes, region borders and creases (where pixels mix surfaces), peak = the brightest "
         "captured value there.</p>",
         poses_html,
+        "<h2>The lamp through the run</h2>",
+        _lamp(session),
         "<h2>The plan</h2>",
         _plan(session),
         "<h2>Runs</h2>",
@@ -93,6 +96,36 @@ def _meta(session: Session) -> str:
         ["report by", f"hlr-lab {h.escape(__version__)}"],
     ]
     return h.table(["", ""], rows, numeric_from=2)
+
+
+def _lamp(session: Session) -> str:
+    """The lamp's measured output over the run (acquire --lamp-every) and what fitting without it would
+    have cost: every pose's light off by its output's distance from 1, reflectances by as much."""
+    lamp = session.lamp
+    if len(lamp.times) == 0:
+        return (
+            '<p class="note">The run did not watch its lamp (acquire --lamp-every N): the fit took its power '
+            "as the rig file says throughout.</p>"
+        )
+    minutes = (lamp.times - lamp.times[0]) / 60
+    at_views = np.array([lamp.at(view_time(v)) for v in session.views])
+    off = 100 * np.abs(at_views - 1)
+    lo, hi = min(lamp.outputs.min(), 0.99), max(lamp.outputs.max(), 1.01)
+    chart = h.scatter_svg(
+        [(float(m), float(o), "") for m, o in zip(minutes, lamp.outputs, strict=True)],
+        x_range=(0.0, float(max(minutes[-1], 1.0))),
+        y_range=(float(lo), float(hi)),
+        x_label="minutes since the first reference frame",
+        y_label="lamp output / first",
+        title="the lamp's output, from the reference pose",
+        line=[(float(m), float(o)) for m, o in zip(minutes, lamp.outputs, strict=True)],
+    )
+    return (
+        f'<div class="charts">{chart}</div><p>{len(lamp.times)} reference frames; the output ranged over '
+        f"{lamp.outputs.min():.4f}–{lamp.outputs.max():.4f} of the first. The fit divided each pose's light by "
+        f"the output at its time: without that, the poses' light would have been off by up to {off.max():.2f} % "
+        f"(mean {off.mean():.2f} %), and the reflectances fitted under it with it.</p>"
+    )
 
 
 def _materials(session: Session, materials: MaterialsFile) -> str:
