@@ -8,9 +8,10 @@ camera and, under each lamp position the calibrated gantry gives, its cos θ / d
 
 1. dark frames: the lamp off, a pair at each exposure of the rig's bracket;
 2. (with a warm-up) the lamp kept on above the reference until its output is stable;
-3. photon transfer: the lamp above the reference, pairs at ``levels`` exposures from 5 % to 85 % of full
-   scale, each pair after a reference frame at one fixed exposure (to see a drifting lamp for what it is);
-4. white: the lamp at ``positions`` places over the reachable range, one frame each near half scale.
+3. white: the lamp at ``positions`` places over the reachable range, one frame each near half scale —
+   right after the warm-up, as a run that warms up the same way takes its first reference frame;
+4. photon transfer: the lamp above the reference, pairs at ``levels`` exposures from 5 % to 85 % of full
+   scale, each pair after a reference frame at one fixed exposure (to see a drifting lamp for what it is).
 
 Needs the camera and gantry calibrated first (the geometry of every pixel comes from them). Photographs
 are kept as the other procedures keep theirs, so ``--from`` solves again without the rig.
@@ -176,18 +177,23 @@ def capture_radiometric_frames(
             warmed = warm_up(lambda: take("warm_up", 0, exposure, ticks, steps) - black, warm,
                              lambda what: progress(n, total, what))  # fmt: skip
             journal.append(warmed.as_event())
+        # the white frames first, right after the warm-up: S · Φ is then the lamp's as a run that warms up
+        # the same way finds it at its first reference frame (the photon transfer needs no particular level)
+        above = ticks
+        exposure = bracket[0]
+        for i, (az, el) in enumerate(white_positions(rig, positions)):
+            instruments.gantry.move_to(k.ticks_for(az, el))
+            ticks = instruments.gantry.wait_settled(SETTLE_S)
+            exposure = _exposure_for(instruments, exposure, rows_cols, 0.5)
+            take("white", i, exposure, ticks, steps)
+        instruments.gantry.move_to(above)
+        ticks = instruments.gantry.wait_settled(SETTLE_S)
         longest = _exposure_for(instruments, bracket[0], rows_cols, 0.85)
         reference = 0.3 * longest
         for i, exposure in enumerate(longest * np.geomspace(0.05, 1.0, levels)):
             take("reference", i, reference, ticks, steps)
             for _ in range(2):
                 take("flat", i, float(exposure), ticks, steps)
-        exposure = longest
-        for i, (az, el) in enumerate(white_positions(rig, positions)):
-            instruments.gantry.move_to(k.ticks_for(az, el))
-            ticks = instruments.gantry.wait_settled(SETTLE_S)
-            exposure = _exposure_for(instruments, exposure, rows_cols, 0.5)
-            take("white", i, exposure, ticks, steps)
         instruments.lamp.set(False)
         journal.append({"event": "run_end", "at": time.time(), "frames_taken": n})
     return warmed

@@ -154,7 +154,9 @@ def test_calibrate_all_writes_one_file_with_all_three_records(tmp_path):
     assert abs(after.gantry.kinematics.arm_radius - truth.gantry.arm_radius) < 1.5e-3
     assert abs(after.file.sensor.black_level_dn - 64.0) < 0.5
     assert after.file.sensor.conversion_gain_dn_per_e == pytest.approx(0.31, rel=0.05)
-    assert after.file.sensor.sensitivity == pytest.approx(3600 * 0.88, rel=0.05)  # the lamp still warming up: within 4 %
+    assert after.file.sensor.sensitivity == pytest.approx(
+        3600 * 0.88, rel=0.05
+    )  # the lamp still warming up: within 4 %
     assert (tmp_path / "run" / "rig-camera.toml").is_file()
     assert (tmp_path / "run" / "rig-gantry.toml").is_file()
     assert len(list((tmp_path / "run" / "camera" / "frames").glob("*.png"))) == 16

@@ -1,0 +1,206 @@
+"""Watching the lamp: the comparison of reference frames, the warm-up's stopping rule (on a clock of our
+own), a run on the simulated rig whose lamp drifts (against the simulator's own record of its output),
+and the night's figure: Rd within 1 % with the correction."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hlr_lab.lamp_watch import LampWatch, compared_pixels, lamp_at, relative_output, warm_up
+from hlr_lab.reflectance.session_fit import LampRecord
+
+
+class FakeClock:
+    """Rig time that passes only when slept."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+
+
+def test_reference_frames_are_compared_over_their_well_exposed_values():
+    """Per channel: a saturated colour's weak channel (here blue, 2 % of full scale) and a clipped one
+    are left out; the ratio of the kept signals is the lamp's output, the black level taken off."""
+    first = np.zeros((4, 4, 3), np.uint16) + 100
+    first[..., 0] = 2000  # red: well exposed
+    first[..., 2] = 4095  # blue: clipped
+    compared = compared_pixels(first, 12, 100.0)
+    assert compared[..., 0].all()
+    assert not compared[..., 1:].any()
+    later = first.copy()
+    later[..., 0] = 100 + (2000 - 100) * 1.03
+    assert relative_output(later, first, compared, 100.0) == pytest.approx(1.03, abs=1e-3)
+    with pytest.raises(ValueError, match="no well-exposed"):
+        relative_output(later, first, np.zeros_like(compared), 100.0)
+
+
+def test_the_output_between_reference_frames_is_interpolated():
+    assert lamp_at(np.zeros(0), np.zeros(0), 5.0) == 1.0  # not watched: the rig file's power
+    times, outputs = np.array([10.0, 20.0]), np.array([1.0, 1.02])
+    assert lamp_at(times, outputs, 15.0) == pytest.approx(1.01)
+    assert lamp_at(times, outputs, 0.0) == 1.0
+    assert lamp_at(times, outputs, 99.0) == 1.02
+    events = [
+        {"event": "lamp", "at": 1.0, "output": 1.0, "baseline": "frames/lamp_000.png"},
+        {"event": "lamp", "at": 2.0, "output": 1.5, "baseline": "frames/lamp_000.png"},
+        {"event": "pose", "pose": "p000"},
+        {"event": "lamp", "at": 3.0, "output": 1.0, "baseline": "frames/lamp_002.png"},  # a new baseline
+        {"event": "lamp", "at": 4.0, "output": 0.98, "baseline": "frames/lamp_002.png"},
+    ]
+    record = LampRecord.of_journal(events)
+    assert record.times.tolist() == [3.0, 4.0]
+    assert record.outputs.tolist() == [1.0, 0.98]
+
+
+def test_the_warm_up_waits_for_the_trend_not_for_two_readings():
+    """A lamp 4 % short when cold, time constant 400 s, flickering 0.1 % rms: stable within 0.2 % per
+    minute once 0.04 · e^(−t/400) · 60/400 < 0.002, i.e. after ~440 s (7.3 min; the trend over the last
+    four readings, a minute apart, lags by a minute and a half); a flicker between two readings does not
+    stop it early; a lamp that never settles ends when the time is up."""
+    clock = FakeClock()
+    rng = np.random.default_rng(0)
+    watch = LampWatch(warm_up_s=1800.0, clock=clock)
+
+    def lamp() -> float:
+        return (1 - 0.04 * np.exp(-clock.t / 400)) * (1 + 0.001 * rng.standard_normal())
+
+    result = warm_up(lamp, watch, lambda _: None)
+    assert result.stable
+    assert 6.5 <= result.minutes <= 11.0
+    assert result.per_minute <= 0.002
+    clock.t = 0.0
+    never = warm_up(lambda: 1 + clock.t / 3600, LampWatch(warm_up_s=600.0, clock=clock), lambda _: None)
+    assert not never.stable
+    assert never.minutes == pytest.approx(10.0)
+    assert never.per_minute == pytest.approx((1 / 60) / (1 + 8.5 / 60), rel=0.01)  # over the last 4: 7–10 min
+
+
+DRIFTING = """[light]
+type = "point"
+power = 1.0
+drift = { warm_up = 0.04, warm_up_s = 400.0, per_hour = -0.01, flicker = 0.001 }
+
+[sensor]
+sensitivity = 4095.0
+black_level_dn = 0.0
+read_noise_dn = 1.5
+
+"""  # the drawing's sensor and lamp, the lamp drifting
+
+
+def drifting_world(tmp_path: Path, radiometry: str = DRIFTING) -> Path:
+    """The drawing (the built-in simulated rig) with ``radiometry``'s [light] and [sensor], as a true
+    rig file."""
+    drawing = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    path = tmp_path / "drifting.toml"
+    path.write_text(re.sub(r"(?ms)^\[light\].*?(?=^\[calibration\.board\])", radiometry, drawing))
+    return path
+
+
+@pytest.mark.slow
+def test_a_run_measures_its_lamp_against_the_simulators_truth(tmp_path, builtin_plan, capsys):
+    """Six poses, a reference frame every two: before the first, before the third and the fifth, and at
+    the end; each journaled output within 0.3 % of the ratio the simulator records (its lamp_output, in
+    each frame's sidecar); the fit's light scaled by it; a second run of the complete session takes none."""
+    from hlr_lab.cli.bench_acquire import repeated_poses
+    from hlr_lab.cli.main import main
+    from hlr_lab.formats.plan import read_plan, write_plan
+    from hlr_lab.reflectance.session_fit import open_session, view_pose, view_time
+    from tests.renderer_guard import require_renderer
+
+    require_renderer()
+    plan = tmp_path / "plan.json"
+    write_plan(plan, repeated_poses(read_plan(builtin_plan), 6))
+    command = ["acquire", "--plan", str(plan), "--sim", "--true-rig", str(drifting_world(tmp_path)),
+               "--lamp-every", "2", "--out", str(tmp_path / "s"), "--speed-factor", "200"]  # fmt: skip
+    assert main(command) == 0, capsys.readouterr().err
+    events = [json.loads(line) for line in (tmp_path / "s" / "journal.jsonl").read_text().splitlines()]
+    references = [e for e in events if e["event"] == "lamp_reference"]
+    lamps = [e for e in events if e["event"] == "lamp"]
+    assert len(references) == len(lamps) == 4
+    truth = [
+        json.loads((tmp_path / "s" / e["sidecar"]).read_text())["camera"]["lamp_output"] for e in references
+    ]
+    for e, true in zip(lamps, truth, strict=True):
+        assert e["output"] == pytest.approx(true / truth[0], abs=0.003)
+    assert lamps[-1]["output"] > 1.005  # the lamp warmed up during the run: the watch saw it
+
+    session = open_session(tmp_path / "s")
+    for view in session.views:
+        assert view_pose(session, view).power == pytest.approx(session.lamp.at(view_time(view)))
+    assert main(command) == 0
+    again = (tmp_path / "s" / "journal.jsonl").read_text().count('"event": "lamp_reference"')
+    assert again == 4  # complete: nothing taken, no reference frame either
+
+
+NIGHT = """[light]
+type = "point"
+power = 0.88
+drift = { warm_up = 0.04, warm_up_s = 400.0, per_hour = -0.01, flicker = 0.001 }
+
+[sensor]
+sensitivity = 3600.0
+black_level_dn = 64.0
+read_noise_dn = 2.2
+conversion_gain_dn_per_e = 0.31
+
+"""  # builtin:bench-night's sensor and lamp
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, capsys):
+    """The issue's figure, on the drawing's geometry with builtin:bench-night's sensor and lamp (S·Φ
+    22.6 % below the nominal, the lamp cold at the start of each command, then −1 % per hour, flickering):
+    `calibrate radiometric --warm-up 30`, then a 40-pose run of builtin:pebble's plan with `--warm-up 30
+    --lamp-every 5`, then `fit`: every region's Rd within 1 % of the truth in absolute terms (measured
+    0.15–0.37 %); `fit --no-lamp-correction` is further off (measured 0.6 %: the lamp moved ~1 % in the
+    run), and the report says by how much."""
+    from hlr_lab.cli.bench_acquire import repeated_poses
+    from hlr_lab.cli.main import main
+    from hlr_lab.cli.sim_world import sim_scene
+    from hlr_lab.formats.materials import read_materials
+    from hlr_lab.formats.plan import read_plan, write_plan
+    from tests.renderer_guard import require_renderer
+
+    require_renderer()
+    world = drifting_world(tmp_path, NIGHT)
+    fast = ["--sim", "--true-rig", str(world), "--speed-factor", "100"]
+    calibrated = tmp_path / "rig.toml"
+    assert main(["calibrate", "radiometric", *fast, "--warm-up", "30", "--out", str(tmp_path / "rad"), "-o",
+                 str(calibrated)]) == 0, capsys.readouterr().err  # fmt: skip
+    assert main(
+        ["plan", "--mesh", "builtin:pebble", "--rig", str(calibrated), "-o", str(tmp_path / "p.json")]
+    ) in (0, 3)
+    plan = tmp_path / "plan.json"
+    write_plan(plan, repeated_poses(read_plan(tmp_path / "p.json"), 40))
+    session = tmp_path / "s"
+    assert main(["acquire", "--plan", str(plan), "--rig", str(calibrated), *fast, "--warm-up", "30",
+                 "--lamp-every", "5", "--out", str(session)]) == 0, capsys.readouterr().err  # fmt: skip
+    truth = dict(zip((r.id for r in read_plan(plan).object.regions), sim_scene(read_plan(plan), plan, None).materials,
+                     strict=True))  # fmt: skip
+
+    def worst_rd(materials: Path) -> float:
+        return max(
+            float(np.max(np.abs(np.array(e.rd) / truth[e.id].rd - 1)))
+            for e in read_materials(materials).regions
+        )
+
+    assert main(["fit", str(session)]) == 0
+    assert main(["fit", str(session), "--no-lamp-correction", "-o", str(tmp_path / "uncorrected.json")]) == 0
+    corrected, uncorrected = worst_rd(session / "materials.json"), worst_rd(tmp_path / "uncorrected.json")
+    assert corrected < 0.01
+    assert uncorrected > corrected
+    assert main(["report", str(session)]) == 0
+    page = (session / "report.html").read_text()
+    assert re.search(r"without that, the poses' light would have been off by up to \d\.\d\d %", page)
