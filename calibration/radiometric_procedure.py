@@ -153,7 +153,7 @@ def capture_radiometric_frames(
                 "exposure_s": frame.exposure_s,
             }
             sidecar = {**fields, "kind": kind, "level": level, "gain_db": frame.gain_db, "bits": frame.bits,
-                       "gantry_ticks": list(ticks), "turntable_steps": int(steps)}  # fmt: skip
+                       "gantry_ticks": list(ticks), "turntable_steps": int(steps), "camera": frame.meta}  # fmt: skip
             stored = store_frame(out, f"r{n:03d}", frame.pixels, sidecar)
             journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
             n += 1

@@ -1,13 +1,17 @@
 """``hlr-lab bench calibration``: calibrate the simulated bench built as a true rig file while hlr-lab
 believes the drawing, then measure what the calibration is worth.
 
-1. ``calibrate camera`` (board along the plate's zero) and ``calibrate gantry`` on its result, through
-   the same library functions as the commands, the rig's motion and exposures clocked: the
-   simulated-rig time (motion waits × the speed factor + exposures; rendering is not rig time).
+1. ``calibrate camera`` (board along the plate's zero), ``calibrate gantry`` on its result and
+   ``calibrate radiometric --warm-up 30`` on that, through the same library functions as the commands,
+   the rig's motion, exposures and warm-up clocked: the simulated-rig time (motion waits × the speed
+   factor + exposures + the warm-up; rendering is not rig time).
 2. Recovery: the calibrated rig file against the true one, turned into the world the calibration
-   defines (the camera keeps its drawn azimuth about the turntable axis: docs/calibration.md).
-3. End to end: builtin:pebble planned, acquired (in the true world) and fitted with the drawing, then
-   with the calibrated file; each region's worst-channel error against the simulated truth.
+   defines (the camera keeps its drawn azimuth about the turntable axis: docs/calibration.md); the
+   sensor and the warm lamp's power in absolute terms.
+3. End to end: builtin:pebble planned (its poses cycled to ``run_poses``), acquired in the true world and
+   fitted, with the drawing, then with the calibrated file (the lamp warmed up and watched, as an
+   overnight run would: ``--warm-up 30 --lamp-every 5``); each region's worst-channel error against the
+   simulated truth.
 
 Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
 """
@@ -15,18 +19,20 @@ Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from hlr_lab.acquisition import Instruments
-from hlr_lab.cli.bench_acquire import Stopwatch, TimedCamera, TimedPositioner
-from hlr_lab.cli.calibrate_cmd import ball_world, board_world, rig_source_path
+from hlr_lab.cli.bench_acquire import Stopwatch, TimedCamera, TimedPositioner, repeated_poses
+from hlr_lab.cli.calibrate_cmd import ball_world, board_world, rig_source_path, white_world
 from hlr_lab.cli.sim_world import sim_scene, world_geometry
 from hlr_lab.devices import Links
-from hlr_lab.formats.plan import write_plan
+from hlr_lab.formats.plan import read_plan, write_plan
+from hlr_lab.lamp_watch import UNWATCHED, LampWatch, RigTime
 from hlr_lab.pipeline import acquire_plan, fit_into, load_object, plan_object
 from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.rig import Rig, sim_rig
@@ -83,73 +89,135 @@ class RegionErrors:
     n_pct: float
 
 
+@dataclass(frozen=True)
+class RadiometricRecovery:
+    """Calibrated against true: black level (DN), read noise, conversion gain and S·Φ (fractions)."""
+
+    black_level_dn: float
+    read_noise: float
+    conversion_gain: float
+    sensitivity_times_power: float  # against the lamp as it was when measured
+    lamp_short_of_warm: float  # how far that lamp was below its warm power (the warm-up's criterion)
+
+
 @dataclass
 class CalibrationFigures:
-    camera_rig_s: float = 0.0
-    gantry_rig_s: float = 0.0
-    camera_wall_s: float = 0.0
-    gantry_wall_s: float = 0.0
+    rig_s: dict[str, float] = field(default_factory=dict)  # per procedure: simulated-rig time
+    wall_s: dict[str, float] = field(default_factory=dict)  # per procedure: wall time here
     recovery: Recovery | None = None
+    radiometric: RadiometricRecovery | None = None
     end_to_end: dict[str, dict[int, RegionErrors]] = field(default_factory=dict)
+
+
+WARM_UP = 30.0  # minutes at most, for the radiometric procedure and the calibrated run alike
 
 
 def calibration_figures(
     folder: Path,
     *,
-    true_rig: str = "builtin:bench-offsets",
+    true_rig: str = "builtin:bench-night",
     views: int = 24,
     poses: int = 30,
+    run_poses: int = 40,
     speed_factor: float = 40.0,
     progress: Callable[[str], None] = lambda _: None,
 ) -> CalibrationFigures:
     """Run the three parts (module docstring) in ``folder`` (photographs, rig files, sessions kept)."""
-    import time
-
     from calibration.camera_procedure import board_spec, capture_board_frames, load_board_frames, solve_camera
     from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
+    from calibration.images import journaled_images
+    from calibration.radiometric_procedure import (
+        capture_radiometric_frames,
+        load_radiometric_frames,
+        solve_radiometric,
+        white_spec,
+    )
 
     drawing, figures = sim_rig(), CalibrationFigures()
-    board_spec(drawing), ball_spec(drawing)
-    for part in ("camera", "gantry"):
-        (folder / part).mkdir(parents=True)
-    with contextlib.ExitStack() as stack:
-        progress("calibrate camera: photographing the board")
+    board_spec(drawing), ball_spec(drawing), white_spec(drawing)
+    warm = LampWatch(warm_up_s=60 * WARM_UP, clock=RigTime(speed_factor))
+
+    def procedure(name: str, rig: Rig, world, capture) -> None:
+        """Photograph ``name``'s frames into folder/name on ``rig`` in ``world``, the rig's time clocked."""
+        progress(f"calibrate {name}: photographing")
+        (folder / name).mkdir(parents=True)
         clock, started = RigClock(), time.perf_counter()
+        with contextlib.ExitStack() as stack, open_rig(rig, world(stack)) as opened:
+            waited_s = capture(clock.clocked(opened.instruments), folder / name)
+        figures.rig_s[name] = clock.rig_seconds(speed_factor) + waited_s
+        figures.wall_s[name] = time.perf_counter() - started
+
+    turns = []
+
+    def board(stack):
         links, turn = board_world(stack, drawing, True, true_rig, speed_factor)
-        with open_rig(drawing, links) as opened:
-            capture_board_frames(clock.clocked(opened.instruments), drawing, folder / "camera", views=views,
-                                 turn_the_wedge=turn)  # fmt: skip
-        figures.camera_rig_s, figures.camera_wall_s = (
-            clock.rig_seconds(speed_factor),
-            time.perf_counter() - started,
-        )
+        turns.append(turn)
+        return links
+
+    procedure("camera", drawing, board, lambda i, out: capture_board_frames(
+        i, drawing, out, views=views, turn_the_wedge=turns[-1]) or 0.0)  # fmt: skip
     camera = solve_camera(load_board_frames(folder / "camera"), drawing)
     with_camera = write_calibrated_rig(rig_source_path(drawing), folder / "rig-camera.toml",
                                        camera.rig_fields(drawing, board_along_zero=True), "camera",
                                        camera.record(folder / "camera"))  # fmt: skip
-    with contextlib.ExitStack() as stack:
-        progress("calibrate gantry: photographing the mirror ball")
-        clock, started = RigClock(), time.perf_counter()
-        links = ball_world(stack, with_camera, True, true_rig, speed_factor, *ball_spec(with_camera))
-        with open_rig(with_camera, links) as opened:
-            capture_ball_frames(
-                clock.clocked(opened.instruments), with_camera, folder / "gantry", poses=poses
-            )
-        figures.gantry_rig_s, figures.gantry_wall_s = (
-            clock.rig_seconds(speed_factor),
-            time.perf_counter() - started,
-        )
+    ball = ball_spec(with_camera)
+    procedure("gantry", with_camera, lambda stack: ball_world(stack, with_camera, True, true_rig, speed_factor, *ball),
+              lambda i, out: capture_ball_frames(i, with_camera, out, poses=poses) or 0.0)  # fmt: skip
     gantry = solve_gantry(load_ball_frames(folder / "gantry"), with_camera)
+    record = gantry.record(folder / "gantry")
+    with_gantry = write_calibrated_rig(
+        folder / "rig-camera.toml",
+        folder / "rig-gantry.toml",
+        gantry.rig_fields(with_camera),
+        "gantry",
+        record,
+    )
+
+    def radiometric_frames(i, out) -> float:
+        warmed = capture_radiometric_frames(i, with_gantry, out, warm=warm)
+        return 60 * warmed.minutes if warmed else 0.0  # the warm-up's waits are rig time too
+
+    white = white_spec(with_gantry)
+    procedure("radiometric", with_gantry,
+              lambda stack: white_world(stack, with_gantry, True, true_rig, speed_factor, white),
+              radiometric_frames)  # fmt: skip
+    radiometric = solve_radiometric(load_radiometric_frames(folder / "radiometric"), with_gantry)
+    record = radiometric.record(folder / "radiometric")
     calibrated = write_calibrated_rig(
-        folder / "rig-camera.toml", folder / "rig-calibrated.toml", gantry.rig_fields(with_camera), "gantry",
-        gantry.record(folder / "gantry"),
-    )  # fmt: skip
+        folder / "rig-gantry.toml",
+        folder / "rig-calibrated.toml",
+        radiometric.rig_fields(),
+        "radiometric",
+        record,
+    )
     truth = load_true_rig(true_rig)
     figures.recovery = recovery(calibrated, drawing, truth, camera.pose.rms_px)
-    for name, believed in (("drawing", drawing), ("calibrated", calibrated)):
+    whites = [sidecar for sidecar, _ in journaled_images(folder / "radiometric", "calibrate radiometric", ("kind",))
+              if sidecar["kind"] == "white"]  # fmt: skip
+    figures.radiometric = radiometric_recovery(calibrated, truth, whites)
+    watched = replace(warm, every=5)
+    for name, believed, lamp in (("drawing", drawing, UNWATCHED), ("calibrated", calibrated, watched)):
         progress(f"end to end with the {name} rig file: plan, acquire, fit")
-        figures.end_to_end[name] = end_to_end(folder / f"e2e-{name}", believed, true_rig, speed_factor)
+        figures.end_to_end[name] = end_to_end(folder / f"e2e-{name}", believed, true_rig, speed_factor, run_poses,
+                                              lamp)  # fmt: skip
     return figures
+
+
+def radiometric_recovery(calibrated: Rig, truth: TrueRig, white_frames: list[dict]) -> RadiometricRecovery:
+    """The calibrated [sensor] and [light] against the world's sensor and its lamp as it was during the
+    white frames (``white_frames``: their sidecars, where the simulator left the lamp's output), and how
+    far that lamp still was from its warm power."""
+    s, t = calibrated.file.sensor, truth.sensor
+    lamp_then = float(np.mean([w["camera"]["lamp_output"] for w in white_frames]))
+    return RadiometricRecovery(
+        black_level_dn=abs(s.black_level_dn - t.black_level_dn),
+        read_noise=abs(s.read_noise_dn / t.read_noise_dn - 1),
+        conversion_gain=abs(s.conversion_gain_dn_per_e * t.electrons_per_dn - 1),
+        sensitivity_times_power=abs(
+            s.sensitivity * calibrated.file.light.power / (t.sensitivity * lamp_then) - 1
+        ),
+        lamp_short_of_warm=1 - lamp_then / truth.lamp.power,
+    )
 
 
 def recovery(calibrated: Rig, drawing: Rig, truth: TrueRig, rms_px: float) -> Recovery:
@@ -186,21 +254,26 @@ def recovery(calibrated: Rig, drawing: Rig, truth: TrueRig, rms_px: float) -> Re
     )
 
 
-def end_to_end(folder: Path, believed: Rig, true_rig: str, speed_factor: float) -> dict[int, RegionErrors]:
-    """Plan builtin:pebble on ``believed``, acquire it in the world built as ``true_rig``, fit: per region
-    the worst channel's error of Rd and Rs and the error of n, in per cent of the truth."""
+def end_to_end(folder: Path, believed: Rig, true_rig: str, speed_factor: float, poses: int,
+               lamp: LampWatch) -> dict[int, RegionErrors]:  # fmt: skip
+    """Plan builtin:pebble on ``believed`` (its poses cycled to ``poses``), acquire it in the world built
+    as ``true_rig`` with ``lamp`` watched, fit: per region the worst channel's error of Rd and Rs and the
+    error of n, in per cent of the truth."""
     folder.mkdir(parents=True)
     mesh = load_object(OBJECT)
     plan, _ = plan_object(mesh, segment(mesh), believed, PlanSettings(), mesh_spec=OBJECT, plan_folder=folder)
     plan_path = folder / "plan.json"
-    write_plan(plan_path, plan)
+    write_plan(plan_path, repeated_poses(plan, poses) if poses > len(plan.poses) else plan)
+    plan = read_plan(plan_path)
     scene = sim_scene(plan, plan_path, None)
     with SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(believed, true_rig)) as world:
         e = world.endpoints
-        acquire_plan(plan_path, believed, folder / "session", links=Links(e.dynamixel, e.modbus, e.camera))
+        acquire_plan(
+            plan_path, believed, folder / "session", links=Links(e.dynamixel, e.modbus, e.camera), lamp=lamp
+        )
     fitted = fit_into(folder / "session").materials
     truth = dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))
-    errors = {}
+    errors = {rid: RegionErrors(float("nan"), float("nan"), float("nan")) for rid in truth}  # nan: not fitted
     for entry in fitted.regions:
         true = truth[entry.id]
         measured = entry.specular == "measured"

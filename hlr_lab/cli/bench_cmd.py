@@ -317,7 +317,7 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
 @click.option(
     "--true-rig",
     "true_rig",
-    default="builtin:bench-offsets",
+    default="builtin:bench-night",
     show_default=True,
     metavar="FILE|builtin:NAME",
     help="The simulated world's rig as it really is (hlr-lab starts from the drawing, the built-in rig).",
@@ -326,6 +326,8 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
     "--views", type=click.IntRange(16, 200), default=24, show_default=True, help="Board photographs."
 )
 @click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True, help="Lamp poses.")
+@click.option("--run-poses", type=click.IntRange(1, 1000), default=40, show_default=True,
+              help="Poses of the end-to-end runs (builtin:pebble's plan cycled).")  # fmt: skip
 @click.option(
     "--out",
     "out_dir",
@@ -333,17 +335,17 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
     help="Keep the photographs, rig files and sessions here (a new folder; default: a scratch folder).",
 )
 @speed_factor_option("Simulated", default=40.0)
-def bench_calibration(true_rig, views, poses, out_dir, speed_factor) -> None:
+def bench_calibration(true_rig, views, poses, run_poses, out_dir, speed_factor) -> None:
     """What calibration is worth: calibrate the simulated bench built as --true-rig while hlr-lab believes
-    the drawing (camera, then gantry), compare the calibrated rig file with the true one, and measure
-    builtin:pebble end to end (plan → acquire → fit) with the drawing and with the calibrated file.
-    Prints the simulated-rig time of each procedure (motion and exposures at real speed; rendering is
-    not rig time). Targets in the README.
+    the drawing (camera, gantry, radiometry with a warm-up), compare the calibrated rig file with the true
+    one, and measure builtin:pebble end to end (plan → acquire → fit) with the drawing and with the
+    calibrated file (its lamp warmed up and watched). Prints the simulated-rig time of each procedure
+    (motion, exposures and warm-up at real speed; rendering is not rig time). Targets in the README.
 
     \b
     Examples:
       hlr-lab bench calibration
-      hlr-lab bench calibration --true-rig my-true-rig.toml --out bench-cal
+      hlr-lab bench calibration --true-rig builtin:bench-offsets --run-poses 2 --out bench-cal
     """
     import tempfile
 
@@ -358,14 +360,15 @@ def bench_calibration(true_rig, views, poses, out_dir, speed_factor) -> None:
         else:
             folder = out_dir
         with console.status("calibrating…") as status:
-            f = calibration_figures(folder, true_rig=true_rig, views=views, poses=poses,
+            f = calibration_figures(folder, true_rig=true_rig, views=views, poses=poses, run_poses=run_poses,
                                     speed_factor=speed_factor, progress=status.update)  # fmt: skip
-    r = f.recovery
+    r, q = f.recovery, f.radiometric
+    rig_times = ", ".join(f"{name} {seconds:.0f} s" for name, seconds in f.rig_s.items())
+    walls = " + ".join(f"{seconds:.0f} s" for seconds in f.wall_s.values())
     lines = [
         f"world: {true_rig}; hlr-lab starts from the drawing (the built-in simulated rig)",
-        f"simulated-rig time (target ≤ 5 min for both): camera {f.camera_rig_s:.0f} s ({views} views), "
-        f"gantry {f.gantry_rig_s:.0f} s ({poses} lamp poses × 2 ball places); "
-        f"wall here at ×{speed_factor:g}: {f.camera_wall_s:.0f} s + {f.gantry_wall_s:.0f} s",
+        f"simulated-rig time: {rig_times} (target ≤ 5 min for camera and gantry; {views} views, {poses} lamp "
+        f"poses × 2 ball places, the radiometry's warm-up included); wall here at ×{speed_factor:g}: {walls}",
         "recovery against the true rig (target):",
         f"  focal length {r.focal_pct:.3f} % (0.2 %), principal point {r.principal_point_px:.2f} px (1 px), "
         f"reprojection RMS {r.rms_px:.3f} px (0.3 px)",
@@ -373,14 +376,22 @@ def bench_calibration(true_rig, views, poses, out_dir, speed_factor) -> None:
         f"(0.05°), roll {r.roll_deg:.3f}° (0.05°), turntable zero {r.turntable_zero_steps:+d} steps",
         f"  gantry zero ticks {r.gantry_zero_ticks} (2), arm radius {r.arm_radius_mm:.2f} mm (1 mm), "
         f"azimuth axis {r.azimuth_axis_deg:.3f}° (0.1°), lamp worst {r.lamp_worst_mm:.2f} mm (2 mm)",
-        "end to end, builtin:pebble, error per region in % (targets with the calibrated file: Rd 1, Rs 3, n 3):",
+        f"  black level {q.black_level_dn:.2f} DN (0.5 DN), read noise {100 * q.read_noise:.2f} % (5 %), "
+        f"conversion gain {100 * q.conversion_gain:.2f} % (3 %), sensitivity × power "
+        f"{100 * q.sensitivity_times_power:.2f} % (1 %; the lamp then {100 * q.lamp_short_of_warm:.2f} % short "
+        "of its warm power: the warm-up's 0.2 % per minute)",
+        f"end to end, builtin:pebble, {run_poses} poses, error per region in % (targets with the calibrated "
+        "file: Rd 1, Rs 3, n 3):",
     ]
     for name, regions in f.end_to_end.items():
         cells = "; ".join(
-            f"{rid}: Rd {e.rd_pct:.2f} Rs {e.rs_pct:.2f} n {e.n_pct:.2f}"
+            f"{rid}: Rd {e.rd_pct:.2f} Rs {e.rs_pct:.2f} n {e.n_pct:.2f}" if np.isfinite(e.rd_pct)
+            else f"{rid}: not fitted"
             for rid, e in sorted(regions.items())
-        )
-        worst = [max(getattr(e, k) for e in regions.values()) for k in ("rd_pct", "rs_pct", "n_pct")]
+        )  # fmt: skip
+        worst = [
+            float(np.nanmax([getattr(e, k) for e in regions.values()])) for k in ("rd_pct", "rs_pct", "n_pct")
+        ]
         lines.append(f"  {name:10}: worst Rd {worst[0]:.2f}, Rs {worst[1]:.2f}, n {worst[2]:.2f} ({cells})")
     for line in lines:
         out.print(line, markup=False, soft_wrap=True)

@@ -340,8 +340,8 @@ def _fit_one(
     except (InsufficientSamples, DegenerateSamples) as exc:
         entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, str(exc), method)
         diag["specular"] = f"unmeasured: {exc}"
-        if entry is None:
-            diag["note"] = f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
+        if isinstance(entry, str):
+            diag["note"], entry = entry, None
         return entry, diag, None
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
     if rs < SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
@@ -351,25 +351,43 @@ def _fit_one(
         )
         entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, reason, method)
         diag["specular"] = f"unmeasured: {reason}"
-        if entry is None:
-            diag["note"] = f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
+        if isinstance(entry, str):
+            diag["note"], entry = entry, None
         return entry, diag, None
     diag["residual_rms"] = fit.residual_rms
     diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
+    wrong = _unphysical(fit.rd)
+    if wrong:
+        diag["note"] = wrong
+        return None, diag, None
     return measured_entry(region, fit), diag, fit
+
+
+def _unphysical(rd: np.ndarray) -> str | None:
+    """Why a fitted Rd (C,) cannot be a reflectance (a channel below 0), or None. The pixels then do not
+    follow the model at all: most often a black level that is not the sensor's."""
+    if np.all(np.asarray(rd) >= 0):
+        return None
+    return (
+        f"the fit gave Rd = {', '.join(f'{v:.3g}' for v in rd)} (below 0): these pixels do not follow the "
+        "model; check [sensor] black_level_dn against dark frames (hlr-lab calibrate radiometric)"
+    )
 
 
 def _diffuse_only(
     region, intensity, irradiance, cos_alpha, cos_beta, reason: str, method: str
-) -> MaterialEntry | None:
-    """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE; None
-    when there are too few such pixels."""
+) -> MaterialEntry | str:
+    """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE; or why
+    there is none (too few such pixels, an Rd below 0)."""
     far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
     x = irradiance[far] * cos_alpha[far]  # (M,)
     if len(x) < MIN_DIFFUSE:
-        return None
+        return f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
     y = intensity[far]  # (M, C)
     rd = (x[:, None] * y).sum(axis=0) / (x @ x)
+    wrong = _unphysical(rd)
+    if wrong:
+        return wrong
     resid = y - x[:, None] * rd
     sigma2 = (resid**2).sum(axis=0) / max(len(x) - 1, 1)
     rd_se = np.sqrt(sigma2 / (x @ x))
