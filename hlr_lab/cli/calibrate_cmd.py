@@ -417,14 +417,24 @@ def all_(rig_path, sim, true_rig, views, poses, positions, no_radiometric, board
     folder = _new_folder(
         out or rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")
     )
+    run_all(rig, sim, true_rig, folder, output, speed_factor, views=views, poses=poses, positions=positions,
+            radiometric=not no_radiometric, board_along_zero=board_along_zero)  # fmt: skip
+
+
+def run_all(rig: Rig, sim, true_rig, folder: Path, output: Path, speed_factor, *, views: int = 24, poses: int = 30,
+            positions: int = 6, radiometric: bool = True, board_along_zero: bool = False,
+            warm_up_min: float = 0.0) -> Rig:  # fmt: skip
+    """Camera, gantry, then (``radiometric``) radiometry, each on the file the one before wrote (in
+    ``folder``), the last into ``output``; returns its rig."""
     with_camera = _run_camera(rig, sim, true_rig, views, _new_folder(folder / "camera"), False, board_along_zero,
                               folder / "rig-camera.toml", speed_factor)  # fmt: skip
-    gantry_output = output if no_radiometric else folder / "rig-gantry.toml"
+    gantry_output = folder / "rig-gantry.toml" if radiometric else output
     with_gantry = _run_gantry(with_camera, sim, true_rig, poses, _new_folder(folder / "gantry"), False,
                               gantry_output, speed_factor)  # fmt: skip
-    if not no_radiometric:
-        _run_radiometric(with_gantry, sim, true_rig, positions, 8, _new_folder(folder / "radiometric"), False,
-                         output, speed_factor)  # fmt: skip
+    if not radiometric:
+        return with_gantry
+    return _run_radiometric(with_gantry, sim, true_rig, positions, 8, _new_folder(folder / "radiometric"), False,
+                            output, speed_factor, warm_up_min)  # fmt: skip
 
 
 def _new_folder(folder: Path) -> Path:

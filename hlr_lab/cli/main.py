@@ -41,6 +41,8 @@ COMMANDS = {
             "The simulated rig (servo bus on a pseudo-terminal, Modbus turntable and lamp relay, camera)."),
     "calibrate": ("hlr_lab.cli.calibrate_cmd:calibrate",
                   "Measure the rig (camera, gantry, or all) and write a calibrated copy of its rig file."),
+    "campaign": ("hlr_lab.cli.campaign_cmd:campaign",
+                 "Unattended campaigns: a night of jobs (acquire, calibrate) run one after another."),
     "doctor": ("hlr_lab.cli.doctor_cmd:doctor",
                "Connect to every device of the rig and report identities, limits, temperatures and alarms."),
     "demo": ("hlr_lab.cli.demo_cmd:demo",

@@ -134,13 +134,15 @@ def check_header(data: object, path: Path, fmt: str, versions: set[int], header:
         )
 
 
-def validate(model: type[Model], data: object, path: str | Path) -> Model:
-    """Validate ``data`` against ``model``; the first problem becomes an InputError naming the field."""
+def validate(model: type[Model], data: object, path: str | Path, at: str = "") -> Model:
+    """Validate ``data`` against ``model``; the first problem becomes an InputError naming the field
+    (under ``at``, where ``data`` sits in its file: e.g. ``job[2]``)."""
     try:
         return model.model_validate(data)
     except pydantic.ValidationError as exc:
         err = exc.errors()[0]
-        field = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err["loc"]).lstrip(".")
+        field = at + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err["loc"])
+        field = field.lstrip(".")
         more = f" (and {exc.error_count() - 1} more problems)" if exc.error_count() > 1 else ""
         raise InputError(f"{err['msg']}{more}", path=path, field=field or None) from exc
 

@@ -1,0 +1,198 @@
+"""Unattended campaigns on the simulated rig: three jobs with a fault injected in the second (retried and
+done; or skipped and the night goes on; or the rig left unconfirmed and everything stops), the
+notification hook, the status, the index, and the campaign files and nights that are refused."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from hlr_lab import campaign as c
+from hlr_lab.campaign import AcquireJob, CampaignStopped, campaign_status, load_campaign, run_campaign
+from hlr_lab.errors import DiskFull, InputError
+from tests.renderer_guard import require_renderer
+
+require_renderer(module_level=True)
+
+
+def campaign_file(tmp_path: Path, plan: Path, jobs: int = 3, extra: str = "") -> Path:
+    text = f'[campaign]\nname = "test night"\n{extra}\n'
+    for i in range(jobs):
+        text += f'\n[[job]]\nname = "j{i}"\nplan = "{plan}"\nout = "s{i}"\nsim = true\nspeed_factor = 40\n'
+    path = tmp_path / "night.toml"
+    path.write_text(text)
+    return path
+
+
+def links_with(fault: dict[str, callable]):
+    """``links_for`` as the command line's (a simulated world per job), with ``fault[job name](world)``
+    applied to that job's world."""
+    from hlr_lab.cli.campaign_cmd import _links
+
+    def links_for(job: AcquireJob, stack: contextlib.ExitStack):
+        from hlr_lab.cli.sim_world import sim_scene, world_geometry
+        from hlr_lab.devices import Links
+        from hlr_lab.formats.plan import read_plan
+        from sim.rig import SimRig
+
+        if job.name not in fault:
+            return _links(job, stack)
+        rig = c.job_rig(job)
+        world = stack.enter_context(SimRig(scene=sim_scene(read_plan(job.plan), job.plan, None),
+                                           speed_factor=job.speed_factor, **world_geometry(rig)))  # fmt: skip
+        fault[job.name](world)
+        e = world.endpoints
+        return Links(e.dynamixel, e.modbus, e.camera)
+
+    return links_for
+
+
+def no_calibration(job):
+    raise AssertionError("no calibrate job here")
+
+
+@pytest.mark.slow
+def test_a_fault_in_the_second_job_is_retried_and_the_night_goes_on(tmp_path, builtin_plan):
+    """The second job's turntable answers one request with a device failure: that run stops safely, the
+    job runs again on a new connection and completes (attempts 2, a job_retry line); all three are
+    fitted and reported; the hook heard every job's end and the campaign's; status and index say so."""
+    heard = tmp_path / "heard.jsonl"
+    path = campaign_file(tmp_path, builtin_plan, extra=f"notify = \"sh -c 'cat; echo' >> {heard}\"")
+    night = load_campaign(path)
+
+    def one_failure(world):
+        world.turntable.faults.exception += 1
+
+    results = run_campaign(night, links_for=links_with({"j1": one_failure}), calibrate=no_calibration)
+    assert [(r.name, r.status, r.attempts) for r in results] == [("j0", "done", 1), ("j1", "done", 2),
+                                                                 ("j2", "done", 1)]  # fmt: skip
+    for r in results:
+        assert Path(r.report).is_file()
+        assert len(r.materials) == 4
+    events = [json.loads(line) for line in (night.folder / "campaign.jsonl").read_text().splitlines()]
+    assert [e["event"] for e in events].count("job_retry") == 1
+    assert events[-1]["event"] == "campaign_end"
+    summaries = [json.loads(line) for line in heard.read_text().splitlines() if line.strip()]
+    assert [s["event"] for s in summaries] == ["job_end", "job_end", "job_end", "campaign_end"]
+    assert summaries[1]["attempts"] == 2
+    index = (night.folder / "index.html").read_text()
+    assert index.count("report</a>") == 3
+    status = list(campaign_status(night))
+    assert status[1].startswith("j1: done")
+    assert status[-1] == "campaign ended"
+
+
+@pytest.mark.slow
+def test_a_job_that_keeps_failing_is_skipped_and_a_rig_not_confirmed_safe_stops_everything(
+    tmp_path, builtin_plan
+):
+    """The second job's camera cuts every frame short: the run stops safely (lamp, turntable and gantry
+    confirmed), is run once more, stops again, and is skipped; the third job still runs. Then a night
+    whose second job's turntable refuses every request, the stop included: the rig is not confirmed
+    safe, the campaign stops (exit status 1) and the third job never starts."""
+    night = load_campaign(campaign_file(tmp_path, builtin_plan))
+
+    def camera_broken(world):
+        world.camera_server.cut_replies = 10**6
+
+    results = run_campaign(night, links_for=links_with({"j1": camera_broken}), calibrate=no_calibration)
+    assert [(r.name, r.status, r.attempts) for r in results] == [("j0", "done", 1), ("j1", "skipped", 2),
+                                                                 ("j2", "done", 1)]  # fmt: skip
+    assert "the rig is safe" in results[1].detail
+    events = [
+        json.loads(line)["event"] for line in (night.folder / "campaign.jsonl").read_text().splitlines()
+    ]
+    assert events.count("job_retry") == events.count("job_skip") == 1
+
+    other = tmp_path / "other"
+    other.mkdir()
+    night = load_campaign(campaign_file(other, builtin_plan))
+
+    def turntable_broken(world):
+        world.turntable.faults.exception = 10**6
+
+    with pytest.raises(CampaignStopped, match="NOT SAFE") as stopped:
+        run_campaign(night, links_for=links_with({"j1": turntable_broken}), calibrate=no_calibration)
+    assert stopped.value.exit_status == 1
+    events = [json.loads(line) for line in (night.folder / "campaign.jsonl").read_text().splitlines()]
+    assert [e.get("job") for e in events if e["event"] == "job_start"] == ["j0", "j1"]  # j2 never started
+    assert events[-1]["event"] == "campaign_stopped"
+
+
+def test_campaign_files_that_are_wrong_are_refused_with_the_field(tmp_path, builtin_plan):
+    path = campaign_file(tmp_path, builtin_plan, jobs=1)
+    text = path.read_text()
+    for change, field in (
+        (text + "colour = 3\n", "job[0].colour"),
+        (text.replace(str(builtin_plan), str(tmp_path / "gone.json")), "job[0].plan"),
+        (text.replace("sim = true\n", ""), "job[0].rig"),
+        (text + '\n[[job]]\nname = "j0"\nplan = "x"\nout = "y"\nsim = true\n', "job[1].name"),
+        (text.replace("sim = true\n", 'true_rig = "builtin:bench-night"\nrig = "r.toml"\n'), "job[0]"),
+        (text + '\n[[job]]\nkind = "dance"\nname = "x"\n', "job[1]"),
+    ):
+        path.write_text(change)
+        (tmp_path / "r.toml").write_text("")
+        with pytest.raises(InputError) as err:
+            load_campaign(path)
+        assert field in str(err.value), (field, str(err.value))
+
+
+def test_a_night_that_will_not_fit_on_the_disk_is_refused_before_anything_moves(
+    tmp_path, builtin_plan, monkeypatch
+):
+    night = load_campaign(campaign_file(tmp_path, builtin_plan))
+    monkeypatch.setattr(c, "free_bytes", lambda _path: 100_000_000)  # 100 MB: three jobs need ~280 MB
+    with pytest.raises(DiskFull, match="j0, j1, j2"):
+        run_campaign(night, links_for=lambda *_: pytest.fail("no job may start"), calibrate=no_calibration)
+    assert not (night.folder / "campaign.jsonl").exists()
+
+
+def test_a_notify_hook_that_fails_or_hangs_does_not_stop_the_night(monkeypatch, caplog):
+    monkeypatch.setattr(c, "NOTIFY_TIMEOUT_S", 0.5)
+    c._notify("sleep 5", {"event": "job_end"})
+    c._notify("exit 3", {"event": "job_end"})
+    messages = [r.getMessage() for r in caplog.records]
+    assert any("did not finish within 0.5 s" in m for m in messages)
+    assert any("exited 3" in m for m in messages)
+
+
+@pytest.mark.slow
+def test_campaign_run_and_status_from_the_command_line_with_a_calibration_job(tmp_path, builtin_plan, capsys):
+    """`hlr-lab campaign run`: a radiometric calibration, then a run on the rig file it writes (which
+    does not exist when the night starts); `status` afterwards."""
+    from hlr_lab.cli.main import main
+    from hlr_lab.rig import load_rig
+
+    path = tmp_path / "night.toml"
+    path.write_text(f"""
+[[job]]
+kind = "calibrate"
+name = "radiometry"
+procedure = "radiometric"
+sim = true
+speed_factor = 40
+output = "rig-radiometric.toml"
+
+[[job]]
+name = "pebble"
+plan = "{builtin_plan}"
+rig = "rig-radiometric.toml"
+out = "s"
+sim = true
+speed_factor = 40
+""")
+    bad = tmp_path / "bad.toml"
+    bad.write_text(path.read_text().replace('rig = "rig-radiometric.toml"', 'rig = "rig-elsewhere.toml"'))
+    assert main(["campaign", "run", str(bad)]) == 1  # not a file, and no calibration of the night writes it
+    assert "job[1].rig: job 'pebble': no such file" in capsys.readouterr().err
+    assert main(["campaign", "run", str(path)]) == 0, capsys.readouterr().err
+    printed = capsys.readouterr().err
+    assert re.search(r"radiometry\s*│\s*done", printed)
+    assert re.search(r"pebble\s*│\s*done", printed)
+    assert load_rig(tmp_path / "rig-radiometric.toml").file.calibration.radiometric is not None
+    assert main(["campaign", "status", str(path)]) == 0
+    assert "campaign ended" in capsys.readouterr().err
