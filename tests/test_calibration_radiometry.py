@@ -204,3 +204,36 @@ def test_a_rig_file_without_a_white_reference_or_with_it_out_of_view_is_refused(
     assert main(command) == 1
     assert "not wholly in view" in capsys.readouterr().err
     assert not (tmp_path / "y.toml").exists()
+
+
+def _frames(rig, white_level: int, dark_level: int = 64) -> list:
+    """A capture's frames drawn by hand: dark pairs, three photon-transfer levels, three white frames at
+    ``white_level`` DN over the whole image (the reference's middle included)."""
+    from calibration.radiometric_procedure import RadiometricFrame
+
+    rng = np.random.default_rng(0)
+    shape = (rig.camera.height, rig.camera.width, 3)
+
+    def frame(level: float) -> np.ndarray:
+        noisy = level + rng.normal(0, np.sqrt(2.2**2 + 0.31 * max(level - 64, 0)), shape)
+        return np.clip(np.round(noisy), 0, 4095).astype(np.uint16)
+
+    ticks = rig.gantry.kinematics.ticks_for(-90.0, 75.0)
+    frames = [RadiometricFrame(frame(dark_level), "dark", 0, 0.02, 0.0, ticks, 12) for _ in range(2)]
+    for level, t in enumerate((0.002, 0.005, 0.01)):
+        frames.append(RadiometricFrame(frame(64 + 1000), "reference", level, 0.006, 0.0, ticks, 12))
+        frames += [
+            RadiometricFrame(frame(64 + 1000 * t / 0.006), "flat", level, t, 0.0, ticks, 12) for _ in range(2)
+        ]
+    frames += [RadiometricFrame(frame(white_level), "white", i, 0.01, 0.0, ticks, 12) for i in range(3)]
+    return frames
+
+
+def test_a_saturated_reference_or_a_lamp_that_did_not_light_it_is_refused(rig):
+    from calibration.radiometric_procedure import solve_radiometric
+
+    with pytest.raises(CalibrationError, match="saturated"):
+        solve_radiometric(_frames(rig, white_level=4095), rig)
+    with pytest.raises(CalibrationError, match="as dark as the dark frames"):
+        solve_radiometric(_frames(rig, white_level=70), rig)
+    solve_radiometric(_frames(rig, white_level=2000), rig)  # the same frames, lit and unclipped: solved
