@@ -28,7 +28,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.errors import DeviceError
-from hlr_lab.acquisition import AxisMoved
+from hlr_lab.acquisition import AxisMoved, Step
 from hlr_lab.devices import Links
 from hlr_lab.errors import HlrLabError, InputError
 from hlr_lab.formats.io import atomic_write_text, free_bytes, read_toml, validate
@@ -274,8 +274,10 @@ def run_campaign(
         try:
             for i, job in enumerate(campaign.jobs):
 
-                def say(what: str, i=i, job=job) -> None:
-                    progress(CampaignStep(i, len(campaign.jobs), job.name, what, sum(left.values())))
+                def say(what: str, done: float = 0.0, i=i, job=job) -> None:
+                    """``done``: the fraction of this job's forecast already behind it."""
+                    eta = sum(left.values()) - done * left.get(job.name, 0.0)
+                    progress(CampaignStep(i, len(campaign.jobs), job.name, what, eta))
 
                 journal.append({"event": "job_start", "at": time.time(), "job": job.name, "kind": job.kind})
                 result = _run_job(job, links_for, calibrate, say, journal)
@@ -327,9 +329,12 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
         links = links_for(job, world)
         for attempt in range(1, ATTEMPTS + 1):
             say(f"acquiring (attempt {attempt})")
+
+            def pose(step: Step) -> None:
+                say(f"pose {step.index + 1}/{step.poses}: {step.action}", step.index / step.poses)
+
             try:
-                acquire_plan(job.plan, rig, job.out, links=links, lamp=watch,
-                             progress=lambda s: say(f"pose {s.index + 1}/{s.poses}: {s.action}"))  # fmt: skip
+                acquire_plan(job.plan, rig, job.out, links=links, lamp=watch, progress=pose)
                 break
             except RunStopped as stop:
                 if isinstance(stop.cause, KeyboardInterrupt):
