@@ -9,7 +9,9 @@ camera and, under each lamp position the calibrated gantry gives, its cos θ / d
 1. dark frames: the lamp off, a pair at each exposure of the rig's bracket;
 2. (with a warm-up) the lamp kept on above the reference until its output is stable;
 3. white: the lamp at ``positions`` places over the reachable range, one frame each near half scale —
-   right after the warm-up, as a run that warms up the same way takes its first reference frame;
+   right after the warm-up, as a run that warms up the same way takes its first reference frame — with
+   the lamp photographed from above before and after them: S · Φ is the lamp's at the first of those
+   (its change in between, interpolated in time, divided out);
 4. photon transfer: the lamp above the reference, pairs at ``levels`` exposures from 5 % to 85 % of full
    scale, each pair after a reference frame at one fixed exposure (to see a drifting lamp for what it is).
 
@@ -49,7 +51,7 @@ DEFAULT_POSITIONS, DEFAULT_LEVELS = 6, 8
 MIDDLE = 0.6  # of the reference's side: what is measured
 ABOVE_DEG = (-90.0, 75.0)  # gantry azimuth, elevation of the photon-transfer frames: high, camera's side
 SETTLE_S = 60.0
-FIELDS = ("kind", "level", "exposure_s", "gain_db", "gantry_ticks", "turntable_steps", "bits")
+FIELDS = ("kind", "level", "exposure_s", "gain_db", "gantry_ticks", "turntable_steps", "bits", "captured_at")
 
 
 @dataclass(frozen=True)
@@ -153,7 +155,8 @@ def capture_radiometric_frames(
                 "exposure_s": frame.exposure_s,
             }
             sidecar = {**fields, "kind": kind, "level": level, "gain_db": frame.gain_db, "bits": frame.bits,
-                       "gantry_ticks": list(ticks), "turntable_steps": int(steps), "camera": frame.meta}  # fmt: skip
+                       "gantry_ticks": list(ticks), "turntable_steps": int(steps), "captured_at": frame.captured_at,
+                       "camera": frame.meta}  # fmt: skip
             stored = store_frame(out, f"r{n:03d}", frame.pixels, sidecar)
             journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
             n += 1
@@ -169,17 +172,19 @@ def capture_radiometric_frames(
         ]
         instruments.lamp.set(True)
         warmed = None
+        watch_exposure = _exposure_for(instruments, bracket[0], rows_cols, 0.5)
         if warm.warm_up_s > 0:
-            exposure = _exposure_for(instruments, bracket[0], rows_cols, 0.5)
             black = float(
                 np.mean(dark_levels)
             )  # the dark frames' just taken: the lamp's share alone compared
-            warmed = warm_up(lambda: take("warm_up", 0, exposure, ticks, steps) - black, warm,
+            warmed = warm_up(lambda: take("warm_up", 0, watch_exposure, ticks, steps) - black, warm,
                              lambda what: progress(n, total, what))  # fmt: skip
             journal.append(warmed.as_event())
         # the white frames first, right after the warm-up: S · Φ is then the lamp's as a run that warms up
-        # the same way finds it at its first reference frame (the photon transfer needs no particular level)
+        # the same way finds it at its first reference frame (the photon transfer needs no particular
+        # level); the lamp photographed from above before and after them: S · Φ is referred to the first
         above = ticks
+        take("lamp", 0, watch_exposure, ticks, steps)
         exposure = bracket[0]
         for i, (az, el) in enumerate(white_positions(rig, positions)):
             instruments.gantry.move_to(k.ticks_for(az, el))
@@ -188,6 +193,7 @@ def capture_radiometric_frames(
             take("white", i, exposure, ticks, steps)
         instruments.gantry.move_to(above)
         ticks = instruments.gantry.wait_settled(SETTLE_S)
+        take("lamp", 1, watch_exposure, ticks, steps)
         longest = _exposure_for(instruments, bracket[0], rows_cols, 0.85)
         reference = 0.3 * longest
         for i, exposure in enumerate(longest * np.geomspace(0.05, 1.0, levels)):
@@ -226,6 +232,7 @@ class RadiometricFrame:
     gain_db: float
     gantry_ticks: tuple[int, int]
     bits: int
+    captured_at: float  # Unix time
 
 
 def load_radiometric_frames(folder: Path) -> list[RadiometricFrame]:
@@ -239,6 +246,7 @@ def load_radiometric_frames(folder: Path) -> list[RadiometricFrame]:
             float(s["gain_db"]),
             tuple(s["gantry_ticks"]),
             int(s["bits"]),
+            float(s["captured_at"]),
         )
         for s, pixels in journaled_images(folder, PROCEDURE, FIELDS)
     ]
@@ -253,6 +261,7 @@ class RadiometricCalibration:
     transfer: PhotonTransfer
     lamp: LampSensitivity
     power: float  # the rig file's [light] power, kept: sensitivity = S·Φ / power
+    lamp_drift: float = 0.0  # the lamp's change over the white frames (divided out), a fraction
 
     @property
     def sensitivity(self) -> float:
@@ -272,6 +281,7 @@ class RadiometricCalibration:
                 "channel_spread": round(float(sp.max() / sp.min() - 1), 5),
                 "worst_nonlinearity": round(self.transfer.worst_nonlinearity, 5),
                 "inverse_square_residual": round(self.lamp.inverse_square_residual, 5),
+                "lamp_drift_over_white_frames": round(self.lamp_drift, 5),
                 "follows_inverse_square": self.lamp.follows_inverse_square}  # fmt: skip
 
 
@@ -321,15 +331,23 @@ def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCa
         to_lamp = lamp - points
         d2 = np.einsum("ij,ij->i", to_lamp, to_lamp)
         geometry.append((to_lamp[:, 2] / np.sqrt(d2)) / d2)  # cos θ / d²: the reference faces +z
+    # the lamp's output during each white frame relative to before the first (from the frames from above)
+    watched = sorted(of("lamp"), key=lambda f: f.captured_at)
+    black = dark.black_level_dn.mean()
+    lamp = np.array([(in_ref(f).mean() - black) / (in_ref(watched[0]).mean() - black) for f in watched])
+    output = (
+        np.interp([f.captured_at for f in whites], [f.captured_at for f in watched], lamp) if watched else 1.0
+    )
     sensitivity = lamp_sensitivity(
         [in_ref(f) for f in whites],
-        np.array([f.exposure_s for f in whites]),
+        np.array([f.exposure_s for f in whites]) * output,  # DN ∝ t · Φ(t): the lamp's change as exposure
         np.array([f.gain_db for f in whites]),
         geometry,
         white.reflectance[: in_ref(whites[0]).shape[1]],
         dark,
     )
-    return RadiometricCalibration(dark, transfer, sensitivity, rig.file.light.power)
+    drift = float(lamp[-1] - 1) if len(watched) > 1 else 0.0
+    return RadiometricCalibration(dark, transfer, sensitivity, rig.file.light.power, drift)
 
 
 def _pairs(frames: list[RadiometricFrame]) -> list[tuple[RadiometricFrame, RadiometricFrame]]:

@@ -161,7 +161,9 @@ def test_calibrate_all_writes_one_file_with_all_three_records(tmp_path):
     assert (tmp_path / "run" / "rig-gantry.toml").is_file()
     assert len(list((tmp_path / "run" / "camera" / "frames").glob("*.png"))) == 16
     assert len(list((tmp_path / "run" / "gantry" / "frames").glob("*.png"))) >= 20
-    assert len(list((tmp_path / "run" / "radiometric" / "frames").glob("*.png"))) == 2 * 3 + 3 * 8 + 3
+    assert (
+        len(list((tmp_path / "run" / "radiometric" / "frames").glob("*.png"))) == 2 * 3 + 3 * 8 + 3 + 2
+    )  # darks, transfer, whites, the lamp from above twice
 
 
 @pytest.mark.slow

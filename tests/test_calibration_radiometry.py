@@ -219,13 +219,14 @@ def _frames(rig, white_level: int, dark_level: int = 64) -> list:
         return np.clip(np.round(noisy), 0, 4095).astype(np.uint16)
 
     ticks = rig.gantry.kinematics.ticks_for(-90.0, 75.0)
-    frames = [RadiometricFrame(frame(dark_level), "dark", 0, 0.02, 0.0, ticks, 12) for _ in range(2)]
+    frames = [RadiometricFrame(frame(dark_level), "dark", 0, 0.02, 0.0, ticks, 12, 0.0) for _ in range(2)]
     for level, t in enumerate((0.002, 0.005, 0.01)):
-        frames.append(RadiometricFrame(frame(64 + 1000), "reference", level, 0.006, 0.0, ticks, 12))
+        frames.append(RadiometricFrame(frame(64 + 1000), "reference", level, 0.006, 0.0, ticks, 12, 0.0))
         frames += [
-            RadiometricFrame(frame(64 + 1000 * t / 0.006), "flat", level, t, 0.0, ticks, 12) for _ in range(2)
+            RadiometricFrame(frame(64 + 1000 * t / 0.006), "flat", level, t, 0.0, ticks, 12, 0.0)
+            for _ in range(2)
         ]
-    frames += [RadiometricFrame(frame(white_level), "white", i, 0.01, 0.0, ticks, 12) for i in range(3)]
+    frames += [RadiometricFrame(frame(white_level), "white", i, 0.01, 0.0, ticks, 12, 0.0) for i in range(3)]
     return frames
 
 

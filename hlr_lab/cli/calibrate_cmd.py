@@ -318,7 +318,7 @@ def radiometric(
     default = rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-radiometric")
     images = from_dir or _new_folder(out or default)
     _run_radiometric(
-        rig, sim, true_rig, positions, levels, images, from_dir is not None, output, speed_factor
+        rig, sim, true_rig, positions, levels, images, from_dir is not None, output, speed_factor, warm_up_min
     )
 
 
