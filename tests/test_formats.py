@@ -133,3 +133,40 @@ def test_bad_rig_files_name_the_field(tmp_path, old, new, message):
     with pytest.raises(InputError, match=message.replace(".", r"\.")) as err:
         load_rig(bad)
     assert str(bad) in str(err.value)
+
+
+def test_pose_ids_that_would_write_outside_the_session_or_repeat_are_refused(tmp_path, builtin_plan):
+    """A pose id names its frames' files: `../../etc/evil` would have put them outside the session; two
+    poses with one id would both be journaled under it and fit would use one. Each refused naming the
+    pose; and the session's frame writer refuses any name that is not a plain file name."""
+    import json
+
+    import numpy as np
+
+    from hlr_lab.errors import InputError
+    from hlr_lab.formats.plan import read_plan
+    from hlr_lab.session.frames import store_frame
+
+    plan = json.loads(builtin_plan.read_text())
+    for change, expected in (
+        (
+            lambda p: p["poses"][0].update(id="../../etc/evil"),
+            r"poses\[0\]\.id '\.\./\.\./etc/evil': a pose id is",
+        ),
+        (
+            lambda p: p["poses"][1].update(id=p["poses"][0]["id"]),
+            r"poses\[1\]\.id 'p000' is also poses\[0\]'s",
+        ),
+        (lambda p: p["poses"][0].update(id="lamp-reference"), "reserved"),
+        (lambda p: p["poses"][0].update(id=""), "a pose id is"),
+    ):
+        bad = json.loads(json.dumps(plan))
+        change(bad)
+        path = tmp_path / "plan.json"
+        path.write_text(json.dumps(bad))
+        with pytest.raises(InputError, match=expected):
+            read_plan(path)
+    for name in ("../evil", "a/b", ".hidden", "x/../../y", ""):
+        with pytest.raises(ValueError, match="not a frame name"):
+            store_frame(tmp_path, name, np.zeros((2, 2, 3), np.uint16), {})
+    assert not list(tmp_path.rglob("*.png"))

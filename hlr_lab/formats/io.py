@@ -144,7 +144,8 @@ def validate(model: type[Model], data: object, path: str | Path, at: str = "") -
         field = at + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in err["loc"])
         field = field.lstrip(".")
         more = f" (and {exc.error_count() - 1} more problems)" if exc.error_count() > 1 else ""
-        raise InputError(f"{err['msg']}{more}", path=path, field=field or None) from exc
+        message = err["msg"].removeprefix("Value error, ")  # a validator's own sentence, as it wrote it
+        raise InputError(f"{message}{more}", path=path, field=field or None) from exc
 
 
 def read_format(

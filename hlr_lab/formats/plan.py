@@ -8,11 +8,12 @@ unless ``object.scale`` ≠ 1), so a reader can check the plan against the mesh 
 from __future__ import annotations
 
 import datetime as dt
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hlr_lab import __version__
 from hlr_lab.formats.io import read_format, write_json
@@ -56,6 +57,10 @@ class PlanLight(_Open):
     position_mesh_m: Vec3
 
 
+POSE_ID = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$"  # a pose id names its frames' files: nothing else gets in
+RESERVED_POSE_IDS = {"lamp-reference"}  # the lamp watch's frames (hlr_lab.acquisition)
+
+
 class PlanPose(_Open):
     id: str
     turntable_deg: float
@@ -83,6 +88,27 @@ class PlanFile(_Open):
     poses: list[PlanPose]
     coverage: dict[str, RegionCoverage]
     uncovered: list[Uncovered] = []
+
+    @field_validator("poses")
+    @classmethod
+    def _ids_unique_and_free(cls, poses: list[PlanPose]) -> list[PlanPose]:
+        seen: dict[str, int] = {}
+        for i, pose in enumerate(poses):
+            if not re.fullmatch(POSE_ID, pose.id):
+                raise ValueError(
+                    f"poses[{i}].id {pose.id!r}: a pose id is 1–64 letters, digits, _ and - (it names the frames' "
+                    "files); rename it"
+                )
+            if pose.id in RESERVED_POSE_IDS:
+                raise ValueError(
+                    f"poses[{i}].id {pose.id!r} is reserved (the lamp's reference frames); rename it"
+                )
+            if pose.id in seen:
+                raise ValueError(
+                    f"poses[{i}].id {pose.id!r} is also poses[{seen[pose.id]}]'s: pose ids must be unique"
+                )
+            seen[pose.id] = i
+        return poses
 
 
 def build_plan(

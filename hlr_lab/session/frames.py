@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -45,6 +46,10 @@ def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> 
 
     pixels: (H, W, 3) RGB or (H, W) uint8/uint16 raw values, stored bit for bit.
     """
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name) or ".." in name:
+        raise ValueError(
+            f"{name!r} is not a frame name (letters, digits, _ . -): nothing is written outside frames/"
+        )
     if pixels.dtype not in (np.uint8, np.uint16) or pixels.ndim not in (2, 3):
         raise TypeError(f"raw frames are (H, W[, 3]) uint8 or uint16, not {pixels.dtype} {pixels.shape}")
     bgr = pixels[..., ::-1] if pixels.ndim == 3 else pixels  # OpenCV stores BGR
