@@ -64,6 +64,7 @@ class AcquireJob(_Strict):
     scene: Path | None = None  # with sim: the world's scene file
     speed_factor: float = Field(default=1.0, gt=0, le=10_000)
     warm_up_min: float = Field(default=0.0, ge=0, le=600)
+    warm_up_within: float = Field(default=0.2, ge=0.01, le=10)  # per cent per minute
     lamp_every: int = Field(default=0, ge=0, le=10_000)
 
 
@@ -79,6 +80,7 @@ class CalibrateJob(_Strict):
     true_rig: str | None = None
     speed_factor: float = Field(default=1.0, gt=0, le=10_000)
     warm_up_min: float = Field(default=0.0, ge=0, le=600)  # radiometric: the lamp's warm-up
+    warm_up_within: float = Field(default=0.2, ge=0.01, le=10)  # per cent per minute
 
 
 JOB_KINDS = {"acquire": AcquireJob, "calibrate": CalibrateJob}
@@ -323,7 +325,7 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
     from hlr_lab.pipeline import acquire_plan, fit_into, report_into
 
     rig = job_rig(job)
-    watch = LampWatch(every=job.lamp_every, warm_up_s=60 * job.warm_up_min,
+    watch = LampWatch(every=job.lamp_every, warm_up_s=60 * job.warm_up_min, stable_per_min=job.warm_up_within / 100,
                       clock=RigTime(job.speed_factor if job.sim else 1.0))  # fmt: skip
     with contextlib.ExitStack() as world:
         links = links_for(job, world)

@@ -71,8 +71,18 @@ from hlr_lab.rig import Rig
     default=0.0,
     show_default=True,
     metavar="MINUTES",
-    help="Before the first pose, keep the lamp on until its output changes by less than 0.2 % per minute, "
+    help="Before the first pose, keep the lamp on until its output is stable (--warm-up-within), "
     "for at most MINUTES (0: no wait). A resumed run does not wait again.",
+)
+@click.option(
+    "--warm-up-within",
+    "warm_up_within",
+    type=click.FloatRange(min=0.01, max=10),
+    default=0.2,
+    show_default=True,
+    metavar="PERCENT",
+    help="The warm-up ends when the lamp's output changes by less than this per minute; use the same as for "
+    "calibrate radiometric (a tighter figure waits longer and leaves the lamp nearer its warm output).",
 )
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
@@ -87,6 +97,7 @@ def acquire_cmd(
     dark_frames,
     lamp_every,
     warm_up_min,
+    warm_up_within,
     dry_run,
     force,
     speed_factor,
@@ -135,7 +146,10 @@ def acquire_cmd(
                 force=force,
                 progress=show,
                 lamp=LampWatch(
-                    every=lamp_every, warm_up_s=60 * warm_up_min, clock=RigTime(speed_factor if sim else 1.0)
+                    every=lamp_every,
+                    warm_up_s=60 * warm_up_min,
+                    stable_per_min=warm_up_within / 100,
+                    clock=RigTime(speed_factor if sim else 1.0),
                 ),
                 on_start=lambda resumed: console.print(
                     f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"

@@ -192,9 +192,9 @@ def calibration_figures(
     )
     truth = load_true_rig(true_rig)
     figures.recovery = recovery(calibrated, drawing, truth, camera.pose.rms_px)
-    whites = [sidecar for sidecar, _ in journaled_images(folder / "radiometric", "calibrate radiometric", ("kind",))
-              if sidecar["kind"] == "white"]  # fmt: skip
-    figures.radiometric = radiometric_recovery(calibrated, truth, whites)
+    photographs = journaled_images(folder / "radiometric", "calibrate radiometric", ("kind",))
+    lamp_frames = [sidecar for sidecar, _ in photographs if sidecar["kind"] == "lamp"]
+    figures.radiometric = radiometric_recovery(calibrated, truth, lamp_frames)
     watched = replace(warm, every=5)
     for name, believed, lamp in (("drawing", drawing, UNWATCHED), ("calibrated", calibrated, watched)):
         progress(f"end to end with the {name} rig file: plan, acquire, fit")
@@ -203,12 +203,13 @@ def calibration_figures(
     return figures
 
 
-def radiometric_recovery(calibrated: Rig, truth: TrueRig, white_frames: list[dict]) -> RadiometricRecovery:
-    """The calibrated [sensor] and [light] against the world's sensor and its lamp as it was during the
-    white frames (``white_frames``: their sidecars, where the simulator left the lamp's output), and how
-    far that lamp still was from its warm power."""
+def radiometric_recovery(calibrated: Rig, truth: TrueRig, watched: list[dict]) -> RadiometricRecovery:
+    """The calibrated [sensor] and [light] against the world's sensor and its lamp as it was when S·Φ was
+    referred to it (``watched``: the sidecars of the frames of the lamp from above, the first of which is
+    that moment; the simulator left the lamp's output in them), and how far that lamp still was from its
+    warm power."""
     s, t = calibrated.file.sensor, truth.sensor
-    lamp_then = float(np.mean([w["camera"]["lamp_output"] for w in white_frames]))
+    lamp_then = min(watched, key=lambda w: w["captured_at"])["camera"]["lamp_output"]
     return RadiometricRecovery(
         black_level_dn=abs(s.black_level_dn - t.black_level_dn),
         read_noise=abs(s.read_noise_dn / t.read_noise_dn - 1),

@@ -379,7 +379,7 @@ def bench_calibration(true_rig, views, poses, run_poses, out_dir, speed_factor) 
         f"  black level {q.black_level_dn:.2f} DN (0.5 DN), read noise {100 * q.read_noise:.2f} % (5 %), "
         f"conversion gain {100 * q.conversion_gain:.2f} % (3 %), sensitivity × power "
         f"{100 * q.sensitivity_times_power:.2f} % (1 %; the lamp then {100 * q.lamp_short_of_warm:.2f} % short "
-        "of its warm power: the warm-up's 0.2 % per minute)",
+        "of its warm power: what the warm-up leaves)",
         f"end to end, builtin:pebble, {run_poses} poses, error per region in % (targets with the calibrated "
         "file: Rd 1, Rs 3, n 3):",
     ]

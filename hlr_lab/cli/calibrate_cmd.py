@@ -283,6 +283,9 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
               help="Lamp positions over the white reference.")  # fmt: skip
 @click.option("--levels", type=click.IntRange(4, 40), default=8, show_default=True,
               help="Exposures of the photon transfer.")  # fmt: skip
+@click.option("--warm-up-within", "warm_up_within", type=click.FloatRange(min=0.01, max=10), default=0.2,
+              show_default=True, metavar="PERCENT",
+              help="The warm-up ends when the lamp changes by less than this per minute (as for acquire).")  # fmt: skip
 @click.option("--warm-up", "warm_up_min", type=click.FloatRange(min=0), default=0.0, show_default=True,
               metavar="MINUTES", help="After the dark frames, keep the lamp on until its output changes by "
               "less than 0.2 % per minute, for at most MINUTES (use the same as for acquire).")  # fmt: skip
@@ -294,7 +297,17 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
               help="The calibrated rig file to write (the input's copy, [sensor] fields replaced).")  # fmt: skip
 @speed_factor_option("With --sim: simulated")
 def radiometric(
-    rig_path, sim, true_rig, positions, levels, warm_up_min, out, from_dir, output, speed_factor
+    rig_path,
+    sim,
+    true_rig,
+    positions,
+    levels,
+    warm_up_within,
+    warm_up_min,
+    out,
+    from_dir,
+    output,
+    speed_factor,
 ) -> None:
     """Calibrate the radiometry: black level, read noise, conversion gain and sensitivity × lamp power.
 
@@ -318,12 +331,22 @@ def radiometric(
     default = rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-radiometric")
     images = from_dir or _new_folder(out or default)
     _run_radiometric(
-        rig, sim, true_rig, positions, levels, images, from_dir is not None, output, speed_factor, warm_up_min
+        rig,
+        sim,
+        true_rig,
+        positions,
+        levels,
+        images,
+        from_dir is not None,
+        output,
+        speed_factor,
+        warm_up_min,
+        warm_up_within,
     )
 
 
 def _run_radiometric(rig: Rig, sim, true_rig, positions, levels, images: Path, solve_only: bool, output: Path,
-                     speed_factor, warm_up_min: float = 0.0) -> Rig:  # fmt: skip
+                     speed_factor, warm_up_min: float = 0.0, warm_up_within: float = 0.2) -> Rig:  # fmt: skip
     """Photograph (unless ``solve_only``) into ``images``, solve, write ``output``; returns its rig."""
     from calibration.radiometric_procedure import (
         capture_radiometric_frames,
@@ -336,7 +359,8 @@ def _run_radiometric(rig: Rig, sim, true_rig, positions, levels, images: Path, s
         with contextlib.ExitStack() as stack:
             links = white_world(stack, rig, sim, true_rig, speed_factor, white_spec(rig))
             with console.status("calibrating the radiometry…") as status, open_rig(rig, links) as opened:
-                warm = LampWatch(warm_up_s=60 * warm_up_min, clock=RigTime(speed_factor if sim else 1.0))
+                warm = LampWatch(warm_up_s=60 * warm_up_min, stable_per_min=warm_up_within / 100,
+                                 clock=RigTime(speed_factor if sim else 1.0))  # fmt: skip
                 warmed = capture_radiometric_frames(
                     opened.instruments, rig, images, positions=positions, levels=levels, warm=warm,
                     progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
@@ -423,7 +447,7 @@ def all_(rig_path, sim, true_rig, views, poses, positions, no_radiometric, board
 
 def run_all(rig: Rig, sim, true_rig, folder: Path, output: Path, speed_factor, *, views: int = 24, poses: int = 30,
             positions: int = 6, radiometric: bool = True, board_along_zero: bool = False,
-            warm_up_min: float = 0.0) -> Rig:  # fmt: skip
+            warm_up_min: float = 0.0, warm_up_within: float = 0.2) -> Rig:  # fmt: skip
     """Camera, gantry, then (``radiometric``) radiometry, each on the file the one before wrote (in
     ``folder``), the last into ``output``; returns its rig."""
     with_camera = _run_camera(rig, sim, true_rig, views, _new_folder(folder / "camera"), False, board_along_zero,
@@ -434,7 +458,7 @@ def run_all(rig: Rig, sim, true_rig, folder: Path, output: Path, speed_factor, *
     if not radiometric:
         return with_gantry
     return _run_radiometric(with_gantry, sim, true_rig, positions, 8, _new_folder(folder / "radiometric"), False,
-                            output, speed_factor, warm_up_min)  # fmt: skip
+                            output, speed_factor, warm_up_min, warm_up_within)  # fmt: skip
 
 
 def _new_folder(folder: Path) -> Path:

@@ -106,6 +106,15 @@ def _calibrate(job: CalibrateJob) -> None:
     elif job.procedure == "gantry":
         c._run_gantry(rig, *args, 30, folder, False, job.output, job.speed_factor)
     elif job.procedure == "radiometric":
-        c._run_radiometric(rig, *args, 6, 8, folder, False, job.output, job.speed_factor, job.warm_up_min)
+        c._run_radiometric(rig, *args, 6, 8, folder, False, job.output, job.speed_factor, job.warm_up_min,
+                           job.warm_up_within)  # fmt: skip
     else:
-        c.run_all(rig, *args, folder, job.output, job.speed_factor, warm_up_min=job.warm_up_min)
+        c.run_all(
+            rig,
+            *args,
+            folder,
+            job.output,
+            job.speed_factor,
+            warm_up_min=job.warm_up_min,
+            warm_up_within=job.warm_up_within,
+        )
