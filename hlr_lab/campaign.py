@@ -282,7 +282,10 @@ def run_campaign(
                     progress(CampaignStep(i, len(campaign.jobs), job.name, what, eta))
 
                 journal.append({"event": "job_start", "at": time.time(), "job": job.name, "kind": job.kind})
-                result = _run_job(job, links_for, calibrate, say, journal)
+                try:
+                    result = _run_job(job, links_for, calibrate, say, journal)
+                except KeyboardInterrupt:  # between a job's steps (its run turns it into a RunStopped)
+                    raise CampaignStopped(f"stopped during job {job.name!r} (interrupted)", 130) from None
                 left.pop(job.name, None)
                 results.append(result)
                 journal.append(
@@ -328,7 +331,10 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
     watch = LampWatch(every=job.lamp_every, warm_up_s=60 * job.warm_up_min, stable_per_min=job.warm_up_within / 100,
                       clock=RigTime(job.speed_factor if job.sim else 1.0))  # fmt: skip
     with contextlib.ExitStack() as world:
-        links = links_for(job, world)
+        try:
+            links = links_for(job, world)
+        except HlrLabError as exc:  # its simulated world could not be built (a scene file, a true rig)
+            return JobResult(job.name, "failed", 0, str(exc))
         for attempt in range(1, ATTEMPTS + 1):
             say(f"acquiring (attempt {attempt})")
 
