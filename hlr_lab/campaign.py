@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from drivers.errors import DeviceError
 from hlr_lab.acquisition import AxisMoved, Step
 from hlr_lab.devices import Links
-from hlr_lab.errors import HlrLabError, InputError
+from hlr_lab.errors import DiskFull, HlrLabError, InputError
 from hlr_lab.formats.io import atomic_write_text, free_bytes, read_toml, validate
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.lamp_watch import LampWatch, RigTime
@@ -177,7 +177,7 @@ def _forecast_rig(campaign: Campaign, job: AcquireJob) -> Rig:
 @dataclass(frozen=True)
 class Forecast:
     """The night before it starts: per acquire job, frames still to take and their bytes; the estimated
-    duration (rig seconds, motion and exposures) per job."""
+    duration per job (seconds of motion and exposures, at the job's speed factor on a simulated rig)."""
 
     frames: dict[str, int]
     bytes_needed: dict[str, int]
@@ -188,8 +188,6 @@ def forecast(campaign: Campaign) -> Forecast:
     """Every acquire job's frames still to take (a session already there counts what it has), their
     upper-bound bytes, and each job's duration; refuses (DiskFull) when the jobs writing to one
     filesystem need more than it has free."""
-    from hlr_lab.errors import DiskFull
-
     frames, needed, duration = {}, {}, {}
     by_filesystem: dict[int, list[str]] = {}
     for job in campaign.jobs:
