@@ -23,6 +23,7 @@ import numpy as np
 
 from drivers.errors import RETRY, ChecksumError, DeviceError, DeviceTimeout
 from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
+from hlr_lab.clipping import clip_level, clipped
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
 from hlr_lab.lamp_watch import UNWATCHED, LampWatch, compared_pixels, relative_output, warm_up
@@ -430,8 +431,8 @@ class _LampReference:
 
 
 def _clipped(pixels: np.ndarray, bits: int, window: np.ndarray | None) -> int:
-    """Pixels (inside ``window``, (H, W) bool, when given) with any channel at the top code: their true
-    value is unknown. pixels: (H, W, C) or (H, W)."""
+    """Pixels (inside ``window``, (H, W) bool, when given) with any channel clipped (:mod:`hlr_lab.clipping`,
+    as the HDR merge judges them): their true value is unknown. pixels: (H, W, C) or (H, W)."""
     if window is not None and window.shape != pixels.shape[:2]:
         raise InputError(
             f"the camera delivers {pixels.shape[1]}×{pixels.shape[0]} frames, the rig file says "
@@ -439,10 +440,9 @@ def _clipped(pixels: np.ndarray, bits: int, window: np.ndarray | None) -> int:
             "at the camera's resolution)",
             field="camera.width",
         )
-    top = (1 << bits) - 1
-    if pixels.max() < top:  # the usual case, and 5× faster than counting
+    if pixels.max() < clip_level(bits):  # the usual case, and 5× faster than counting
         return 0
-    at_top = (pixels >= top).any(axis=-1) if pixels.ndim == 3 else pixels >= top
+    at_top = clipped(pixels, bits, channels=pixels.ndim == 3)
     return int((at_top & window).sum() if window is not None else at_top.sum())
 
 

@@ -558,3 +558,19 @@ def test_the_simulated_world_can_be_a_rig_other_than_the_one_believed(builtin_pl
         "no such built-in true rig; known: builtin:bench-night, builtin:bench-offsets"
         in capsys.readouterr().err
     )
+
+
+def test_bracketing_and_the_hdr_merge_call_the_same_values_clipped():
+    """Top − 1 counts as clipped for both (the merge leaves it out, so bracketing must take a shorter
+    exposure for it); top − 2 for neither."""
+    import numpy as np
+
+    from hlr_lab.acquisition import _clipped
+    from hlr_lab.clipping import clipped
+
+    pixels = np.zeros((2, 2, 3), np.uint16)
+    pixels[0, 0, 1] = 4094  # 12-bit: top − 1
+    pixels[1, 1, 2] = 4093  # top − 2
+    assert _clipped(pixels, 12, None) == 1
+    assert clipped(pixels.reshape(-1, 3), 12, channels=True).tolist() == [True, False, False, False]
+    assert _clipped(pixels[..., 2], 12, None) == 0  # a mono frame: value by value

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hlr_lab.clipping import clipped
+
 NOISE_FLOOR = 5.0  # read-noise σ below which a value is dark-noise dominated
-CLIP_MARGIN_DN = 1  # codes within this of the top count as clipped (an ADC's top codes are unreliable)
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,14 +54,12 @@ def merge_bracket(
     where = np.ones(shape[:2], bool) if within is None else within
     kts = [sensitivity * 10 ** (f.gain_db / 20) * f.exposure_s for f in by_length]
     signals = [_signal(f, black_level_dn, where) for f in by_length]  # (N, C) float32 each
-    clipped = [
-        (f.pixels[where] >= (1 << f.bits) - 1 - CLIP_MARGIN_DN).any(axis=-1) for f in by_length
-    ]  # (N,)
+    clips = [clipped(f.pixels[where], f.bits, channels=f.pixels.ndim == 3) for f in by_length]  # (N,) each
     # the longest unclipped frame is always used; a shorter one only where the longest predicts it above
     # the noise floor. Deciding from another frame's value, never from the value itself: thresholding a
     # noisy value on its own noise would bias the mean (upwards near the floor)
-    longest = np.full(len(clipped[0]), -1)
-    for i, clip in enumerate(clipped):
+    longest = np.full(len(clips[0]), -1)
+    for i, clip in enumerate(clips):
         longest[~clip] = i
     rough = np.full(signals[0].shape, np.nan, np.float32)  # radiance from the longest unclipped frame
     for i, (signal, kt) in enumerate(zip(signals, kts, strict=True)):
@@ -68,7 +67,7 @@ def merge_bracket(
     total_dn = np.zeros(signals[0].shape, np.float32)
     total_kt = np.zeros(signals[0].shape, np.float32)
     used = np.zeros(len(longest), np.uint8)
-    for i, (signal, kt, clip) in enumerate(zip(signals, kts, clipped, strict=True)):
+    for i, (signal, kt, clip) in enumerate(zip(signals, kts, clips, strict=True)):
         with np.errstate(invalid="ignore"):
             take = ~clip[:, None] & ((longest == i)[:, None] | (rough * kt >= noise_floor * read_noise_dn))
         total_dn += signal * take
