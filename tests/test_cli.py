@@ -238,3 +238,50 @@ def test_help_and_a_typo_load_nothing_heavy():
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "No such command 'acquir'" in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("command", "said"),
+    [
+        (
+            ["plan", "--mesh", "builtin:pebble", "--sim", "--delta-e", "nan"],
+            "'--delta-e': 'nan' is not a finite number",
+        ),
+        (
+            ["plan", "--mesh", "builtin:pebble", "--sim", "--min-samples", "inf"],
+            "'--min-samples': 'inf' is not a finite",
+        ),
+        (
+            ["plan", "--mesh", "builtin:pebble", "--sim", "--sphere-scale", "nan"],
+            "'--sphere-scale': 'nan' is not",
+        ),
+        (["plan", "--mesh", "builtin:pebble", "--sim", "--scale", "-inf"], "'--scale'"),
+        (
+            ["plan", "--mesh", "builtin:pebble", "--sim", "--views", "nan"],
+            "--views: nan is not a turntable angle",
+        ),
+        (
+            ["plan", "--mesh", "builtin:pebble", "--sim", "--views", "0,1e400"],
+            "--views: inf is not a turntable angle",
+        ),
+        (
+            ["plan", "--mesh", "builtin:pebble", "--sim", "--views", "720"],
+            "--views: 720 is not a turntable angle",
+        ),
+        (
+            ["segment", "--mesh", "builtin:pebble", "--delta-e", "nan"],
+            "'--delta-e': 'nan' is not a finite number",
+        ),
+        (["acquire", "--plan", "p.json", "--sim", "--speed-factor", "nan"], "'--speed-factor': 'nan' is not"),
+        (["acquire", "--plan", "p.json", "--sim", "--warm-up", "inf"], "'--warm-up': 'inf' is not a finite"),
+    ],
+)
+def test_numbers_that_are_not_finite_or_out_of_range_are_refused_where_they_enter(
+    tmp_path, capsys, command, said
+):
+    """NaN passes every range check (each comparison with it is false): each number option refuses it,
+    and ±inf, naming the option; nothing is written."""
+    out = ["-o", str(tmp_path / "x.json")] if command[0] in ("plan", "segment") else []
+    assert main([*command, *out]) in (1, 2)
+    assert said in capsys.readouterr().err
+    assert not (tmp_path / "x.json").exists()

@@ -12,7 +12,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from hlr_lab.acquisition import Bracketing, Outcome, Step
-from hlr_lab.cli.common import believed_rig, speed_factor_option, true_rig_option
+from hlr_lab.cli.common import Finite, believed_rig, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
@@ -67,7 +67,7 @@ from hlr_lab.rig import Rig
 @click.option(
     "--warm-up",
     "warm_up_min",
-    type=click.FloatRange(min=0),
+    type=Finite(min=0),
     default=0.0,
     show_default=True,
     metavar="MINUTES",
@@ -77,7 +77,7 @@ from hlr_lab.rig import Rig
 @click.option(
     "--warm-up-within",
     "warm_up_within",
-    type=click.FloatRange(min=0.01, max=10),
+    type=Finite(min=0.01, max=10),
     default=0.2,
     show_default=True,
     metavar="PERCENT",

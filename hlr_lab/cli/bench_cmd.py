@@ -17,7 +17,7 @@ from hlr_lab.bench import (
     run_plan_case,
     run_throughput_case,
 )
-from hlr_lab.cli.common import speed_factor_option
+from hlr_lab.cli.common import Finite, speed_factor_option
 from hlr_lab.cli.console import console, out
 from hlr_lab.sphere import directions_with_spacing
 
@@ -35,7 +35,9 @@ def bench() -> None:
     help="Mesh to plan on (default: the built-in pebble). The paper's: the Stanford bunny.",
 )
 @click.option("--up", default="z", show_default=True, help="Mesh axis that points up (y for the bunny).")
-@click.option("--scale", type=float, default=1.0, show_default=True, help="Mesh units → metres.")
+@click.option(
+    "--scale", type=Finite(min=0, min_open=True), default=1.0, show_default=True, help="Mesh units → metres."
+)
 @click.option(
     "--large",
     "min_vertices",
@@ -268,7 +270,7 @@ def bench_session_fit(poses) -> None:
 @click.option(
     "--fault-every",
     "fault_interval_s",
-    type=click.FloatRange(min=0.05),
+    type=Finite(min=0.05),
     default=0.6,
     show_default=True,
     help="Mean seconds between injected faults.",

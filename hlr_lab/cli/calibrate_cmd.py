@@ -12,7 +12,7 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.common import believed_rig, rig_options, speed_factor_option
+from hlr_lab.cli.common import Finite, believed_rig, rig_options, speed_factor_option
 from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
@@ -283,10 +283,10 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
               help="Lamp positions over the white reference.")  # fmt: skip
 @click.option("--levels", type=click.IntRange(4, 40), default=8, show_default=True,
               help="Exposures of the photon transfer.")  # fmt: skip
-@click.option("--warm-up-within", "warm_up_within", type=click.FloatRange(min=0.01, max=10), default=0.2,
+@click.option("--warm-up-within", "warm_up_within", type=Finite(min=0.01, max=10), default=0.2,
               show_default=True, metavar="PERCENT",
               help="The warm-up ends when the lamp changes by less than this per minute (as for acquire).")  # fmt: skip
-@click.option("--warm-up", "warm_up_min", type=click.FloatRange(min=0), default=0.0, show_default=True,
+@click.option("--warm-up", "warm_up_min", type=Finite(min=0), default=0.0, show_default=True,
               metavar="MINUTES", help="After the dark frames, keep the lamp on until its output changes by "
               "less than 0.2 % per minute, for at most MINUTES (use the same as for acquire).")  # fmt: skip
 @click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),

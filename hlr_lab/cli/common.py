@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -86,6 +87,19 @@ def true_rig_option(f):
     )(f)
 
 
+class Finite(click.FloatRange):
+    """A number option within a range that also refuses NaN and ±inf (a plain FloatRange lets NaN through:
+    every comparison with it is false)."""
+
+    name = "finite number"
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
 def swatch(colour: tuple[int, int, int]) -> str:
     r, g, b = colour
     return f"[on rgb({r},{g},{b})]    [/] {r:3d},{g:3d},{b:3d}"
@@ -106,7 +120,7 @@ def speed_factor_option(subject: str, default: float = 1.0):
     """``--speed-factor`` for commands that run the simulated rig (tests and demos run it fast)."""
     return click.option(
         "--speed-factor",
-        type=click.FloatRange(min=0.01),
+        type=Finite(min=0.01),
         default=default,
         show_default=True,
         help=f"{subject} time runs this much faster than real time.",

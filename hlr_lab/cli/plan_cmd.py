@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
 import numpy as np
 from rich.table import Table
 
-from hlr_lab.cli.common import mesh_options, output_option, resolve_rig, swatch
+from hlr_lab.cli.common import Finite, mesh_options, output_option, resolve_rig, swatch
 from hlr_lab.cli.console import console
 from hlr_lab.cli.segment_cmd import segmentation_options
 from hlr_lab.errors import InputError
@@ -34,6 +35,9 @@ def parse_views(text: str) -> list[float] | None:
         ) from exc
     if not views:
         raise InputError("give at least one angle, or 'auto'", field="--views")
+    bad = [v for v in views if not (math.isfinite(v) and -360.0 <= v <= 360.0)]
+    if bad:
+        raise InputError(f"{bad[0]:g} is not a turntable angle in degrees (−360 … 360)", field="--views")
     return views
 
 
@@ -52,21 +56,21 @@ def parse_views(text: str) -> list[float] | None:
 @click.option("--sim", is_flag=True, help="Plan for the built-in simulated rig.")
 @click.option(
     "--theta-c",
-    type=click.FloatRange(0.1, 45),
+    type=Finite(0.1, 45),
     default=5.0,
     show_default=True,
     help="Cone half-angle θc about the mirror direction, degrees.",
 )
 @click.option(
     "--min-samples",
-    type=click.FloatRange(min=1),
+    type=Finite(min=1),
     default=50,
     show_default=True,
     help="Highlight samples M each region needs (in the --count unit).",
 )
 @click.option(
     "--sphere-scale",
-    type=float,
+    type=Finite(min=0, min_open=True),
     help="Light sphere = K × the object's bounding sphere (the paper: 2) instead of the gantry arm.",
 )
 @click.option(
@@ -93,14 +97,14 @@ def parse_views(text: str) -> list[float] | None:
 )
 @click.option(
     "--view-step",
-    type=click.FloatRange(1, 180),
+    type=Finite(1, 180),
     default=45.0,
     show_default=True,
     help="Spacing of the automatic turntable angles, degrees.",
 )
 @click.option(
     "--spacing",
-    type=click.FloatRange(0.05, 5),
+    type=Finite(0.05, 5),
     default=0.5,
     show_default=True,
     help="Spacing of the candidate light positions on the sphere, degrees.",
@@ -108,7 +112,7 @@ def parse_views(text: str) -> list[float] | None:
 @click.option("--max-lights", type=click.IntRange(1, 1000), default=64, show_default=True)
 @click.option(
     "--max-view-angle",
-    type=click.FloatRange(10, 89),
+    type=Finite(10, 89),
     default=80.0,
     show_default=True,
     help="Grazing limit: surfaces seen or lit beyond this angle from their normal do not count.",
@@ -120,7 +124,9 @@ def parse_views(text: str) -> list[float] | None:
     show_default=True,
     help="Mesh axis that points up on the turntable (y for most scans).",
 )
-@click.option("--scale", type=float, default=1.0, show_default=True, help="Mesh units → metres.")
+@click.option(
+    "--scale", type=Finite(min=0, min_open=True), default=1.0, show_default=True, help="Mesh units → metres."
+)
 @output_option("plan.json")
 def plan(
     mesh_spec,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from hlr_lab.cli.common import mesh_options, output_option, region_table
+from hlr_lab.cli.common import Finite, mesh_options, output_option, region_table
 from hlr_lab.cli.console import console
 from hlr_lab.formats.regions import write_regions
 from hlr_lab.pipeline import load_object
@@ -15,7 +15,7 @@ from hlr_lab.segment import segment as segment_mesh
 def segmentation_options(f):
     f = click.option(
         "--min-fragment",
-        type=click.FloatRange(0, 0.5),
+        type=Finite(0, 0.5),
         default=DEFAULT_MIN_FRAGMENT,
         show_default=True,
         help="Connected patches smaller than this fraction of the surface merge into a neighbour.",
@@ -27,7 +27,7 @@ def segmentation_options(f):
     )(f)
     f = click.option(
         "--delta-e",
-        type=click.FloatRange(min=0.5),
+        type=Finite(min=0.5),
         default=DEFAULT_DELTA_E,
         show_default=True,
         help="Colours closer than this CIELAB ΔE are one material (sets the region count).",
