@@ -48,7 +48,7 @@ NOTIFY_TIMEOUT_S = 30.0
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class AcquireJob(_Strict):

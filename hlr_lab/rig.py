@@ -28,7 +28,7 @@ ServoId = Annotated[int, Field(ge=0, le=252)]  # Protocol 2.0 unicast IDs
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class _Header(_Strict):
@@ -248,7 +248,7 @@ class _WhiteReferenceSection(_Strict):
 class _Provenance(BaseModel):
     """What a calibration procedure recorded: when, with what, how well (free-form beyond these)."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     date: str
     hlr_lab: str
 

@@ -170,3 +170,25 @@ def test_pose_ids_that_would_write_outside_the_session_or_repeat_are_refused(tmp
         with pytest.raises(ValueError, match="not a frame name"):
             store_frame(tmp_path, name, np.zeros((2, 2, 3), np.uint16), {})
     assert not list(tmp_path.rglob("*.png"))
+
+
+def test_nan_and_infinity_in_a_file_are_refused_naming_the_field(tmp_path, builtin_plan):
+    """JSON's NaN and TOML's nan/inf parse as numbers; every format refuses them where they sit."""
+    import json
+
+    from hlr_lab.errors import InputError
+    from hlr_lab.formats.plan import read_plan
+    from hlr_lab.rig import load_rig
+
+    plan = json.loads(builtin_plan.read_text())
+    plan["poses"][0]["exposures_s"][0] = float("nan")
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    with pytest.raises(InputError, match=r"poses\[0\]\.exposures_s\[0\]: Input should be a finite number"):
+        read_plan(tmp_path / "plan.json")
+    text = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    for old, new, field in (("sensitivity = 4095.0", "sensitivity = nan", "sensor.sensitivity"),
+                            ("power = 1.0 ", "power = inf ", "light.power")):  # fmt: skip
+        assert old in text
+        (tmp_path / "rig.toml").write_text(text.replace(old, new))
+        with pytest.raises(InputError, match=rf"{field}: Input should be a finite number"):
+            load_rig(tmp_path / "rig.toml")

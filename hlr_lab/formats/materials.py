@@ -31,13 +31,13 @@ RGB = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_len
 
 
 class PixelCounts(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     diffuse: int = Field(ge=0)
     highlight: int = Field(ge=0)
 
 
 class MaterialEntry(BaseModel):
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -66,7 +66,7 @@ class MaterialEntry(BaseModel):
 
 
 class MaterialsFile(BaseModel):
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     format: Literal["hlr-lab.materials"]
     version: Literal[1]
     model: Literal["blinn-phong"]

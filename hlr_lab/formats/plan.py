@@ -29,7 +29,7 @@ Matrix4 = Annotated[
 
 
 class _Open(BaseModel):
-    model_config = ConfigDict(extra="allow")  # hlr-lab and other tools may add fields
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)  # hlr-lab and other tools may add fields
 
 
 class PlanObject(_Open):

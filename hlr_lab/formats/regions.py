@@ -27,7 +27,7 @@ Colour8 = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=
 
 
 class RegionEntry(BaseModel):
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -48,7 +48,7 @@ class RegionEntry(BaseModel):
 
 
 class SegmentParameters(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     delta_e: float
     min_fragment: float
     split_connected: bool
@@ -56,7 +56,7 @@ class SegmentParameters(BaseModel):
 
 
 class RegionsFile(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     format: Literal["hlr-lab.regions"]
     version: Literal[1]
     mesh: str
