@@ -167,13 +167,15 @@ def export_materials(
     *,
     regions_path: Path | None = None,
     mesh_spec: str = "the mesh",
-) -> list[Path]:
+) -> tuple[list[Path], list[int]]:
     """Write ``materials_path``'s materials on ``mesh`` as ``fmt`` (obj, gltf or mitsuba) to ``output``;
-    the regions are ``regions_path``'s (default: the mesh segmented again). Returns the files written."""
+    the regions are ``regions_path``'s (default: the mesh segmented again). Every face is written: a
+    region without a fitted material gets its colour as a named, diffuse-only stand-in. Returns the files
+    written and the ids of the regions that got a stand-in."""
     from hlr_lab.export.gltf import write_gltf
     from hlr_lab.export.mitsuba import write_mitsuba
     from hlr_lab.export.obj import write_obj
-    from hlr_lab.export.regions import region_parts
+    from hlr_lab.export.regions import region_parts, stand_ins
 
     writers = {"obj": write_obj, "gltf": write_gltf, "mitsuba": write_mitsuba}
     suffix = EXPORT_FORMATS[fmt]
@@ -185,4 +187,5 @@ def export_materials(
             f"made for another mesh ({materials.mesh}) than {mesh_spec}", path=materials_path, field="sha256"
         )
     seg = read_regions(regions_path, mesh) if regions_path else segment(mesh)
-    return writers[fmt](output, region_parts(mesh, seg, materials, source=str(materials_path)))
+    parts = region_parts(mesh, seg, materials, source=str(materials_path))
+    return writers[fmt](output, parts), stand_ins(parts)

@@ -190,3 +190,27 @@ def test_export_refuses_regions_that_do_not_match(capsys, pebble_materials, tmp_
     assert code == 1
     assert "--regions" in capsys.readouterr().err
     assert not (tmp_path / "p.obj").exists()
+
+
+def test_a_region_without_a_material_is_exported_with_a_named_stand_in(capsys, pebble_materials, tmp_path):
+    """A materials file that lacks a region (too few pixels, never seen): every face is still exported —
+    the missing region as its own colour, diffuse only, under a name that says so in each format — and
+    the command warns."""
+    from hlr_lab.formats.materials import read_materials
+
+    path, mesh, _ = pebble_materials
+    partial = read_materials(path)
+    partial = partial.model_copy(update={"regions": partial.regions[1:]})  # region 0 has no material
+    write_materials(tmp_path / "partial.json", partial)
+    for fmt, out in (("obj", "p.obj"), ("gltf", "p.glb"), ("mitsuba", "scene")):
+        command = ["export", str(tmp_path / "partial.json"), "--mesh", "builtin:pebble", "--format", fmt, "-o",
+                   str(tmp_path / out)]  # fmt: skip
+        assert main(command) == 0
+        assert "region(s) 0 had no fitted material" in capsys.readouterr().err
+    loaded = trimesh.load(tmp_path / "p.obj", force="mesh", process=False)
+    assert len(loaded.faces) == len(mesh.faces)  # no hole
+    assert "newmtl region_0_stand_in_not_measured" in (tmp_path / "p.mtl").read_text()
+    assert "STAND-IN" in (tmp_path / "p.mtl").read_text()
+    scene = trimesh.load(tmp_path / "p.glb", process=False)
+    assert sum(len(g.faces) for g in scene.geometry.values()) == len(mesh.faces)
+    assert "region_0_stand_in_not_measured" in (tmp_path / "scene" / "scene.xml").read_text()

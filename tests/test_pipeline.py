@@ -60,10 +60,11 @@ def test_the_steps_run_from_code_and_leave_their_files(tmp_path, rig):
     assert report.stat().st_size == size > 0
     assert set(figures.psnr_db) == {p.id for p in plan.poses}
     for fmt, name in (("obj", "o.obj"), ("gltf", "o.glb"), ("mitsuba", "scene")):
-        written = export_materials(tmp_path / "session" / "materials.json", mesh, fmt, tmp_path / name,
+        written, stand_ins = export_materials(tmp_path / "session" / "materials.json", mesh, fmt, tmp_path / name,
                                    regions_path=tmp_path / "regions.json")  # fmt: skip
         assert written
         assert all(p.exists() for p in written)
+        assert stand_ins == []  # every region was fitted
 
 
 def test_acquiring_needs_a_lamp_and_says_so_before_anything_opens(tmp_path, rig, builtin_plan):

@@ -109,7 +109,12 @@ def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor:
     exports.mkdir()
     for fmt, name in (("obj", "object.obj"), ("gltf", "object.glb"), ("mitsuba", "mitsuba")):
         _step("export", f"{fmt} → {exports / name}")
-        export_materials(session / MATERIALS, mesh, fmt, exports / name, regions_path=regions_path)
+        _, stand_ins = export_materials(
+            session / MATERIALS, mesh, fmt, exports / name, regions_path=regions_path
+        )
+        if stand_ins:
+            console.print(f"[yellow]region(s) {', '.join(map(str, stand_ins))}: no fitted material, exported with "
+                          "their colour as a stand-in[/]")  # fmt: skip
     console.print(_truth_table(plan, plan_path, scene_path, session))
     console.print(f"report: [bold]{escape(str(report))}[/] — open it in a browser")
 

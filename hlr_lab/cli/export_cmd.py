@@ -37,8 +37,14 @@ def export(materials_path, mesh_spec, texture, regions_file, fmt, output) -> int
       hlr-lab export materials.json --mesh builtin:pebble --format mitsuba -o pebble-scene/
     """
     mesh = load_object(mesh_spec, texture)
-    for path in export_materials(
-        materials_path, mesh, fmt, output, regions_path=regions_file, mesh_spec=mesh_spec
-    ):
+    written, stand_ins = export_materials(materials_path, mesh, fmt, output, regions_path=regions_file,
+                                          mesh_spec=mesh_spec)  # fmt: skip
+    for path in written:
         console.print(f"wrote {path}")
+    if stand_ins:
+        console.print(
+            f"[yellow]warning:[/] region(s) {', '.join(map(str, stand_ins))} had no fitted material: exported with "
+            "their colour as a diffuse-only stand-in, named region_N_stand_in_not_measured",
+            soft_wrap=True,
+        )
     return 0

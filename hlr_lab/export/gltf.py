@@ -63,6 +63,11 @@ def _material(p: RegionPart) -> dict:
     f0 = specular_f0(p.rs, p.n)
     return {
         "name": p.name,
+        **(
+            {"extras": {"hlr_lab": "stand-in: no material was fitted; its colour, diffuse only"}}
+            if p.stand_in
+            else {}
+        ),
         "pbrMetallicRoughness": {
             "baseColorFactor": [*map(float, np.clip(p.rd, 0, 1)), 1.0],
             "metallicFactor": 0.0,

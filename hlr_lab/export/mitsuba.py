@@ -67,6 +67,11 @@ def _bsdf(p: RegionPart) -> str:
     fitted = escape(
         f"rd {np.round(p.rd, 6).tolist()} rs {np.round(p.rs, 6).tolist()} n {p.n:.4g}"
         + ("" if p.measured else " (specular not measured)")
+        + (
+            " STAND-IN: no material was fitted for this region; its colour, diffuse only"
+            if p.stand_in
+            else ""
+        )
     )
     return f"""  <!-- {fitted} -->
   <bsdf type="roughplastic" id="{p.name}">

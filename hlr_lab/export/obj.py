@@ -44,5 +44,11 @@ def _rows(tag: str, a: np.ndarray) -> str:
 
 def _material(p: RegionPart) -> str:
     kd, ks = (" ".join(f"{x:.6f}" for x in c) for c in (p.rd, p.rs))
-    note = "" if p.measured else "# specular not measured: diffuse only\n"
+    note = (
+        "# STAND-IN: no material was fitted for this region; its colour, diffuse only\n"
+        if p.stand_in
+        else ""
+        if p.measured
+        else "# specular not measured: diffuse only\n"
+    )
     return f"\nnewmtl {p.name}\n{note}Kd {kd}\nKs {ks}\nNs {p.n:.4f}\nillum 2\n"

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hlr_lab.colour import delta_e, srgb8_to_lab
+from hlr_lab.colour import delta_e, srgb8_to_lab, srgb8_to_linear
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import MaterialsFile
 from hlr_lab.mesh import ColouredMesh
@@ -28,10 +28,12 @@ class RegionPart:
     rs: np.ndarray
     n: float
     measured: bool
+    stand_in: bool = False  # no material was fitted: the region's own colour, diffuse only
 
     @property
     def name(self) -> str:
-        return f"region_{self.id}"
+        """The part's (and its material's) name in every export; a stand-in says so in it."""
+        return f"region_{self.id}" + ("_stand_in_not_measured" if self.stand_in else "")
 
 
 def region_parts(
@@ -57,19 +59,27 @@ def region_parts(
                 path=source,
                 field=f"regions[{m.id}].color",
             )
-        faces = mesh.faces[seg.face_labels == m.id]
-        used, local = np.unique(faces, return_inverse=True)
         measured = m.specular == "measured"
-        parts.append(
-            RegionPart(
-                m.id,
-                mesh.vertices[used],
-                mesh.vertex_normals[used],
-                local.reshape(-1, 3),
-                np.array(m.rd),
-                np.array(m.rs) if measured else np.zeros(3),
-                float(m.n) if measured else 1.0,
-                measured,
-            )
-        )
+        rs, n = (np.array(m.rs), float(m.n)) if measured else (np.zeros(3), 1.0)
+        parts.append(_part(mesh, seg, m.id, np.array(m.rd), rs, n, measured))
+    # every face is exported: a region the fit gave no material (too few pixels, never seen) gets its
+    # colour as a diffuse-only stand-in, named as such (RegionPart.name) — never a hole in the object
+    fitted = {m.id for m in materials.regions}
+    for region in seg.regions:
+        if region.id not in fitted and np.any(seg.face_labels == region.id):
+            colour = srgb8_to_linear(np.array(region.colour, float))
+            parts.append(_part(mesh, seg, region.id, colour, np.zeros(3), 1.0, False, stand_in=True))
     return parts
+
+
+def stand_ins(parts: list[RegionPart]) -> list[int]:
+    """The ids of the regions exported with a stand-in material."""
+    return [p.id for p in parts if p.stand_in]
+
+
+def _part(mesh: ColouredMesh, seg: Segmentation, rid: int, rd, rs, n: float, measured: bool, *,
+          stand_in: bool = False) -> RegionPart:  # fmt: skip
+    faces = mesh.faces[seg.face_labels == rid]
+    used, local = np.unique(faces, return_inverse=True)
+    return RegionPart(rid, mesh.vertices[used], mesh.vertex_normals[used], local.reshape(-1, 3), rd, rs, n,
+                      measured, stand_in)  # fmt: skip
