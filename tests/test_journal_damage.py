@@ -136,3 +136,42 @@ def test_a_stopped_session_is_refused_with_what_is_missing_and_fits_with_allow_i
     assert "3 planned frame(s) missing" in capsys.readouterr().err
     materials = json.loads((session / "materials.json").read_text())
     assert len(materials["incomplete"]["missing_frames"]) == 3
+
+
+def test_a_frame_that_is_not_what_the_rig_took_is_refused_although_its_checksums_agree(
+    finished_session, tmp_path, capsys
+):
+    """An 8-bit PNG in place of a 16-bit frame, every checksum updated to match (a careful hand): it
+    once gave Rd 0.0144 for a true 0.0254 with exit status 0; now fit refuses naming the frame. So does
+    a frame of another size."""
+    import hashlib
+
+    import cv2
+    import numpy as np
+
+    for what, forge in (
+        ("8-bit", lambda px: (px >> 8).astype(np.uint8)),
+        ("another size", lambda px: np.ascontiguousarray(px[:-2, :-2])),
+    ):
+        session = tmp_path / what.replace(" ", "-")
+        shutil.copytree(finished_session, session)
+        lines = _lines(session)
+        i = _frame_line(session, 0)
+        event = json.loads(lines[i])
+        png = session / event["file"]
+        pixels = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        ok, data = cv2.imencode(".png", forge(pixels))
+        assert ok
+        png.write_bytes(data.tobytes())
+        sidecar_path = session / event["sidecar"]
+        sidecar = json.loads(sidecar_path.read_text())
+        sidecar["image_sha256"] = hashlib.sha256(data.tobytes()).hexdigest()
+        sidecar_path.write_text(json.dumps(sidecar))
+        event["sha256"] = sidecar["image_sha256"]
+        event["sidecar_sha256"] = hashlib.sha256(sidecar_path.read_bytes()).hexdigest()
+        lines[i] = json.dumps(event, sort_keys=True) + "\n"
+        (session / JOURNAL).write_text("".join(lines))
+        assert main(["fit", str(session)]) == 1
+        err = capsys.readouterr().err
+        assert event["file"] in err
+        assert ("8-bit image" if what == "8-bit" else "pixels, the rig's camera") in err

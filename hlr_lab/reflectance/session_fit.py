@@ -246,7 +246,9 @@ def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
     sensor = session.rig.file.sensor
     return merge_bracket(
         [
-            _bracket_frame(session.path, e, view.sidecars[e["file"]], view.darks.get(e["exposure_index"]))
+            _bracket_frame(
+                session.path, e, view.sidecars[e["file"]], view.darks.get(e["exposure_index"]), session.rig
+            )
             for e in view.frames
         ],
         sensitivity=sensor.sensitivity,
@@ -425,8 +427,17 @@ def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins
     }
 
 
-def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None) -> BracketFrame:
+def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None, rig: Rig) -> BracketFrame:
     pixels = load_frame(session, event)
+    problem = _frame_problem(pixels, int(sidecar["bits"]), rig)
+    if problem is None and dark is not None:
+        problem = _frame_problem(load_frame(session, dark), int(sidecar["bits"]), rig)
+    if problem:
+        raise InputError(
+            f"{event['file']}: {problem}; it is not the frame this rig took — restore the session's frame, or "
+            "delete it and its journal line is set aside when hlr-lab acquire runs on the session again",
+            path=session,
+        )
     return BracketFrame(
         pixels if pixels.ndim == 3 else pixels[..., None],
         float(sidecar["exposure_s"]),
@@ -434,6 +445,22 @@ def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None)
         int(sidecar["bits"]),
         None if dark is None else _channels(load_frame(session, dark)),
     )
+
+
+def _frame_problem(pixels: np.ndarray, bits: int, rig: Rig) -> str | None:
+    """What makes an image (H, W[, C]) not a raw frame of ``rig``'s camera at ``bits`` bits, or None: its
+    size, its channels, a container too small for its bits (an 8-bit image standing in for a 12-bit
+    frame), values above the sensor's top code."""
+    h, w = rig.camera.height, rig.camera.width
+    if pixels.shape[:2] != (h, w):
+        return f"it is {pixels.shape[1]}×{pixels.shape[0]} pixels, the rig's camera {w}×{h}"
+    if pixels.ndim == 3 and pixels.shape[2] not in (1, 3):
+        return f"it has {pixels.shape[2]} channels (a raw frame has 1 or 3)"
+    if bits > 8 * pixels.dtype.itemsize:
+        return f"it is a {8 * pixels.dtype.itemsize}-bit image, but its sidecar says the sensor gives {bits} bits"
+    if int(pixels.max()) > (1 << bits) - 1:
+        return f"it holds values up to {int(pixels.max())}, above a {bits}-bit sensor's {(1 << bits) - 1}"
+    return None
 
 
 def _channels(pixels: np.ndarray) -> np.ndarray:
