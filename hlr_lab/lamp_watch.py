@@ -1,5 +1,5 @@
 """Watching the lamp through a run: a reference pose photographed again and again, its brightness against
-the first time (docs/sessions.md, "lamp").
+the first time (docs/sessions.md, "The lamp").
 
 A lamp warms up, ages and flickers: over a night its output moves by per cents, and every reflectance
 fitted under it with it. The run therefore returns to one pose — the plan's first, the same turntable
