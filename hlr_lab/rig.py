@@ -54,8 +54,8 @@ class _CaptureSection(_Strict):
 
 
 class _CameraSection(_Strict):
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
+    width: int = Field(gt=0, le=65535)
+    height: int = Field(gt=0, le=65535)
     matrix: Annotated[list[Vec3], Field(min_length=3, max_length=3)]
     distortion: Annotated[list[float], Field(max_length=5)] = []
     position_m: Vec3
@@ -63,7 +63,7 @@ class _CameraSection(_Strict):
     up: Vec3 = [0.0, 0.0, 1.0]
     # rotation of the camera about its optical axis after look_at_m/up, right-handed about its +z
     roll_deg: float = Field(default=0.0, ge=-180, le=180)
-    exposure_bracket_s: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=1)] = [0.01]
+    exposure_bracket_s: Annotated[list[Annotated[float, Field(gt=0, le=3600)]], Field(min_length=1)] = [0.01]
     # how frames are taken: a frame endpoint "host:port" (drivers.net_camera), or [camera.capture] for a
     # camera driven through OpenCV; the simulated rig supplies its own endpoint
     address: str | None = None

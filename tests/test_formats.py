@@ -192,3 +192,40 @@ def test_nan_and_infinity_in_a_file_are_refused_naming_the_field(tmp_path, built
         (tmp_path / "rig.toml").write_text(text.replace(old, new))
         with pytest.raises(InputError, match=rf"{field}: Input should be a finite number"):
             load_rig(tmp_path / "rig.toml")
+
+
+def test_materials_that_are_not_reflectances_are_refused(tmp_path):
+    """rd = 2 (twice the light it gets), n ≤ 0, no region at all: refused naming the field."""
+    from hlr_lab.errors import InputError
+    from hlr_lab.formats.materials import read_materials
+
+    entry = {"id": 0, "color": [200, 100, 50], "vertices": 10, "rd": [0.5, 0.4, 0.3], "rd_se": [0.01] * 3,
+             "specular": "unmeasured", "reason": "test", "theta_c_deg": 20.0,
+             "pixels": {"diffuse": 100, "highlight": 0}, "residual_rms": 0.01, "estimator": "robust"}  # fmt: skip
+    base = {"format": "hlr-lab.materials", "version": 1, "model": "blinn-phong", "regions": [entry]}
+    path = tmp_path / "materials.json"
+    path.write_text(json.dumps(base))
+    assert read_materials(path).regions[0].rd == [0.5, 0.4, 0.3]
+    for change, field in (
+        ({"regions": [{**entry, "rd": [2.0, 0.4, 0.3]}]}, r"regions\[0\]\.rd\[0\]"),
+        (
+            {
+                "regions": [
+                    {
+                        **entry,
+                        "specular": "measured",
+                        "rs": [0.1] * 3,
+                        "rs_se": [0.01] * 3,
+                        "n": -3.0,
+                        "n_se": 1.0,
+                        "reason": None,
+                    }
+                ]
+            },
+            r"regions\[0\]\.n",
+        ),
+        ({"regions": []}, "regions"),
+    ):
+        path.write_text(json.dumps({**base, **change}))
+        with pytest.raises(InputError, match=field):
+            read_materials(path)

@@ -28,6 +28,8 @@ from hlr_lab.formats.regions import Colour8, RegionEntry
 MATERIALS_FORMAT = "hlr-lab.materials"
 EQUATION = "I = L (rd cos α + rs cos^n β), β between the normal and the half vector"
 RGB = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_length=3)]
+# a reflectance: above 1 a surface would give more light than it gets; a fit's noise stays well below 1.5
+REFLECTANCE = Annotated[list[Annotated[float, Field(ge=0, le=1.5)]], Field(min_length=3, max_length=3)]
 
 
 class PixelCounts(BaseModel):
@@ -41,9 +43,9 @@ class MaterialEntry(BaseModel):
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
-    rd: RGB
+    rd: REFLECTANCE
     rd_se: RGB
-    rs: RGB | None = None
+    rs: REFLECTANCE | None = None
     rs_se: RGB | None = None
     n: float | None = Field(default=None, gt=0)
     n_se: float | None = Field(default=None, ge=0)
@@ -73,7 +75,7 @@ class MaterialsFile(BaseModel):
     equation: str = EQUATION
     mesh: str | None = None
     sha256: str | None = None
-    regions: list[MaterialEntry]
+    regions: list[MaterialEntry] = Field(min_length=1)
 
 
 def measured_entry(region: RegionEntry, fit: RegionFit) -> MaterialEntry:

@@ -66,7 +66,9 @@ class PlanPose(_Open):
     turntable_deg: float
     light: PlanLight
     camera_position_mesh_m: Vec3
-    exposures_s: Annotated[list[Annotated[float, Field(gt=0)]], Field(min_length=1)]
+    exposures_s: Annotated[
+        list[Annotated[float, Field(gt=0, le=3600)]], Field(min_length=1)
+    ]  # an hour at most
     expected: dict[str, float]
 
 

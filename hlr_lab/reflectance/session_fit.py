@@ -366,13 +366,21 @@ def _fit_one(
 
 
 def _unphysical(rd: np.ndarray) -> str | None:
-    """Why a fitted Rd (C,) cannot be a reflectance (a channel below 0), or None. The pixels then do not
-    follow the model at all: most often a black level that is not the sensor's."""
-    if np.all(np.asarray(rd) >= 0):
+    """Why a fitted Rd (C,) cannot be a reflectance (a channel below 0, or above the 1.5 materials.json
+    allows), or None. The pixels then do not follow the model: most often a black level or a
+    sensitivity × power that is not the rig's."""
+    rd = np.asarray(rd)
+    if np.all((rd >= 0) & (rd <= 1.5)):
         return None
+    values = ", ".join(f"{v:.3g}" for v in rd)
+    if np.any(rd < 0):
+        return (
+            f"the fit gave Rd = {values} (below 0): these pixels do not follow the model; check [sensor] "
+            "black_level_dn against dark frames (hlr-lab calibrate radiometric)"
+        )
     return (
-        f"the fit gave Rd = {', '.join(f'{v:.3g}' for v in rd)} (below 0): these pixels do not follow the "
-        "model; check [sensor] black_level_dn against dark frames (hlr-lab calibrate radiometric)"
+        f"the fit gave Rd = {values} (above 1.5: more light than falls on it): check [sensor] sensitivity and "
+        "[light] power (hlr-lab calibrate radiometric)"
     )
 
 
