@@ -157,7 +157,7 @@ def test_sensor_model_noise_and_clipping():
 
 
 def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
-    from sim.render.scene import load_scene
+    from sim.render.scene import SceneError, load_scene
 
     box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
     colours = np.where(box.vertices[:, 2:3] > 0, [[200, 40, 30]], [[30, 60, 200]]).astype(np.uint8)
@@ -179,6 +179,13 @@ def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
     assert spec.power == 2.0
     np.testing.assert_allclose(spec.mesh_to_turntable[:3, 3], [0, 0, 0.05])
     np.testing.assert_allclose(spec.mesh_to_turntable[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    # a material no surface can have is refused, naming the region (the simulator once rendered n = −3)
+    text = (tmp_path / "scene.toml").read_text()
+    for bad, said in (("n = 50", "n = -3"), ("rd = [0.6, 0.1, 0.1]", "rd = [2.0, 0.1, 0.1]"),
+                      ("n = 50", "n = nan")):  # fmt: skip
+        (tmp_path / "bad.toml").write_text(text.replace(bad, said))
+        with pytest.raises(SceneError, match=r"region\[0\]"):
+            load_scene(tmp_path / "bad.toml")
 
 
 def test_paper_cylinder_under_a_directional_light():

@@ -20,6 +20,7 @@ or programmatically (:class:`SceneSpec`), e.g. by the composition root from a pl
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,9 +144,16 @@ def load_scene(path: str | Path) -> SceneSpec:
     materials = []
     for i, r in enumerate(regions):
         try:
-            materials.append(Material(tuple(r["rd"]), tuple(r["rs"]), float(r["n"])))
-        except (KeyError, TypeError) as exc:
+            m = Material(tuple(float(v) for v in r["rd"]), tuple(float(v) for v in r["rs"]), float(r["n"]))
+        except (KeyError, TypeError, ValueError) as exc:
             raise SceneError(f"{path}: region[{i}] needs rd, rs and n ({exc})") from exc
+        if len(m.rd) != 3 or len(m.rs) != 3:
+            raise SceneError(f"{path}: region[{i}]: rd and rs are three numbers each (linear RGB)")
+        if not all(math.isfinite(v) and 0 <= v <= 1 for v in (*m.rd, *m.rs)):
+            raise SceneError(f"{path}: region[{i}]: rd and rs are reflectances, each in [0, 1]")
+        if not (math.isfinite(m.n) and 0 < m.n <= 1e5):
+            raise SceneError(f"{path}: region[{i}]: n = {m.n:g}; a Phong exponent is positive (and finite)")
+        materials.append(m)
     pose = obj.get("pose", {})
     return SceneSpec(
         np.asarray(mesh.vertices, np.float64),
