@@ -26,14 +26,15 @@ def small_disk(tmp_path):
     """A function mounting a tmpfs of ``megabytes`` under tmp_path; unmounted after the test."""
     mounted = []
 
-    def mount(megabytes: int) -> Path:
+    def mount(megabytes: int, *, read_only: bool = False) -> Path:
         if os.geteuid() != 0:
             if os.environ.get("CI"):
                 pytest.fail("the disk-full tests mount a tmpfs and need root, which CI has")
             pytest.skip("mounting a small tmpfs needs root")
         where = tmp_path / f"disk{len(mounted)}"
         where.mkdir()
-        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={megabytes}m", "tmpfs", str(where)], check=True)
+        options = f"size={megabytes}m" + (",ro" if read_only else "")
+        subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], check=True)
         mounted.append(where)
         return where
 
@@ -116,3 +117,24 @@ def test_a_resumed_run_removes_the_temporaries_of_a_killed_one(
     assert not any(p.exists() for p in leftovers)
     assert [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"] == before
     capsys.readouterr()
+
+
+def test_a_read_only_output_folder_is_one_line_not_an_internal_error(
+    small_disk, finished_session, tmp_path, capsys
+):
+    """segment, plan, fit and export into a read-only folder (a read-only tmpfs: root ignores file modes):
+    each one `error:` line naming the file and saying what to do, exit status 1."""
+    locked = small_disk(1, read_only=True)
+    session = finished_session
+    assert main(["fit", str(session), "-o", str(tmp_path / "materials.json")]) == 0
+    for command in (
+        ["segment", "--mesh", "builtin:pebble", "-o", str(locked / "regions.json")],
+        ["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(locked / "plan.json")],
+        ["fit", str(session), "-o", str(locked / "materials.json")],
+        ["export", str(tmp_path / "materials.json"), "--mesh", "builtin:pebble", "--format", "obj", "-o",
+         str(locked / "o.obj")],
+    ):  # fmt: skip
+        assert main(command) == 1, command
+        err = capsys.readouterr().err
+        assert "internal error" not in err
+        assert re.search(rf"error: {re.escape(str(locked))}/[^:]*: .*read-only", err), err

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import importlib
 import logging
 import sys
@@ -125,6 +126,13 @@ def _run(argv: list[str] | None) -> int:
         label = "[yellow]interrupted:[/]" if status == EXIT_INTERRUPTED else "[bold red]error:[/]"
         console.print(f"{label} {escape(str(exc))}", soft_wrap=True)  # "[lamp]" is no markup
         return status
+    except (
+        OSError
+    ) as exc:  # the machine said no: a read-only folder, a directory where a file goes, a full disk
+        if debug:
+            console.print_exception()
+        console.print(f"[bold red]error:[/] {escape(_os_error(exc))}", soft_wrap=True)
+        return EXIT_ERROR
     except Exception as exc:  # the last line of defence: a bug must still end in one clear line
         if debug:
             console.print_exception()
@@ -134,6 +142,20 @@ def _run(argv: list[str] | None) -> int:
             soft_wrap=True,
         )
         return EXIT_INTERNAL
+
+
+def _os_error(exc: OSError) -> str:
+    """One line for an operating-system refusal: the file, what the system said, what to do."""
+    where = exc.filename if exc.filename is not None else "a file"
+    advice = {
+        errno.EACCES: "check the folder's permissions, or give another output path",
+        errno.EROFS: "the file system is read-only: give an output path elsewhere",
+        errno.EISDIR: "that is a folder: give a file name",
+        errno.ENOTDIR: "a part of that path is a file, not a folder",
+        errno.ENOENT: "no such file or folder: check the path",
+        errno.ENOSPC: "the disk is full: free space, or write elsewhere",
+    }.get(exc.errno, "check the path")
+    return f"{where}: {exc.strerror or exc}; {advice}"
 
 
 if __name__ == "__main__":
