@@ -22,6 +22,29 @@ from hlr_lab.rig_control import open_rig
 from hlr_lab.rig_edit import write_calibrated_rig
 
 
+def photograph_options(replaced: str):
+    """``--out``, ``--from`` and ``-o`` of a procedure whose calibrated file has ``replaced`` replaced."""
+
+    def decorate(f):
+        written = f"The calibrated rig file to write (the input's copy, {replaced} replaced)."
+        f = click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
+                         help=written)(f)  # fmt: skip
+        f = click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+                         help="Solve again from the photographs of an earlier run (no rig needed).")(f)  # fmt: skip
+        return click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
+                            help="Folder for the photographs (a new one; default: calibration/DATE-PROCEDURE "
+                            "beside the rig file).")(f)  # fmt: skip
+
+    return decorate
+
+
+def photographs_folder(rig: Rig, out: Path | None, from_dir: Path | None, procedure: str) -> Path:
+    """Where a procedure's photographs are: ``--from``'s (read only), else ``--out`` or
+    calibration/DATE-PROCEDURE beside the rig file, which must be new (or empty)."""
+    default = rig_source_path(rig).parent / "calibration" / time.strftime(f"%Y-%m-%d-%H%M%S-{procedure}")
+    return from_dir or _new_folder(out or default)
+
+
 @click.group()
 def calibrate() -> None:
     """Measure the rig (camera, gantry, or all) and write a calibrated copy of its rig file."""
@@ -31,14 +54,9 @@ def calibrate() -> None:
 @rig_options("Calibrate the simulated rig (a simulated board on a wedge).")
 @click.option("--views", type=click.IntRange(16, 200), default=24, show_default=True,
               help="Photographs: half on each face of the wedge, spread over ±55° of turntable.")  # fmt: skip
-@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for the photographs (default: calibration/DATE beside the rig file).")  # fmt: skip
-@click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
 @click.option("--board-along-zero", is_flag=True,
               help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.")  # fmt: skip
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="The calibrated rig file to write (the input's copy, camera fields replaced).")  # fmt: skip
+@photograph_options("camera fields")
 @speed_factor_option("With --sim: simulated")
 def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, output, speed_factor) -> None:
     """Calibrate the camera: intrinsics, distortion and its pose against the turntable axis.
@@ -63,9 +81,7 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
 
     rig = believed_rig(rig_path, sim, true_rig)
     board_spec(rig)  # a rig file without a board is refused before anything moves
-    images = from_dir or _new_folder(
-        out or rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S")
-    )
+    images = photographs_folder(rig, out, from_dir, "camera")
     _run_camera(
         rig, sim, true_rig, views, images, from_dir is not None, board_along_zero, output, speed_factor
     )
@@ -189,12 +205,7 @@ def _angle(a, b) -> float:
 @rig_options("Calibrate the simulated rig (a simulated mirror ball).")
 @click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True,
               help="Lamp poses, each photographed with the ball at two turntable angles.")  # fmt: skip
-@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for the photographs (default: calibration/DATE-gantry beside the rig file).")  # fmt: skip
-@click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="The calibrated rig file to write (the input's copy, gantry fields replaced).")  # fmt: skip
+@photograph_options("gantry fields")
 @speed_factor_option("With --sim: simulated")
 def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) -> None:
     """Calibrate the light gantry from a mirror ball: its centre, arm radius, azimuth axis and zero ticks.
@@ -214,8 +225,7 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
 
     rig = believed_rig(rig_path, sim, true_rig)
     ball_spec(rig)  # a rig file without a ball is refused before anything moves
-    default = rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-gantry")
-    images = from_dir or _new_folder(out or default)
+    images = photographs_folder(rig, out, from_dir, "gantry")
     _run_gantry(rig, sim, true_rig, poses, images, from_dir is not None, output, speed_factor)
 
 
@@ -287,14 +297,9 @@ def _say_written(images: Path, output: Path, write_summary) -> None:
               show_default=True, metavar="PERCENT",
               help="The warm-up ends when the lamp changes by less than this per minute (as for acquire).")  # fmt: skip
 @click.option("--warm-up", "warm_up_min", type=Finite(min=0), default=0.0, show_default=True,
-              metavar="MINUTES", help="After the dark frames, keep the lamp on until its output changes by "
-              "less than 0.2 % per minute, for at most MINUTES (use the same as for acquire).")  # fmt: skip
-@click.option("--out", "out", type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for the photographs (a new one; default: calibration/DATE-radiometric).")  # fmt: skip
-@click.option("--from", "from_dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="Solve again from the photographs of an earlier run (no rig needed).")  # fmt: skip
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="The calibrated rig file to write (the input's copy, [sensor] fields replaced).")  # fmt: skip
+              metavar="MINUTES", help="After the dark frames, keep the lamp on until it is stable (--warm-up-within), "
+              "for at most MINUTES (use the same as for acquire).")  # fmt: skip
+@photograph_options("[sensor] fields")
 @speed_factor_option("With --sim: simulated")
 def radiometric(
     rig_path,
@@ -328,8 +333,7 @@ def radiometric(
 
     rig = believed_rig(rig_path, sim, true_rig)
     reference_pixels(rig, white_spec(rig))  # no reference, or one out of view: refused before anything moves
-    default = rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-radiometric")
-    images = from_dir or _new_folder(out or default)
+    images = photographs_folder(rig, out, from_dir, "radiometric")
     _run_radiometric(
         rig,
         sim,
@@ -438,9 +442,7 @@ def all_(rig_path, sim, true_rig, views, poses, positions, no_radiometric, board
     board_spec(rig), ball_spec(rig)  # every target described before anything moves
     if not no_radiometric:
         white_spec(rig)
-    folder = _new_folder(
-        out or rig_source_path(rig).parent / "calibration" / time.strftime("%Y-%m-%d-%H%M%S-all")
-    )
+    folder = photographs_folder(rig, out, None, "all")
     run_all(rig, sim, true_rig, folder, output, speed_factor, views=views, poses=poses, positions=positions,
             radiometric=not no_radiometric, board_along_zero=board_along_zero)  # fmt: skip
 
