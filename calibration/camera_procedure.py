@@ -23,6 +23,7 @@ import numpy as np
 
 from calibration.camera_pose import CameraPose, refine_pose
 from calibration.charuco import BoardSpec, CalibrationError, Detection, calibrate_intrinsics, detect
+from calibration.exposure import ExposureGoal, exposed
 from calibration.images import journaled_images
 from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
@@ -149,7 +150,7 @@ def capture_board_frames(
             progress(i, len(plan), f"wedge face {face + 1}, turntable {angle:+.1f}°")
             instruments.turntable.move_to((t.steps_for(angle),))
             (steps,) = instruments.turntable.wait_settled(SETTLE_S)
-            frame = _exposed(instruments, exposure)
+            frame = exposed(instruments.camera, exposure, BRIGHTEST_PAPER)
             exposure = frame.exposure_s
             fields = {"pose": f"v{i:02d}", "exposure_index": 0, "dark": False, "exposure_s": frame.exposure_s}
             sidecar = {**fields, "turntable_steps": int(steps), "placement": face, "gain_db": frame.gain_db,
@@ -160,18 +161,7 @@ def capture_board_frames(
         journal.append({"event": "run_end", "at": time.time(), "frames_taken": len(plan)})
 
 
-def _exposed(instruments: Instruments, exposure: float):
-    """A frame whose brightest paper sits near :data:`FILL` of full scale (at most two adjustments)."""
-    camera = instruments.camera
-    for _ in range(3):
-        camera.set_exposure(exposure)
-        frame = camera.capture()
-        top = (1 << frame.bits) - 1
-        bright = float(np.percentile(frame.pixels, 99.9))
-        if 0.4 * top <= bright <= 0.9 * top:
-            return frame
-        exposure = exposure * FILL * top / max(bright, 1.0) if bright < top else exposure / 4
-    return frame
+BRIGHTEST_PAPER = ExposureGoal(lambda pixels: np.percentile(pixels, 99.9), FILL, (0.4, 0.9), tries=3)
 
 
 def load_board_frames(folder: Path) -> list[BoardFrame]:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.charuco import CalibrationError
+from calibration.exposure import ExposureGoal, exposed
 from calibration.images import journaled_images
 from calibration.mirror_ball import (
     GantryFit,
@@ -109,7 +110,7 @@ def capture_ball_frames(
                 instruments.gantry.move_to(k.ticks_for(*angles))
                 ticks = instruments.gantry.wait_settled(SETTLE_S)
                 instruments.lamp.set(True)
-                frame = _exposed(instruments, rig, kind)
+                frame = exposed(instruments.camera, rig.exposure_bracket_s[0], GOALS[kind])
                 instruments.lamp.set(False)
                 fields = {
                     "pose": f"g{n:03d}",
@@ -125,19 +126,12 @@ def capture_ball_frames(
         journal.append({"event": "run_end", "at": time.time(), "frames_taken": n})
 
 
-def _exposed(instruments: Instruments, rig: Rig, kind: str):
-    """Outline: the plate near 70 % of full scale. Highlight: the reflection's peak unclipped, near 60 %."""
-    camera, exposure = instruments.camera, rig.exposure_bracket_s[0]
-    for _ in range(4):
-        camera.set_exposure(exposure)
-        frame = camera.capture()
-        top = (1 << frame.bits) - 1
-        level = float(np.percentile(frame.pixels, 90) if kind == "outline" else frame.pixels.max())
-        goal = 0.7 if kind == "outline" else 0.6
-        if level < top and abs(level / (goal * top) - 1) < 0.3:
-            return frame
-        exposure *= goal * top / max(level, 1.0) if level < top else 1 / 16
-    return frame
+GOALS = {  # outline: the plate behind the ball near 70 % of full scale; highlight: its peak unclipped, near 60 %
+    "outline": ExposureGoal(
+        lambda pixels: np.percentile(pixels, 90), 0.7, (0.49, 0.91), clipped_factor=1 / 16
+    ),
+    "highlight": ExposureGoal(lambda pixels: pixels.max(), 0.6, (0.42, 0.78), clipped_factor=1 / 16),
+}
 
 
 def load_ball_frames(folder: Path) -> list[BallFrame]:

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from calibration.charuco import CalibrationError
+from calibration.exposure import ExposureGoal, exposed
 from calibration.images import journaled_images
 from calibration.radiometry import (
     Dark,
@@ -211,16 +212,10 @@ def _mean(pixels: np.ndarray, rows_cols: np.ndarray) -> float:
 
 def _exposure_for(instruments: Instruments, exposure: float, rows_cols: np.ndarray, fill: float) -> float:
     """The exposure that puts the reference's middle near ``fill`` of full scale (a few test frames)."""
-    camera = instruments.camera
-    for _ in range(4):
-        camera.set_exposure(exposure)
-        frame = camera.capture()
-        top = (1 << frame.bits) - 1
-        level = _mean(frame.pixels, rows_cols)
-        if abs(level / (fill * top) - 1) < 0.1:
-            return frame.exposure_s
-        exposure = frame.exposure_s * (fill * top / max(level, 1.0) if level < 0.95 * top else 0.25)
-    return exposure
+    goal = ExposureGoal(
+        lambda pixels: _mean(pixels, rows_cols), fill, (0.9 * fill, 1.1 * fill), clipped_at=0.95
+    )
+    return exposed(instruments.camera, exposure, goal).exposure_s
 
 
 @dataclass(frozen=True)
@@ -315,9 +310,9 @@ def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCa
             f"only {len(whites)} white-reference frames (need 3): take the photographs again"
         )
     k = rig.gantry.kinematics
+    white_values = [in_ref(f) for f in whites]  # (M, C) each
     geometry = []
-    for f in whites:
-        values = in_ref(f)
+    for f, values in zip(whites, white_values, strict=True):
         if values.max() >= top:
             raise CalibrationError(
                 "the white reference is saturated in a frame: use a shorter exposure or less light"
@@ -327,26 +322,25 @@ def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCa
                 "a lit frame of the white reference is as dark as the dark frames: the lamp did not light it "
                 "(check the lamp, the room light and the reference's place)"
             )
-        lamp = k.light_position(f.gantry_ticks)
-        to_lamp = lamp - points
+        to_lamp = k.light_position(f.gantry_ticks) - points
         d2 = np.einsum("ij,ij->i", to_lamp, to_lamp)
         geometry.append((to_lamp[:, 2] / np.sqrt(d2)) / d2)  # cos θ / d²: the reference faces +z
     # the lamp's output during each white frame relative to before the first (from the frames from above)
     watched = sorted(of("lamp"), key=lambda f: f.captured_at)
-    black = dark.black_level_dn.mean()
-    lamp = np.array([(in_ref(f).mean() - black) / (in_ref(watched[0]).mean() - black) for f in watched])
-    output = (
-        np.interp([f.captured_at for f in whites], [f.captured_at for f in watched], lamp) if watched else 1.0
-    )
+    relative, output = np.ones(1), 1.0  # a capture without them (none was taken before): a steady lamp
+    if watched:
+        signal = np.array([in_ref(f).mean() for f in watched]) - dark.black_level_dn.mean()
+        relative = signal / signal[0]
+        output = np.interp([f.captured_at for f in whites], [f.captured_at for f in watched], relative)
     sensitivity = lamp_sensitivity(
-        [in_ref(f) for f in whites],
+        white_values,
         np.array([f.exposure_s for f in whites]) * output,  # DN ∝ t · Φ(t): the lamp's change as exposure
         np.array([f.gain_db for f in whites]),
         geometry,
-        white.reflectance[: in_ref(whites[0]).shape[1]],
+        white.reflectance[: white_values[0].shape[1]],
         dark,
     )
-    drift = float(lamp[-1] - 1) if len(watched) > 1 else 0.0
+    drift = float(relative[-1] - 1)
     return RadiometricCalibration(dark, transfer, sensitivity, rig.file.light.power, drift)
 
 
