@@ -19,6 +19,18 @@ def journaled_images(
     """(sidecar, pixels) of every photograph in ``folder``, each checked against its journal line; the
     folder must hold ``procedure``'s photographs (e.g. "calibrate gantry", as its journal's run_start
     line says) and every sidecar the ``fields`` that procedure's solve reads."""
+    for event, sidecar in _journaled(folder, procedure, fields):
+        yield sidecar, load_frame(folder, event)
+
+
+def journaled_sidecars(folder: Path, procedure: str) -> list[dict]:
+    """The sidecars of ``folder``'s photographs, checked as :func:`journaled_images` checks them, without
+    decoding any image."""
+    return [sidecar for _, sidecar in _journaled(folder, procedure, ())]
+
+
+def _journaled(folder: Path, procedure: str, fields: tuple[str, ...]) -> Iterator[tuple[dict, dict]]:
+    """(journal line, sidecar) of every photograph (see :func:`journaled_images`)."""
     if not (folder / JOURNAL).is_file():
         raise InputError(
             "no calibration images here (no journal.jsonl); give the --out of a capture", path=folder
@@ -41,4 +53,4 @@ def journaled_images(
                 f"{e.get('file', 'a frame')}'s sidecar lacks {', '.join(missing)}; take the photographs again",
                 path=folder,
             )
-        yield sidecar, load_frame(folder, e)
+        yield e, sidecar

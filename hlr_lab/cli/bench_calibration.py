@@ -125,7 +125,7 @@ def calibration_figures(
     """Run the three parts (module docstring) in ``folder`` (photographs, rig files, sessions kept)."""
     from calibration.camera_procedure import board_spec, capture_board_frames, load_board_frames, solve_camera
     from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
-    from calibration.images import journaled_images
+    from calibration.images import journaled_sidecars
     from calibration.radiometric_procedure import (
         capture_radiometric_frames,
         load_radiometric_frames,
@@ -138,31 +138,33 @@ def calibration_figures(
     warm = LampWatch(warm_up_s=60 * WARM_UP, clock=RigTime(speed_factor))
 
     def procedure(name: str, rig: Rig, world, capture) -> None:
-        """Photograph ``name``'s frames into folder/name on ``rig`` in ``world``, the rig's time clocked."""
+        """Photograph ``name``'s frames into folder/name on ``rig`` in ``world`` (stack → links, and what
+        else ``capture`` needs of the world), the rig's time clocked: ``capture(instruments, folder,
+        world's extra)`` returns the seconds it waited besides the motion and the exposures."""
         progress(f"calibrate {name}: photographing")
         (folder / name).mkdir(parents=True)
         clock, started = RigClock(), time.perf_counter()
-        with contextlib.ExitStack() as stack, open_rig(rig, world(stack)) as opened:
-            waited_s = capture(clock.clocked(opened.instruments), folder / name)
+        with contextlib.ExitStack() as stack:
+            links, extra = world(stack)
+            with open_rig(rig, links) as opened:
+                waited_s = capture(clock.clocked(opened.instruments), folder / name, extra)
         figures.rig_s[name] = clock.rig_seconds(speed_factor) + waited_s
         figures.wall_s[name] = time.perf_counter() - started
 
-    turns = []
+    def board_frames(i, out, turn) -> float:
+        capture_board_frames(i, drawing, out, views=views, turn_the_wedge=turn)
+        return 0.0
 
-    def board(stack):
-        links, turn = board_world(stack, drawing, True, true_rig, speed_factor)
-        turns.append(turn)
-        return links
-
-    procedure("camera", drawing, board, lambda i, out: capture_board_frames(
-        i, drawing, out, views=views, turn_the_wedge=turns[-1]) or 0.0)  # fmt: skip
+    procedure("camera", drawing, lambda stack: board_world(stack, drawing, True, true_rig, speed_factor),
+              board_frames)  # fmt: skip
     camera = solve_camera(load_board_frames(folder / "camera"), drawing)
     with_camera = write_calibrated_rig(rig_source_path(drawing), folder / "rig-camera.toml",
                                        camera.rig_fields(drawing, board_along_zero=True), "camera",
                                        camera.record(folder / "camera"))  # fmt: skip
     ball = ball_spec(with_camera)
-    procedure("gantry", with_camera, lambda stack: ball_world(stack, with_camera, True, true_rig, speed_factor, *ball),
-              lambda i, out: capture_ball_frames(i, with_camera, out, poses=poses) or 0.0)  # fmt: skip
+    procedure("gantry", with_camera,
+              lambda stack: (ball_world(stack, with_camera, True, true_rig, speed_factor, *ball), None),
+              lambda i, out, _: capture_ball_frames(i, with_camera, out, poses=poses) or 0.0)  # fmt: skip
     gantry = solve_gantry(load_ball_frames(folder / "gantry"), with_camera)
     record = gantry.record(folder / "gantry")
     with_gantry = write_calibrated_rig(
@@ -173,13 +175,13 @@ def calibration_figures(
         record,
     )
 
-    def radiometric_frames(i, out) -> float:
+    def radiometric_frames(i, out, _) -> float:
         warmed = capture_radiometric_frames(i, with_gantry, out, warm=warm)
         return 60 * warmed.minutes if warmed else 0.0  # the warm-up's waits are rig time too
 
     white = white_spec(with_gantry)
     procedure("radiometric", with_gantry,
-              lambda stack: white_world(stack, with_gantry, True, true_rig, speed_factor, white),
+              lambda stack: (white_world(stack, with_gantry, True, true_rig, speed_factor, white), None),
               radiometric_frames)  # fmt: skip
     radiometric = solve_radiometric(load_radiometric_frames(folder / "radiometric"), with_gantry)
     record = radiometric.record(folder / "radiometric")
@@ -192,8 +194,8 @@ def calibration_figures(
     )
     truth = load_true_rig(true_rig)
     figures.recovery = recovery(calibrated, drawing, truth, camera.pose.rms_px)
-    photographs = journaled_images(folder / "radiometric", "calibrate radiometric", ("kind",))
-    lamp_frames = [sidecar for sidecar, _ in photographs if sidecar["kind"] == "lamp"]
+    sidecars = journaled_sidecars(folder / "radiometric", "calibrate radiometric")
+    lamp_frames = [sidecar for sidecar in sidecars if sidecar["kind"] == "lamp"]
     figures.radiometric = radiometric_recovery(calibrated, truth, lamp_frames)
     watched = replace(warm, every=5)
     for name, believed, lamp in (("drawing", drawing, UNWATCHED), ("calibrated", calibrated, watched)):
