@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -225,7 +226,7 @@ class JobResult:
     status: str  # "done", "skipped", "stopped" (the campaign stopped there), "failed" (not a device fault)
     attempts: int = 0
     detail: str = ""
-    report: str | None = None  # the job's report, relative to the campaign folder
+    report: str | None = None  # the job's report
     materials: list[dict] = field(default_factory=list)  # per region: id, rd, rs, n
 
     def as_dict(self) -> dict:
@@ -429,7 +430,9 @@ def write_index(campaign: Campaign, results: list[JobResult]) -> Path:
 
     rows, sections = [], []
     for r in results:
-        link = f'<a href="{h.escape(Path(r.report).resolve().as_uri())}">report</a>' if r.report else ""
+        # relative to the index: the night's folders can move together
+        target = os.path.relpath(Path(r.report).resolve(), campaign.folder.resolve()) if r.report else None
+        link = f'<a href="{h.escape(target)}">report</a>' if target else ""
         rows.append([h.escape(r.name), h.escape(r.status), str(r.attempts), h.escape(r.detail), link])
         if r.materials:
             mat = [[str(m["id"]), " ".join(f"{v:.4f}" for v in m["rd"]),

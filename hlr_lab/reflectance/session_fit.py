@@ -92,7 +92,7 @@ class Session:
     views: list[View]
     record: dict  # session.json
     gaps: Gaps = Gaps()
-    lamp: LampRecord = field(default_factory=lambda: LampRecord(np.zeros(0), np.zeros(0)))
+    lamp: LampRecord = field(default_factory=lambda: LampRecord.unwatched())
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,12 +104,17 @@ class LampRecord:
     outputs: np.ndarray
 
     @classmethod
+    def unwatched(cls) -> LampRecord:
+        """No measurement: every pose under the rig file's power."""
+        return cls(np.zeros(0), np.zeros(0))
+
+    @classmethod
     def of_journal(cls, events: list[dict]) -> LampRecord:
         """The ``lamp`` lines measured against the latest baseline (a resumed run whose baseline frame was
         lost starts another; the poses before it then take the nearest later measurement)."""
         lines = [e for e in events if e.get("event") == "lamp"]
         if not lines:
-            return cls(np.zeros(0), np.zeros(0))
+            return cls.unwatched()
         baseline = lines[-1].get("baseline")
         kept = sorted((e["at"], e["output"]) for e in lines if e.get("baseline") == baseline)
         times, outputs = (np.array(v, float) for v in zip(*kept, strict=True))
@@ -188,7 +193,7 @@ def open_session(path: Path, *, allow_incomplete: bool = False, correct_lamp: bo
             "acquire on this session again to take them, or fit with --allow-incomplete",
             path=path,
         )
-    lamp = LampRecord.of_journal(journal.events) if correct_lamp else LampRecord(np.zeros(0), np.zeros(0))
+    lamp = LampRecord.of_journal(journal.events) if correct_lamp else LampRecord.unwatched()
     return Session(path, plan, plan_path, rig, views, record, gaps, lamp)
 
 
