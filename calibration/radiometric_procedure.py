@@ -178,7 +178,7 @@ def capture_radiometric_frames(
             black = float(
                 np.mean(dark_levels)
             )  # the dark frames' just taken: the lamp's share alone compared
-            warmed = warm_up(lambda: take("warm_up", 0, watch_exposure, ticks, steps) - black, warm,
+            warmed = warm_up(lambda: take("warm_up", 0, watch_exposure, ticks, steps) - black, warm, instruments.clock,
                              lambda what: progress(n, total, what))  # fmt: skip
             journal.append(warmed.as_event())
         # the white frames first, right after the warm-up: S · Φ is then the lamp's as a run that warms up

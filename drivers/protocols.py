@@ -38,6 +38,16 @@ class Thermometer(Protocol):
     def temperatures(self) -> dict[str, float]: ...
 
 
+@runtime_checkable
+class Clock(Protocol):
+    """The rig's time: seconds from any origin, and a wait in them. The wall clock on a real rig; a
+    simulated world's own (faster, and still while it renders) on a simulated one."""
+
+    def now(self) -> float: ...
+
+    def sleep(self, seconds: float) -> None: ...
+
+
 @dataclass(frozen=True, eq=False)
 class RawFrame:
     """One raw frame as the sensor counted it, and what the camera says about it."""

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.errors import RETRY, ChecksumError, DeviceError, DeviceTimeout
-from drivers.protocols import Camera, Positioner, RawFrame, Switch, Thermometer
+from drivers.protocols import Camera, Clock, Positioner, RawFrame, Switch, Thermometer
 from hlr_lab.clipping import clip_level, clipped
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
-from hlr_lab.lamp_watch import UNWATCHED, LampWatch, compared_pixels, relative_output, warm_up
+from hlr_lab.lamp_watch import UNWATCHED, WALL_CLOCK, LampWatch, compared_pixels, relative_output, warm_up
 from hlr_lab.motion import PoseTarget
 from hlr_lab.session.frames import FRAMES, frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
@@ -44,6 +44,7 @@ class Instruments:
     camera: Camera
     lamp: Switch
     thermometers: tuple[Thermometer, ...] = ()  # read once per pose, into the pose line and sidecars
+    clock: Clock = WALL_CLOCK  # the rig's time: what a warm-up waits in (a simulated world's own)
 
 
 @dataclass
@@ -400,7 +401,7 @@ class _LampReference:
                 compared = self._compared(frame.pixels, frame.bits, name)
             return float((np.asarray(frame.pixels, np.float64)[compared] - w.black_level_dn).sum())
 
-        result = warm_up(brightness, w, progress)
+        result = warm_up(brightness, w, self.run.instruments.clock, progress)
         self.run.journal.append(result.as_event())
         if not result.stable:
             log.warning("the lamp still changes by %.2f %% per minute after %.0f minutes of warm-up",

@@ -34,7 +34,7 @@ from hlr_lab.devices import Links
 from hlr_lab.errors import DiskFull, HlrLabError, InputError
 from hlr_lab.formats.io import atomic_write_text, free_bytes, read_toml, validate
 from hlr_lab.formats.plan import read_plan
-from hlr_lab.lamp_watch import LampWatch, RigTime
+from hlr_lab.lamp_watch import LampWatch
 from hlr_lab.motion import estimate_duration_s, motion_targets
 from hlr_lab.rig import Rig, load_rig, sim_rig
 from hlr_lab.rig_control import RunStopped
@@ -327,8 +327,9 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
     from hlr_lab.pipeline import acquire_plan, fit_into, report_into
 
     rig = job_rig(job)
-    watch = LampWatch(every=job.lamp_every, warm_up_s=60 * job.warm_up_min, stable_per_min=job.warm_up_within / 100,
-                      clock=RigTime(job.speed_factor if job.sim else 1.0))  # fmt: skip
+    watch = LampWatch(
+        every=job.lamp_every, warm_up_s=60 * job.warm_up_min, stable_per_min=job.warm_up_within / 100
+    )
     with contextlib.ExitStack() as world:
         try:
             links = links_for(job, world)

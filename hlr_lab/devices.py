@@ -21,7 +21,7 @@ from drivers.errors import DeviceError
 from drivers.modbus_stage import ModbusRelay, ModbusStage, StageConfig, StageMap
 from drivers.net_camera import NetworkCamera
 from drivers.opencv_camera import OpenCVCamera, OpenCVCameraConfig
-from drivers.protocols import Camera
+from drivers.protocols import Camera, Clock
 from hlr_lab.errors import InputError
 from hlr_lab.rig import Rig
 
@@ -241,11 +241,13 @@ def open_devices(rig: Rig, *, gantry_port: str | None = None, stage_address: str
 
 @dataclass(frozen=True)
 class Links:
-    """Where the devices are reached when not where the rig file says (the simulated rig's endpoints)."""
+    """Where the devices are reached when not where the rig file says (the simulated rig's endpoints),
+    and the rig's clock when it is not the wall's (a simulated world's)."""
 
     gantry: str | None = None
     stage: str | None = None
     camera: str | None = None
+    clock: Clock | None = None
 
 
 def rig_device_links(rig: Rig, links: Links) -> list[tuple[str, str]]:

@@ -10,8 +10,8 @@ lamp's output relative to the start (journal ``lamp``: time, output). ``fit`` di
 by the output interpolated at the pose's time. A warm-up wait (``warm_up_s``) photographs the reference
 until the output changes by less than ``stable_per_min`` per minute.
 
-Time is the rig's (:class:`RigTime`): on a simulated rig that runs faster than real time, minutes of lamp
-drift pass in seconds, and so must the warm-up's minutes.
+Time is the rig's (a :class:`drivers.protocols.Clock`): the wall clock on a real rig; on a simulated
+one the world's own, where minutes of lamp drift pass in seconds, and so must the warm-up's minutes.
 """
 
 from __future__ import annotations
@@ -22,23 +22,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.protocols import Clock
+
 WELL_EXPOSED = (0.1, 0.8)  # of full scale, in the first reference frame: the values compared
 TREND_READINGS = 4  # a warm-up judges the lamp's trend over this many readings
 
 
-@dataclass(frozen=True)
-class RigTime:
-    """The rig's clock: real time, or a simulated rig's (``speed_factor`` times faster)."""
-
-    speed_factor: float = 1.0
+class WallClock:
+    """The rig's clock on a real rig: real time."""
 
     def now(self) -> float:
-        """Seconds of rig time (any origin)."""
-        return time.monotonic() * self.speed_factor
+        """Seconds (any origin)."""
+        return time.monotonic()
 
     def sleep(self, seconds: float) -> None:
-        """Wait ``seconds`` of rig time."""
-        time.sleep(seconds / self.speed_factor)
+        time.sleep(seconds)
+
+
+WALL_CLOCK = WallClock()
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,6 @@ class LampWatch:
     warm_up_s: float = 0.0
     stable_per_min: float = 0.002
     warm_up_step_s: float = 60.0
-    clock: RigTime = RigTime()
     black_level_dn: float = 0.0  # the sensor's (the rig file's [sensor])
 
     @property
@@ -105,13 +105,14 @@ class WarmUp:
                 "per_minute": self.per_minute}  # fmt: skip
 
 
-def warm_up(brightness: Callable[[], float], watch: LampWatch, progress: Callable[[str], None]) -> WarmUp:
+def warm_up(
+    brightness: Callable[[], float], watch: LampWatch, clock: Clock, progress: Callable[[str], None]
+) -> WarmUp:
     """Measure ``brightness()`` (anything proportional to the lamp's output: the lamp kept on) every
-    ``watch.warm_up_step_s`` of rig time until its trend over the last :data:`TREND_READINGS` readings
+    ``watch.warm_up_step_s`` of the rig's ``clock`` until its trend over the last :data:`TREND_READINGS` readings
     (a least-squares slope, relative to their mean) is within ``watch.stable_per_min`` per minute, or
     ``watch.warm_up_s`` have passed. A trend, not two readings: a lamp's flicker between two frames a
     minute apart looks like a slope of its size per minute."""
-    clock = watch.clock
     started = clock.now()
     readings = [(0.0, brightness())]
     while True:

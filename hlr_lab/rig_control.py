@@ -15,10 +15,11 @@ import contextlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from drivers.protocols import Camera
+from drivers.protocols import Camera, Clock
 from hlr_lab.acquisition import Instruments
 from hlr_lab.devices import Links, RigDevices, SafeState, open_camera, open_devices, rig_device_links
 from hlr_lab.errors import HlrLabError
+from hlr_lab.lamp_watch import WALL_CLOCK
 from hlr_lab.locks import hold_devices
 from hlr_lab.rig import Rig
 
@@ -41,15 +42,16 @@ class RunStopped(HlrLabError):
 
 @dataclass(frozen=True)
 class OpenRig:
-    """The rig's devices, connected and energised, and its camera."""
+    """The rig's devices, connected and energised, its camera and its clock."""
 
     devices: RigDevices
     camera: Camera
+    clock: Clock
 
     @property
     def instruments(self) -> Instruments:
         d = self.devices
-        return Instruments(d.stage, d.gantry, self.camera, d.lamp, (d.gantry,))
+        return Instruments(d.stage, d.gantry, self.camera, d.lamp, (d.gantry,), self.clock)
 
 
 @contextlib.contextmanager
@@ -67,7 +69,7 @@ def open_rig(rig: Rig, links: Links = NO_OVERRIDES) -> Iterator[OpenRig]:
             camera = open_camera(rig, links.camera)  # before anything is energised
             stack.callback(camera.close)
             devices.connect()
-            yield OpenRig(devices, camera)
+            yield OpenRig(devices, camera, links.clock or WALL_CLOCK)
     except BaseException as exc:
         if devices is None or devices.safe is None:
             raise

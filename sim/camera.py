@@ -7,12 +7,12 @@ drivers show up in the frames, as they would on the real rig. The lamp is the re
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sim.clock import WorldClock
 from sim.dynamixel.bus import SimBus
 from sim.lamp import LampModel
 from sim.render.sensor import SensorModel
@@ -68,9 +68,8 @@ class SimCamera:
     stage: StageGeometry = StageGeometry()
     seed: int = 0
     lamp: LampModel = field(default_factory=LampModel)
-    speed_factor: float = 1.0  # simulated seconds per wall second: the lamp drifts in simulated time
+    clock: WorldClock = field(default_factory=WorldClock)  # the lamp drifts in the world's time
     frames: int = field(default=0, init=False)
-    started: float = field(default_factory=time.monotonic, init=False)
 
     def pose(self) -> dict:
         """Where the axes are now: light position (m), turntable angle (degrees), lamp."""
@@ -93,11 +92,11 @@ class SimCamera:
             self.renderer.spec.light == "directional"
         ):  # a distant lamp: light travels from it toward the object
             light = np.asarray(self.gantry.centre) - light
-        radiance = self.renderer.render(
-            pose["turntable_deg"], light, lamp_on=pose["lamp"], seed=self.seed + self.frames
-        )
-        simulated_s = (time.monotonic() - self.started) * self.speed_factor
-        lamp_output = self.lamp.output(simulated_s, np.random.default_rng([self.seed, self.frames, 1]))
+        lamp_output = self.lamp.output(self.clock.now(), np.random.default_rng([self.seed, self.frames, 1]))
+        with self.clock.paused():  # the exposure is taken now; rendering it is not the world's time
+            radiance = self.renderer.render(
+                pose["turntable_deg"], light, lamp_on=pose["lamp"], seed=self.seed + self.frames
+            )
         rng = np.random.default_rng([self.seed, self.frames])
         self.frames += 1
         frame = self.sensor.expose(radiance * lamp_output, exposure_s, rng, gain_db)

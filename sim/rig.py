@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sim.camera import GantryGeometry, SimCamera, StageGeometry
+from sim.clock import WorldClock
 from sim.dynamixel.bus import SimBus
 from sim.lamp import LampModel
 from sim.render.camera import CameraSpec
@@ -68,6 +69,7 @@ class SimRig:
     ):
         # the arm rests horizontal along +x (its zero ticks), inside any sensible joint limits
         rest = dict(zip(servo_ids, gantry.zero_ticks, strict=False))  # a test may leave a servo out
+        self.clock = WorldClock(speed_factor)  # the world's time (the lamp's, and a run's warm-up)
         self.bus = SimBus.with_servos(list(servo_ids), speed_factor=speed_factor, positions=rest)
         self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
         self.camera: SimCamera | None = None
@@ -88,7 +90,7 @@ class SimRig:
                     stage,
                     seed,
                     lamp or LampModel(),
-                    speed_factor,
+                    self.clock,
                 )
                 self.camera_server = CameraServer(self.camera)
                 camera_endpoint = self.camera_server.serve_tcp()

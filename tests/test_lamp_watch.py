@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from pathlib import Path
 
 import numpy as np
@@ -69,20 +70,35 @@ def test_the_warm_up_waits_for_the_trend_not_for_two_readings():
     stop it early; a lamp that never settles ends when the time is up."""
     clock = FakeClock()
     rng = np.random.default_rng(0)
-    watch = LampWatch(warm_up_s=1800.0, clock=clock)
+    watch = LampWatch(warm_up_s=1800.0)
 
     def lamp() -> float:
         return (1 - 0.04 * np.exp(-clock.t / 400)) * (1 + 0.001 * rng.standard_normal())
 
-    result = warm_up(lamp, watch, lambda _: None)
+    result = warm_up(lamp, watch, clock, lambda _: None)
     assert result.stable
     assert 6.5 <= result.minutes <= 11.0
     assert result.per_minute <= 0.002
     clock.t = 0.0
-    never = warm_up(lambda: 1 + clock.t / 3600, LampWatch(warm_up_s=600.0, clock=clock), lambda _: None)
+    never = warm_up(lambda: 1 + clock.t / 3600, LampWatch(warm_up_s=600.0), clock, lambda _: None)
     assert not never.stable
     assert never.minutes == pytest.approx(10.0)
     assert never.per_minute == pytest.approx((1 / 60) / (1 + 8.5 / 60), rel=0.01)  # over the last 4: 7–10 min
+
+
+def test_the_simulated_worlds_clock_stands_still_while_a_frame_renders():
+    """The world's time is the wall's × the speed factor, less the rendering: a slow host must not age
+    the simulated lamp by its rendering speed (each frame ~0.5 s × 100 = a minute of lamp drift)."""
+    from sim.clock import WorldClock
+
+    clock = WorldClock(speed_factor=100.0)
+    t0 = clock.now()
+    with clock.paused():
+        time.sleep(0.2)  # a render
+        held = clock.now()
+    assert held - t0 < 2.0  # at most the 20 ms of this machine's scheduling, × 100
+    clock.sleep(30.0)  # 0.3 s of wall time
+    assert 30.0 <= clock.now() - held < 30.0 + 5.0
 
 
 DRIFTING = """[light]
@@ -164,8 +180,8 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     22.6 % below the nominal, the lamp cold at the start of each command, then −1 % per hour, flickering):
     `calibrate radiometric --warm-up 30`, then a 40-pose run of builtin:pebble's plan with `--warm-up 30
     --lamp-every 5`, then `fit`: every region's Rd within 1 % of the truth in absolute terms (measured
-    0.07–0.27 %); `fit --no-lamp-correction` is further off (measured 0.35–0.38 %: the lamp moved ~1 %
-    in the run), and the report says by how much."""
+    0.07–0.42 %); `fit --no-lamp-correction` differs from it by the lamp's measured output over the run,
+    and the report says by how much."""
     from hlr_lab.cli.bench_acquire import repeated_poses
     from hlr_lab.cli.main import main
     from hlr_lab.cli.sim_world import sim_scene
@@ -192,17 +208,25 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     truth = dict(zip((r.id for r in read_plan(plan).object.regions), sim_scene(read_plan(plan), plan, None).materials,
                      strict=True))  # fmt: skip
 
-    def worst_rd(materials: Path) -> float:
-        return max(
-            float(np.max(np.abs(np.array(e.rd) / truth[e.id].rd - 1)))
-            for e in read_materials(materials).regions
-        )
+    def rd(materials: Path) -> dict[int, np.ndarray]:
+        return {e.id: np.array(e.rd) for e in read_materials(materials).regions}
 
     assert main(["fit", str(session)]) == 0
     assert main(["fit", str(session), "--no-lamp-correction", "-o", str(tmp_path / "uncorrected.json")]) == 0
-    corrected, uncorrected = worst_rd(session / "materials.json"), worst_rd(tmp_path / "uncorrected.json")
-    assert corrected < 0.01
-    assert uncorrected > corrected
+    corrected, uncorrected = rd(session / "materials.json"), rd(tmp_path / "uncorrected.json")
+    assert max(float(np.max(np.abs(corrected[i] / truth[i].rd - 1))) for i in corrected) < 0.01
+    # The correction divides each pose's light by the lamp's measured output, so without it every Rd is
+    # off by a weighted mean of those outputs: within their range (± 0.05 % for the fit's own noise).
+    # Not "further from the truth": with ~0.4 % of the lamp's drift in the run against the fit's ~0.3 %
+    # floor, the two can cancel by chance (and did, on a loaded machine).
+    events = [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines()]
+    outputs = [e["output"] for e in events if e["event"] == "lamp"]
+    low, high = min(outputs) - 1 - 5e-4, max(outputs) - 1 + 5e-4
+    assert high - low > 3e-3  # the lamp did move in the run
+    for i in corrected:
+        assert np.all(
+            (low <= uncorrected[i] / corrected[i] - 1) & (uncorrected[i] / corrected[i] - 1 <= high)
+        )
     assert main(["report", str(session)]) == 0
     page = (session / "report.html").read_text()
     assert re.search(r"without that, the poses' light would have been off by up to \d\.\d\d %", page)

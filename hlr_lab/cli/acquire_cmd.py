@@ -17,7 +17,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
-from hlr_lab.lamp_watch import LampWatch, RigTime
+from hlr_lab.lamp_watch import LampWatch
 from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
 from hlr_lab.rig import Rig
@@ -149,7 +149,6 @@ def acquire_cmd(
                     every=lamp_every,
                     warm_up_s=60 * warm_up_min,
                     stable_per_min=warm_up_within / 100,
-                    clock=RigTime(speed_factor if sim else 1.0),
                 ),
                 on_start=lambda resumed: console.print(
                     f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
@@ -208,7 +207,7 @@ def sim_links(
         SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig, true_rig))
     )
     e = world.endpoints
-    return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera)
+    return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera, clock=world.clock)
 
 
 def _motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:

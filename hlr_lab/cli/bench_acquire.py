@@ -150,7 +150,7 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
             write_plan(plan_path, plan)
             start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
         e = world.endpoints
-        with open_rig(rig, Links(e.dynamixel, e.modbus, e.camera)) as opened:
+        with open_rig(rig, Links(e.dynamixel, e.modbus, e.camera, world.clock)) as opened:
             marks = [_mark(world, waiting, capturing)]
 
             def on_step(step: Step) -> None:

@@ -32,7 +32,7 @@ from hlr_lab.cli.calibrate_cmd import ball_world, board_world, rig_source_path, 
 from hlr_lab.cli.sim_world import sim_scene, world_geometry
 from hlr_lab.devices import Links
 from hlr_lab.formats.plan import read_plan, write_plan
-from hlr_lab.lamp_watch import UNWATCHED, LampWatch, RigTime
+from hlr_lab.lamp_watch import UNWATCHED, LampWatch
 from hlr_lab.pipeline import acquire_plan, fit_into, load_object, plan_object
 from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.rig import Rig, sim_rig
@@ -57,7 +57,7 @@ class RigClock:
         """``i`` with its positioners' waits and its camera's exposures counted here."""
         self.camera = TimedCamera(i.camera, Stopwatch())
         return Instruments(TimedPositioner(i.turntable, self.waiting), TimedPositioner(i.gantry, self.waiting),
-                           self.camera, i.lamp, i.thermometers)  # fmt: skip
+                           self.camera, i.lamp, i.thermometers, i.clock)  # fmt: skip
 
     def rig_seconds(self, speed_factor: float) -> float:
         """Simulated-rig time: the waits at real speed, plus the exposures (an upper bound: the drivers'
@@ -135,7 +135,7 @@ def calibration_figures(
 
     drawing, figures = sim_rig(), CalibrationFigures()
     board_spec(drawing), ball_spec(drawing), white_spec(drawing)
-    warm = LampWatch(warm_up_s=60 * WARM_UP, clock=RigTime(speed_factor))
+    warm = LampWatch(warm_up_s=60 * WARM_UP)
 
     def procedure(name: str, rig: Rig, world, capture) -> None:
         """Photograph ``name``'s frames into folder/name on ``rig`` in ``world`` (stack → links, and what
@@ -272,7 +272,11 @@ def end_to_end(folder: Path, believed: Rig, true_rig: str, speed_factor: float, 
     with SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(believed, true_rig)) as world:
         e = world.endpoints
         acquire_plan(
-            plan_path, believed, folder / "session", links=Links(e.dynamixel, e.modbus, e.camera), lamp=lamp
+            plan_path,
+            believed,
+            folder / "session",
+            links=Links(e.dynamixel, e.modbus, e.camera, world.clock),
+            lamp=lamp,
         )
     fitted = fit_into(folder / "session").materials
     truth = dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))

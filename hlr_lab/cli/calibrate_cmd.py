@@ -16,7 +16,7 @@ from hlr_lab.cli.common import Finite, believed_rig, rig_options, speed_factor_o
 from hlr_lab.cli.console import console
 from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
-from hlr_lab.lamp_watch import LampWatch, RigTime
+from hlr_lab.lamp_watch import LampWatch
 from hlr_lab.rig import SIM_RIG, Rig
 from hlr_lab.rig_control import open_rig
 from hlr_lab.rig_edit import write_calibrated_rig
@@ -154,7 +154,9 @@ def board_world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
         )
     )
     e = world.endpoints
-    return Links(e.dynamixel, e.modbus, e.camera), lambda face: world.show(charuco_scene(board, faces[face]))
+    return Links(e.dynamixel, e.modbus, e.camera, world.clock), lambda face: world.show(
+        charuco_scene(board, faces[face])
+    )
 
 
 def _table(before: Rig, after: Rig, result) -> Table:
@@ -363,8 +365,7 @@ def _run_radiometric(rig: Rig, sim, true_rig, positions, levels, images: Path, s
         with contextlib.ExitStack() as stack:
             links = white_world(stack, rig, sim, true_rig, speed_factor, white_spec(rig))
             with console.status("calibrating the radiometry…") as status, open_rig(rig, links) as opened:
-                warm = LampWatch(warm_up_s=60 * warm_up_min, stable_per_min=warm_up_within / 100,
-                                 clock=RigTime(speed_factor if sim else 1.0))  # fmt: skip
+                warm = LampWatch(warm_up_s=60 * warm_up_min, stable_per_min=warm_up_within / 100)
                 warmed = capture_radiometric_frames(
                     opened.instruments, rig, images, positions=positions, levels=levels, warm=warm,
                     progress=lambda i, n, what: status.update(escape(f"photograph {i + 1}/{n}: {what}")),
@@ -507,4 +508,4 @@ def _target_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, what: str,
         SimRig(scene=scene(), speed_factor=speed_factor, spp=spp, **world_geometry(rig, true_rig))
     )
     e = world.endpoints
-    return Links(e.dynamixel, e.modbus, e.camera)
+    return Links(e.dynamixel, e.modbus, e.camera, world.clock)
