@@ -18,6 +18,7 @@ import trimesh
 from PIL import Image
 
 from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_write_bytes
 
 CREASE_DEG = 60.0  # faces meeting at a sharper angle than this do not share a shading normal
 
@@ -234,6 +235,17 @@ def load_mesh(
     return mesh
 
 
+def write_vertex_coloured_ply(path: str | Path, mesh: ColouredMesh) -> None:
+    """Write ``mesh`` with its vertex colours as a binary PLY (in one piece: a crash leaves no half file)."""
+    if mesh.vertex_colours is None:
+        raise ValueError("the mesh has no vertex colours to write")
+    rgba = np.hstack([mesh.vertex_colours[:, :3], np.full((len(mesh.vertices), 1), 255, np.uint8)])
+    data = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=rgba, process=False).export(
+        file_type="ply"
+    )
+    atomic_write_bytes(path, data)
+
+
 def _colour_of(loaded: trimesh.Trimesh, faces: np.ndarray):
     visual = loaded.visual
     kind = getattr(visual, "kind", None)
@@ -285,6 +297,24 @@ def _weld(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keys = np.round(vertices / (scale * 1e-9)).astype(np.int64)
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     return first, inverse.ravel()
+
+
+# barycentric sample points per face of a textured mesh: centroid plus six around it
+FACE_SAMPLES = (
+    np.array(
+        [
+            [1 / 3, 1 / 3, 1 / 3],
+            [2 / 3, 1 / 6, 1 / 6],
+            [1 / 6, 2 / 3, 1 / 6],
+            [1 / 6, 1 / 6, 2 / 3],
+            [1 / 2, 1 / 2, 0.0],
+            [0.0, 1 / 2, 1 / 2],
+            [1 / 2, 0.0, 1 / 2],
+        ]
+    )
+    * 0.9
+    + 0.1 / 3
+)  # pulled 10 % toward the centroid so edge samples are not shared by two faces
 
 
 def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -36,6 +36,14 @@ def motion_targets(plan: PlanFile, rig: Rig, plan_path: str | Path = "plan.json"
     The message counts the other bad poses too, so the operator knows whether one edit or a re-plan
     is needed.
     """
+    if plan.parameters.sphere_source == "scale":
+        raise InputError(
+            f"this is an analysis plan: its lights lie on a sphere of {plan.parameters.sphere_radius_m:.3f} m "
+            "about the object (plan --sphere-scale, the paper's setting), not on a gantry's, so no rig can take "
+            "it; plan again without --sphere-scale to acquire",
+            path=plan_path,
+            field="parameters.sphere_source",
+        )
     problems: list[tuple[str, str]] = []  # (field, message)
     targets = []
     for i, pose in enumerate(plan.poses):

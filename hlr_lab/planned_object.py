@@ -10,7 +10,7 @@ import numpy as np
 
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
-from hlr_lab.mesh import ColouredMesh, load_mesh
+from hlr_lab.mesh import FACE_SAMPLES, ColouredMesh, load_mesh, sample_texture
 from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.raycast import PixelSurface
 
@@ -55,10 +55,28 @@ def nearest_region(plan: PlanFile, colours: np.ndarray) -> np.ndarray:
 
 
 def face_regions(plan: PlanFile, mesh: ColouredMesh) -> np.ndarray:
-    """(F,) region id per face of a vertex-coloured mesh (its mean corner colour's nearest region)."""
-    if mesh.vertex_colours is None:
-        raise InputError("face regions need vertex colours; a textured mesh has regions per texel")
-    return nearest_region(plan, mesh.vertex_colours[mesh.faces].astype(np.float64).mean(axis=1))
+    """(F,) region id per face: a vertex-coloured face's mean corner colour's nearest region; a textured
+    face's most common region among the texels at :data:`FACE_SAMPLES` (a face that a region border
+    crosses goes to the region that covers most of it)."""
+    if mesh.vertex_colours is not None:
+        return nearest_region(plan, mesh.vertex_colours[mesh.faces].astype(np.float64).mean(axis=1))
+    if mesh.texture is None or mesh.corner_uv is None:
+        raise InputError("the mesh has neither vertex colours nor a texture: it has no regions")
+    uv = np.einsum("sj,fjk->fsk", FACE_SAMPLES, mesh.corner_uv)  # (F, S, 2)
+    samples = texel_regions(plan, mesh.texture, uv.reshape(-1, 2)).reshape(len(mesh.faces), len(FACE_SAMPLES))
+    ids = region_ids(plan)
+    votes = (samples[:, :, None] == ids[None, None, :]).sum(axis=1)  # (F, R)
+    return ids[np.argmax(votes, axis=1)]
+
+
+def texel_regions(plan: PlanFile, texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(N,) region id of the texel of ``texture`` (H, W, 3) sRGB8 at each of ``uv`` (N, 2), wrapped
+    (row 0 is the top: v = 1)."""
+    texels = sample_texture(texture, uv)[:, :3].astype(np.int64)
+    # a texture has far fewer colours than texels: each distinct colour is matched once
+    keys, inverse = np.unique((texels[:, 0] << 16) | (texels[:, 1] << 8) | texels[:, 2], return_inverse=True)
+    distinct = np.stack([keys >> 16, (keys >> 8) & 255, keys & 255], axis=1)
+    return nearest_region(plan, distinct)[inverse.reshape(-1)]
 
 
 def surface_regions(plan: PlanFile, mesh: ColouredMesh, surface: PixelSurface) -> np.ndarray:
@@ -73,8 +91,5 @@ def surface_regions(plan: PlanFile, mesh: ColouredMesh, surface: PixelSurface) -
         out[hit] = face_regions(plan, mesh)[face]
         return out
     uv = np.einsum("ij,ijk->ik", surface.barycentric[hit], mesh.corner_uv[face])
-    h, w = mesh.texture.shape[:2]
-    col = np.clip((uv[:, 0] % 1.0) * w, 0, w - 1).astype(np.int64)
-    row = np.clip((1.0 - uv[:, 1] % 1.0) * h, 0, h - 1).astype(np.int64)  # row 0 is the top (v = 1)
-    out[hit] = nearest_region(plan, mesh.texture[row, col])
+    out[hit] = texel_regions(plan, mesh.texture, uv)
     return out

@@ -18,28 +18,12 @@ from scipy.sparse.csgraph import connected_components
 
 from hlr_lab.colour import linear_to_srgb8, srgb8_to_lab, srgb8_to_linear
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import ColouredMesh, sample_texture
+from hlr_lab.mesh import FACE_SAMPLES, ColouredMesh, sample_texture
 
 DEFAULT_DELTA_E = 10.0
 DEFAULT_MIN_FRAGMENT = 0.001  # fraction of the total surface area
 _LAB_BIN = 0.5  # ΔE; colours closer than this are one bin before clustering (speed only)
 _KMEANS_ITERATIONS = 20
-# barycentric sample points per face of a textured mesh: centroid plus six around it
-_FACE_SAMPLES = (
-    np.array(
-        [
-            [1 / 3, 1 / 3, 1 / 3],
-            [2 / 3, 1 / 6, 1 / 6],
-            [1 / 6, 2 / 3, 1 / 6],
-            [1 / 6, 1 / 6, 2 / 3],
-            [1 / 2, 1 / 2, 0.0],
-            [0.0, 1 / 2, 1 / 2],
-            [1 / 2, 0.0, 1 / 2],
-        ]
-    )
-    * 0.9
-    + 0.1 / 3
-)  # pulled 10 % toward the centroid so edge samples are not shared by two faces
 
 
 @dataclass(frozen=True)
@@ -85,9 +69,9 @@ def segment(
         raise InputError(f"--regions must be at least 1, got {n_materials}", field="--regions")
     on_faces = mesh.vertex_colours is None
     if on_faces:
-        srgb = sample_texture(mesh.texture, np.einsum("sk,fkt->fst", _FACE_SAMPLES, mesh.corner_uv))
+        srgb = sample_texture(mesh.texture, np.einsum("sk,fkt->fst", FACE_SAMPLES, mesh.corner_uv))
         samples = srgb.reshape(-1, 3)
-        sample_weight = np.repeat(mesh.face_areas / len(_FACE_SAMPLES), len(_FACE_SAMPLES))
+        sample_weight = np.repeat(mesh.face_areas / len(FACE_SAMPLES), len(FACE_SAMPLES))
         node_weight, adjacency = mesh.face_areas, mesh.face_adjacency
     else:
         samples, sample_weight = mesh.vertex_colours, mesh.vertex_areas

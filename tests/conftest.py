@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
 import tempfile
 import threading
 from pathlib import Path
@@ -35,6 +37,33 @@ def no_leaked_threads():
         t.join(timeout=2.0)
     leaked = [t for t in new if t.is_alive()]
     assert not leaked, f"the test left threads running: {leaked}"
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A function mounting a tmpfs of ``megabytes`` under tmp_path (``read_only``: empty and read-only;
+    ``filled_from``: a copy of that folder, then made read-only); unmounted after the test. Needs root,
+    which CI has (these tests fail there rather than skip)."""
+    mounted = []
+
+    def mount(megabytes: int, *, read_only: bool = False, filled_from: Path | None = None) -> Path:
+        if os.geteuid() != 0:
+            if os.environ.get("CI"):
+                pytest.fail("the disk-full tests mount a tmpfs and need root, which CI has")
+            pytest.skip("mounting a small tmpfs needs root")
+        where = tmp_path / f"disk{len(mounted)}"
+        where.mkdir()
+        options = f"size={megabytes}m" + (",ro" if read_only else "")
+        subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], check=True)
+        mounted.append(where)
+        if filled_from is not None:
+            shutil.copytree(filled_from, where, dirs_exist_ok=True)
+            subprocess.run(["mount", "-o", "remount,ro", str(where)], check=True)
+        return where
+
+    yield mount
+    for where in mounted:
+        subprocess.run(["umount", "-l", str(where)], check=False)
 
 
 @pytest.fixture(scope="session")

@@ -6,10 +6,8 @@ tests are skipped, and fail in CI rather than skip)."""
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -19,28 +17,6 @@ from hlr_lab.errors import DiskFull
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.session.journal import JOURNAL, read_journal
 from tests.test_acquisition import run, world_of
-
-
-@pytest.fixture
-def small_disk(tmp_path):
-    """A function mounting a tmpfs of ``megabytes`` under tmp_path; unmounted after the test."""
-    mounted = []
-
-    def mount(megabytes: int, *, read_only: bool = False) -> Path:
-        if os.geteuid() != 0:
-            if os.environ.get("CI"):
-                pytest.fail("the disk-full tests mount a tmpfs and need root, which CI has")
-            pytest.skip("mounting a small tmpfs needs root")
-        where = tmp_path / f"disk{len(mounted)}"
-        where.mkdir()
-        options = f"size={megabytes}m" + (",ro" if read_only else "")
-        subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)], check=True)
-        mounted.append(where)
-        return where
-
-    yield mount
-    for where in mounted:
-        subprocess.run(["umount", "-l", str(where)], check=False)
 
 
 def fill(disk: Path, leave_bytes: int) -> None:

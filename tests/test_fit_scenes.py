@@ -276,6 +276,36 @@ def test_spot_textured_regions(tmp_path, spot_paths):
     check(plan, fitted, truths, psnr, min_measured=3)
 
 
+def test_a_textured_mesh_without_a_scene_file_gets_the_default_world(tmp_path, spot_paths, capsys):
+    """`acquire --sim` on Spot's plan with no --scene: the world is built from the texture's regions (per
+    texel, as the fit reads them) with the default materials, and the fit finds them: Rd within 2 %
+    (faces that a region border crosses are rendered per texel but shaded smooth; measured ≤ 0.3 %), Rs
+    and n within 5 % (measured ≤ 1.7 %), in the regions the one view's highlights reached."""
+    from hlr_lab.formats.plan import read_plan
+
+    require_renderer()
+    mesh_path, texture = spot_paths
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--mesh", str(mesh_path), "--texture", str(texture), "--scale", "0.08", "--up", "y",
+                 "--sim", "--views", "0", "-o", str(plan)]) in (0, 3)  # fmt: skip
+    session = tmp_path / "s"
+    assert (
+        main(["acquire", "--plan", str(plan), "--sim", "--speed-factor", "50", "--out", str(session)]) == 0
+    ), capsys.readouterr().err
+    assert main(["fit", str(session)]) == 0
+    planned = read_plan(plan)
+    truth = dict(
+        zip((r.id for r in planned.object.regions), sim_scene(planned, plan, None).materials, strict=True)
+    )
+    measured = [e for e in read_materials(session / "materials.json").regions if e.specular == "measured"]
+    assert len(measured) >= 2
+    for e in measured:
+        t = truth[e.id]
+        np.testing.assert_allclose(e.rd, t.rd, rtol=0.02)
+        np.testing.assert_allclose(e.rs, t.rs, rtol=0.05)
+        assert e.n == pytest.approx(t.n, rel=0.05)
+
+
 def test_the_bunny_painted_in_four_patches(tmp_path, bunny_path):
     """The Stanford bunny (../shared/assets) painted in four compact patches of distinct colours."""
     from hlr_lab.procedural import paint_patches

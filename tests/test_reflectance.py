@@ -2,6 +2,7 @@
 session acquired from the simulated rig, against the simulated world's true materials."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -153,16 +154,32 @@ def test_a_lost_frame_is_refused_until_it_is_retaken(acquired, capsys):
     assert main(["fit", str(session), "-o", str(session / "m2.json")]) == 0
 
 
-def test_fit_refuses_a_plan_changed_since_acquisition(acquired, capsys):
+def test_a_session_moved_and_read_only_is_fitted_and_reported_from_itself(
+    acquired, small_disk, tmp_path, capsys
+):
+    """The session keeps its own copy of the plan: with the original plan changed (or gone), a copy of
+    the session on a read-only disk is fitted and reported (outputs elsewhere); its copy of the plan
+    changed is refused, naming it."""
     plan_path, session = acquired
+    assert main(["fit", str(session)]) == 0
     original = plan_path.read_bytes()
     plan_path.write_bytes(original + b"\n")
     try:
-        assert main(["fit", str(session), "-o", str(session / "m3.json")]) == 1
+        archived = small_disk(256, filled_from=session)
+        assert main(["fit", str(archived), "-o", str(tmp_path / "m.json")]) == 0, capsys.readouterr().err
+        assert main(["report", str(archived), "-o", str(tmp_path / "r.html")]) == 0, capsys.readouterr().err
     finally:
         plan_path.write_bytes(original)
-    assert "has changed since this session was acquired" in capsys.readouterr().err
-    assert not (session / "m3.json").exists()
+    assert "object/plan.json" in (tmp_path / "r.html").read_text()
+    moved = tmp_path / "moved"
+    shutil.copytree(session, moved)
+    copy = moved / "object" / "plan.json"
+    copy.write_bytes(copy.read_bytes() + b"\n")
+    assert main(["fit", str(moved), "-o", str(tmp_path / "m3.json")]) == 1
+    assert (
+        "copy of its plan (object/plan.json) has changed since the session started" in capsys.readouterr().err
+    )
+    assert not (tmp_path / "m3.json").exists()
 
 
 def test_report_before_fit_says_to_fit_first(tmp_path, capsys):

@@ -138,9 +138,9 @@ def test_a_killed_acquisition_loses_no_journaled_frame(tmp_path):
     assert len(leftovers) <= 3  # image, sidecar and one temporary of the interrupted frame
 
 
-def test_a_damaged_session_record_is_named(tmp_path, rig):
+def test_a_damaged_session_record_is_named(tmp_path, rig, plan_file):
     plan = tmp_path / "plan.json"
-    plan.write_text("{}")
+    plan.write_bytes(plan_file[0].read_bytes())
     assert start_or_resume(tmp_path, plan, "a" * 64, rig, force=False) is False
     assert start_or_resume(tmp_path, plan, "a" * 64, rig, force=False) is True
     with pytest.raises(InputError, match="started with another plan"):
@@ -190,3 +190,48 @@ def test_stored_files_get_the_mode_open_would_give(tmp_path):
     stored = store_frame(tmp_path, "f", np.zeros((2, 2), np.uint16), {})
     for name in (stored.file, stored.sidecar):
         assert (tmp_path / name).stat().st_mode & 0o777 == FILE_MODE
+
+
+def test_a_session_keeps_its_plan_and_the_objects_files_so_it_can_move(plan_file, rig, tmp_path, caplog):
+    """start_or_resume copies the plan, a textured OBJ, its material library and the image that names
+    into session/object; the session moved elsewhere, with the originals gone, loads the same mesh
+    (sha256 and texture) from its copies. A file the OBJ names outside its folder is not followed, and
+    said so."""
+    import cv2
+
+    from hlr_lab.formats.plan import read_plan, write_plan
+    from hlr_lab.mesh import file_sha256
+    from hlr_lab.planned_object import load_planned_mesh
+    from hlr_lab.session.metadata import read_record, session_plan
+
+    meshes = tmp_path / "work" / "meshes"
+    (meshes / "maps").mkdir(parents=True)
+    cv2.imwrite(str(meshes / "maps" / "paint.png"), np.full((8, 8, 3), (40, 90, 200), np.uint8))
+    (meshes / "quad.mtl").write_text("newmtl paint\nKd 1 1 1\nmap_Kd maps/paint.png\nbump ../elsewhere.png\n")
+    (meshes / "quad.obj").write_text(
+        "mtllib quad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl paint\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    plan = read_plan(plan_file[0])
+    ref = {"mesh": "meshes/quad.obj", "sha256": file_sha256(meshes / "quad.obj")}
+    plan_path = tmp_path / "work" / "plan.json"
+    write_plan(plan_path, plan.model_copy(update={"object": plan.object.model_copy(update=ref)}))
+    before = load_planned_mesh(read_plan(plan_path), plan_path)
+    assert before.texture is not None
+
+    session = tmp_path / "session"
+    session.mkdir()
+    start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
+    assert "elsewhere.png" in caplog.text
+    assert sorted(p.relative_to(session).as_posix() for p in (session / "object").rglob("*") if p.is_file()) == [
+        "object/maps/paint.png", "object/plan.json", "object/quad.mtl", "object/quad.obj"
+    ]  # fmt: skip
+    moved = tmp_path / "archive" / "renamed"
+    moved.parent.mkdir()
+    session.rename(moved)
+    (tmp_path / "work").rename(tmp_path / "gone")
+    kept, kept_path = session_plan(moved, read_record(moved))
+    after = load_planned_mesh(kept, kept_path)
+    assert after.sha256 == before.sha256
+    np.testing.assert_array_equal(after.texture, before.texture)
+    assert kept.poses == plan.poses

@@ -25,6 +25,10 @@ QUIET_LOGGERS = ("hlr_lab", "drivers", "pymodbus")
 # command runs, so that `hlr-lab --help` and a typo answer at once instead of loading numpy, trimesh,
 # scipy and the rest; a test keeps the summaries equal to the commands' own.
 COMMANDS = {
+    "paint": ("hlr_lab.cli.paint_cmd:paint",
+              "Paint a mesh in K spatially compact patches of distinct colours, for trying segment, plan and "
+              "the simulated rig on a mesh that has no colours of its own (the patches are k-means clusters "
+              "of the vertices; the colours are far apart in CIELAB)."),
     "segment": ("hlr_lab.cli.segment_cmd:segment",
                 "Split the surface into same-colour regions (per-vertex and per-face labels)."),
     "plan": ("hlr_lab.cli.plan_cmd:plan", "Plan light positions that give every region M highlight samples."),

@@ -71,7 +71,8 @@ def parse_views(text: str) -> list[float] | None:
 @click.option(
     "--sphere-scale",
     type=Finite(min=0, min_open=True),
-    help="Light sphere = K × the object's bounding sphere (the paper: 2) instead of the gantry arm.",
+    help="Light sphere = K × the object's bounding sphere (the paper: 2) instead of the gantry arm: an "
+    "analysis plan, which acquire refuses.",
 )
 @click.option(
     "--count",
@@ -231,6 +232,12 @@ def _print_summary(result: PlanResult, output: Path) -> None:
         f"{result.reachable:,} of {result.candidates:,} candidate positions reachable"
     )
     console.print(line)
+    if result.sphere.source == "scale":
+        console.print(
+            f"[yellow]an analysis plan[/]: its lights are on a {result.sphere.radius:.3f} m sphere about the object "
+            f"(--sphere-scale), not on the gantry's {result.sphere.gantry.arm_radius:.3f} m arm, so acquire "
+            "refuses it; plan without --sphere-scale to measure on the rig"
+        )
     other = [k for k in by if k != crit]
     if other:
         console.print(

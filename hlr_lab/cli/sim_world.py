@@ -1,8 +1,9 @@
 """The simulated world for a plan (composition root: the only application code that builds sim types).
 
 Without a scene file the world is the plan's own mesh, placed as the plan places it, with one default
-material per planned region (the region's colour as Rd, a grey lobe): enough to exercise the whole
-instrument; a scene file gives the true materials a fit is checked against.
+material per planned region (the region's colour as Rd, a grey lobe; a textured mesh's faces each take
+the region most of their texels show): enough to exercise the whole instrument; a scene file
+(docs/scenes.md) gives the true materials a fit is checked against.
 """
 
 from __future__ import annotations
@@ -18,7 +19,14 @@ from hlr_lab.colour import srgb8_to_linear
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.mesh import file_sha256
-from hlr_lab.planned_object import face_regions, load_planned_mesh, mesh_to_turntable, palette, region_ids
+from hlr_lab.planned_object import (
+    face_regions,
+    load_planned_mesh,
+    mesh_to_turntable,
+    palette,
+    region_ids,
+    texel_regions,
+)
 from hlr_lab.rig import SIM_RIG, Rig
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
 
@@ -57,16 +65,32 @@ def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> Scene
     if scene_path is not None:
         return replace(_scene_file(plan, scene_path), mesh_to_turntable=placement)
     mesh = load_planned_mesh(plan, plan_path)
-    if mesh.vertex_colours is None:
-        raise InputError(
-            "a textured mesh needs its simulated world as a scene file: give --scene FILE", field="--scene"
-        )
     # scene materials are indexed by position in the plan's region list
     order = {rid: i for i, rid in enumerate(region_ids(plan))}
     region = np.vectorize(order.__getitem__, otypes=[np.int64])(face_regions(plan, mesh))
     rd = srgb8_to_linear(palette(plan)) * RD_SCALE
     materials = [Material(tuple(map(float, c)), DEFAULT_RS, DEFAULT_N) for c in rd]
-    return SceneSpec(mesh.vertices, mesh.faces, region, materials, placement)
+    if mesh.texture is None or mesh.corner_uv is None:
+        return SceneSpec(mesh.vertices, mesh.faces, region, materials, placement)
+    # textured: the renderer takes the material per texel; one vertex per face corner carries its UV
+    # (a UV seam splits a vertex), the normals stay the welded mesh's so shading is smooth across seams
+    h, w = mesh.texture.shape[:2]
+    rows, cols = np.mgrid[0:h, 0:w]
+    texel_uv = np.stack([(cols.ravel() + 0.5) / w, 1.0 - (rows.ravel() + 0.5) / h], axis=1)
+    texel_region = np.vectorize(order.__getitem__, otypes=[np.int64])(
+        texel_regions(plan, mesh.texture, texel_uv)
+    )
+    corners = mesh.faces.reshape(-1)
+    return SceneSpec(
+        mesh.vertices[corners],
+        np.arange(len(corners), dtype=np.int64).reshape(-1, 3),
+        region,
+        materials,
+        placement,
+        vertex_uv=mesh.corner_uv.reshape(-1, 2),
+        region_texture=texel_region.reshape(h, w),
+        normals=mesh.vertex_normals[corners],
+    )
 
 
 @dataclass(frozen=True)

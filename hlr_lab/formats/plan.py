@@ -48,6 +48,7 @@ class PlanParameters(_Open):
     sphere_radius_m: float = Field(gt=0)
     count: Literal["pixels", "vertices"]
     criterion: Literal["capped", "plain"] = "capped"
+    sphere_source: Literal["rig", "scale"] = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
 
 
 class PlanLight(_Open):

@@ -29,10 +29,10 @@ from hlr_lab.formats.materials import (
     measured_entry,
     unmeasured_entry,
 )
-from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.formats.plan import PlanFile
 from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.lamp_watch import lamp_at
-from hlr_lab.mesh import ColouredMesh, file_sha256
+from hlr_lab.mesh import ColouredMesh
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.raycast import RayCaster
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, merge_bracket
@@ -47,7 +47,7 @@ from hlr_lab.reflectance.views import (
 from hlr_lab.rig import Rig, rig_of_snapshot
 from hlr_lab.session.frames import checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, load_journal
-from hlr_lab.session.metadata import SESSION, read_record
+from hlr_lab.session.metadata import SESSION, read_record, session_plan
 from hlr_lab.silhouette import object_window
 
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
@@ -167,16 +167,7 @@ def open_session(path: Path, *, allow_incomplete: bool = False, correct_lamp: bo
     why) unless ``allow_incomplete``, and then :attr:`Session.gaps` says what is missing. The lamp's
     measured output (when the run watched it) scales each view's light unless not ``correct_lamp``."""
     record = read_record(path)
-    plan_path = Path(record["plan"]["path"])
-    if not plan_path.is_file():
-        raise InputError(f"the session's plan {plan_path} is gone; restore it to fit this session", path=path)
-    if file_sha256(plan_path) != record["plan"]["sha256"]:
-        raise InputError(
-            f"the plan {plan_path} has changed since this session was acquired; restore the plan it was "
-            "acquired with",
-            path=path,
-        )
-    plan = read_plan(plan_path)
+    plan, plan_path = session_plan(path, record)
     rig = rig_of_snapshot(record["rig"]["snapshot"], f"{path / SESSION} (rig snapshot)")
     journal = load_journal(path / JOURNAL)
     views, rejected = _views(path, journal.events)

@@ -83,13 +83,23 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
     return page, figures
 
 
+def _plan_source(session: Session) -> str:
+    """Where the plan was when the session started, and the copy the session was read from."""
+    first = session.record["plan"]["path"]
+    try:
+        kept = session.plan_path.relative_to(session.path)
+    except ValueError:  # a session from before copies were kept: read from where it was
+        return str(first)
+    return f"{first} (read from the session's copy, {kept.as_posix()})"
+
+
 def _meta(session: Session) -> str:
     started = dt.datetime.fromtimestamp(session.record.get("started_at", 0), dt.UTC).strftime(
         "%Y-%m-%d %H:%M UTC"
     )
     rows = [
         ["session", h.escape(session.path)],
-        ["plan", h.escape(session.plan_path)],
+        ["plan", h.escape(_plan_source(session))],
         ["object", h.escape(session.plan.object.mesh)],
         ["rig", h.escape(session.rig.name)],
         ["started", started],

@@ -1,5 +1,6 @@
-"""``session.json``: what a session was started with (plan checksum, rig snapshot, software version),
-written once. A resumed run must use the same plan and rig, or say explicitly that it does not."""
+"""``session.json``: what a session was started with (plan checksum and the session's own copy of it,
+rig snapshot, software version), written once. A resumed run must use the same plan and rig, or say
+explicitly that it does not."""
 
 from __future__ import annotations
 
@@ -11,7 +12,10 @@ from pathlib import Path
 from hlr_lab import __version__
 from hlr_lab.errors import InputError
 from hlr_lab.formats.io import atomic_create_bytes, check_header, dumps, read_json
+from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.mesh import file_sha256
 from hlr_lab.rig import Rig
+from hlr_lab.session.kept_object import keep_object, kept_plan
 
 SESSION = "session.json"
 SESSION_FORMAT = "hlr-lab.session"
@@ -37,16 +41,38 @@ def read_record(session: Path) -> dict:
     return record
 
 
+def session_plan(session: Path, record: dict) -> tuple[PlanFile, Path]:
+    """The plan ``session`` was acquired with, and the path its mesh is found from: the session's own copy
+    (:mod:`hlr_lab.session.kept_object`); for a session from before copies were kept, the plan where it
+    was then, checked against its sha256."""
+    copy = record["plan"].get("copy")
+    if isinstance(copy, dict) and {"file", "sha256"} <= copy.keys():
+        return kept_plan(session, copy)
+    plan_path = Path(record["plan"]["path"])
+    if not plan_path.is_file():
+        raise InputError(
+            f"the session's plan {plan_path} is gone; restore it to fit this session", path=session
+        )
+    if file_sha256(plan_path) != record["plan"]["sha256"]:
+        raise InputError(
+            f"the plan {plan_path} has changed since this session was acquired; restore the plan it was "
+            "acquired with",
+            path=session,
+        )
+    return read_plan(plan_path), plan_path
+
+
 def start_or_resume(session: Path, plan_path: Path, plan_sha256: str, rig: Rig, *, force: bool) -> bool:
     """Create ``session.json``, or check it against this plan and rig; True when resuming."""
     snapshot = rig.file.model_dump(mode="json")
     rig_sha256 = hashlib.sha256(json.dumps(snapshot, sort_keys=True).encode()).hexdigest()
     path = session / SESSION
-    if not path.exists():
+    if not path.exists():  # the object's files first: a session.json names a complete copy
+        copy = keep_object(session, plan_path)
         record = {
             "format": SESSION_FORMAT,
             "version": 1,
-            "plan": {"path": str(plan_path.resolve()), "sha256": plan_sha256},
+            "plan": {"path": str(plan_path.resolve()), "sha256": plan_sha256, "copy": copy},
             "rig": {"source": rig.source, "sha256": rig_sha256, "snapshot": snapshot},
             "software": {"hlr-lab": __version__},
             "started_at": time.time(),

@@ -1,0 +1,131 @@
+"""The plan a session was started with, and the files of its object, kept inside the session: a session
+copied, moved, renamed or archived read-only is still fitted and reported from itself alone
+(docs/sessions.md, "A session stands on its own").
+
+``object/plan.json`` is the plan as acquired, its ``object.mesh`` and ``object.texture`` naming copies
+beside it; a mesh's own companions (an OBJ's material library and the images it names, a glTF's
+buffers and images) are copied next to the mesh under the names the mesh uses. ``session.json``
+records the copy's sha256; the mesh is checked against the plan's sha256 when it is loaded, as always.
+Built-in objects have no files to keep.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from pathlib import Path, PurePosixPath
+
+from hlr_lab.errors import InputError
+from hlr_lab.formats.io import atomic_write_bytes
+from hlr_lab.formats.plan import PlanFile, read_plan, write_plan
+from hlr_lab.mesh import file_sha256
+from hlr_lab.procedural import BUILTIN_PREFIX
+
+log = logging.getLogger(__name__)
+OBJECT = "object"  # the folder in the session
+PLAN_COPY = f"{OBJECT}/plan.json"
+
+
+def keep_object(session: Path, plan_path: Path) -> dict:
+    """Copy the plan at ``plan_path`` and its object's files into ``session``/object; returns the session
+    record's ``copy`` entry (``file``: the copied plan, relative to the session; ``sha256``: its)."""
+    plan = read_plan(plan_path)
+    folder = session / OBJECT
+    folder.mkdir(parents=True, exist_ok=True)
+    renamed: dict[str, str] = {}
+    taken: set[str] = {"plan.json"}
+    for field in ("mesh", "texture"):
+        ref = getattr(plan.object, field)
+        if ref is None or ref.startswith(BUILTIN_PREFIX):
+            continue
+        source = plan_path.parent / ref
+        name = source.name if source.name not in taken else f"{field}-{source.name}"
+        taken.add(name)
+        _copy(source, folder / name, plan_path, f"object.{field}")
+        renamed[field] = name
+        if field == "mesh":
+            for companion in companions(source):
+                _copy(source.parent / companion, folder / companion, source, "a file the mesh names")
+                taken.add(PurePosixPath(companion).parts[0])
+    copy = plan.model_copy(update={"object": plan.object.model_copy(update=renamed)})
+    write_plan(session / PLAN_COPY, copy)
+    return {"file": PLAN_COPY, "sha256": file_sha256(session / PLAN_COPY)}
+
+
+def kept_plan(session: Path, copy: dict) -> tuple[PlanFile, Path]:
+    """The session's own copy of its plan (``copy`` as :func:`keep_object` returned it) and its path,
+    checked against the sha256 recorded when the session started."""
+    path = session / copy["file"]
+    if not path.is_file():
+        raise InputError(
+            f"the session's copy of its plan ({copy['file']}) is missing; restore the session folder whole",
+            path=session,
+        )
+    if file_sha256(path) != copy["sha256"]:
+        raise InputError(
+            f"the session's copy of its plan ({copy['file']}) has changed since the session started; restore "
+            "it from a backup of the session",
+            path=session,
+        )
+    return read_plan(path), path
+
+
+def companions(mesh: Path) -> list[str]:
+    """The files ``mesh`` names that a reader loads with it, as relative POSIX paths under its folder: an
+    OBJ's ``mtllib`` files and the images those name, a glTF's external buffers and images. Names that
+    leave the mesh's folder (absolute, or through ``..``) are not followed: such a mesh cannot be kept
+    whole, and is logged as such."""
+    suffix = mesh.suffix.lower()
+    if suffix == ".obj":
+        libraries = _names(mesh, r"^[ \t]*mtllib[ \t]+(.+?)[ \t]*$")
+        images = [
+            i
+            for lib in libraries
+            for i in _names(mesh.parent / lib, r"^[ \t]*(?:map_\w+|bump|disp|norm)[ \t].*?(\S+)[ \t]*$")
+        ]
+        found = libraries + images
+    elif suffix == ".gltf":
+        try:
+            doc = json.loads(mesh.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError):
+            return []
+        found = [
+            str(item["uri"])
+            for key in ("buffers", "images")
+            for item in (doc.get(key) or [])
+            if isinstance(item, dict)
+            and isinstance(item.get("uri"), str)
+            and not item["uri"].startswith("data:")
+        ]
+    else:
+        return []  # PLY and GLB carry everything in the one file
+    kept = []
+    for name in dict.fromkeys(found):
+        p = PurePosixPath(name.replace("\\", "/"))
+        if p.is_absolute() or ".." in p.parts or not (mesh.parent / p).is_file():
+            log.warning(
+                "%s names %s, which is not kept with the session (outside its folder, or missing)", mesh, name
+            )
+            continue
+        kept.append(str(p))
+    return kept
+
+
+def _names(path: Path, pattern: str) -> list[str]:
+    """Every first group of ``pattern`` over the lines of the text file ``path`` ([] when unreadable)."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return []
+    return [m.group(1) for m in re.finditer(pattern, text, flags=re.MULTILINE)]
+
+
+def _copy(source: Path, target: Path, named_in: Path, field: str) -> None:
+    try:
+        data = source.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read {source} to keep it with the session ({exc.strerror})", path=named_in,
+                         field=field) from exc  # fmt: skip
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(target, data)
