@@ -124,7 +124,7 @@ def load_campaign(path: Path) -> Campaign:
     jobs = []
     for i, job in enumerate(raw):
         kind = job.get("kind", "acquire") if isinstance(job, dict) else None
-        if kind not in JOB_KINDS:
+        if not isinstance(kind, str) or kind not in JOB_KINDS:
             raise InputError(
                 f"kind {kind!r}: a job is 'acquire' or 'calibrate'", path=path, field=f"job[{i}].kind"
             )

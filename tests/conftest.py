@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from hlr_lab.formats.plan import build_plan, write_plan
 from hlr_lab.mesh import ColouredMesh
@@ -19,6 +20,11 @@ from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.procedural import ProceduralObject, pebble
 from hlr_lab.rig import Rig, sim_rig
 from hlr_lab.segment import segment
+
+# generated broken files (tests/test_readers_property.py): a CI-sized run, or the nightly one
+settings.register_profile("ci", max_examples=150, database=None)
+settings.register_profile("nightly", max_examples=10_000, database=None)
+settings.load_profile(os.environ.get("HLR_LAB_HYPOTHESIS", "ci"))
 
 SHARED_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 

@@ -125,9 +125,10 @@ def check_header(data: object, path: Path, fmt: str, versions: set[int], header:
     if not isinstance(block, dict) or block.get("format") != fmt:
         where = f"{header}.format" if header else "format"
         raise InputError(f"this is not an {fmt} file (expected format = {fmt!r})", path=path, field=where)
-    if block.get("version") not in versions:
+    version = block.get("version")
+    if type(version) is not int or version not in versions:  # (a list or a table is not a version either)
         raise InputError(
-            f"version {block.get('version')!r} is not one this hlr-lab reads "
+            f"version {version!r} is not one this hlr-lab reads "
             f"({', '.join(map(str, sorted(versions)))}); upgrade hlr-lab or re-create the file",
             path=path,
             field=f"{header}.version" if header else "version",

@@ -22,9 +22,13 @@ from hlr_lab.planning.planner import PlanResult
 from hlr_lab.segment import Segmentation
 
 PLAN_FORMAT = "hlr-lab.plan"
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+# bounds far beyond any rig, so that a typo (1e300) is refused here rather than overflowing in the geometry
+Metres = Annotated[float, Field(ge=-1e3, le=1e3)]
+Degrees = Annotated[float, Field(ge=-3600, le=3600)]
+Vec3 = Annotated[list[Metres], Field(min_length=3, max_length=3)]
 Matrix4 = Annotated[
-    list[Annotated[list[float], Field(min_length=4, max_length=4)]], Field(min_length=4, max_length=4)
+    list[Annotated[list[Annotated[float, Field(ge=-1e6, le=1e6)]], Field(min_length=4, max_length=4)]],
+    Field(min_length=4, max_length=4),
 ]
 
 
@@ -52,8 +56,8 @@ class PlanParameters(_Open):
 
 
 class PlanLight(_Open):
-    azimuth_deg: float
-    elevation_deg: float
+    azimuth_deg: Degrees
+    elevation_deg: Degrees
     position_m: Vec3
     position_mesh_m: Vec3
 
@@ -64,7 +68,7 @@ RESERVED_POSE_IDS = {"lamp-reference"}  # the lamp watch's frames (hlr_lab.acqui
 
 class PlanPose(_Open):
     id: str
-    turntable_deg: float
+    turntable_deg: Degrees
     light: PlanLight
     camera_position_mesh_m: Vec3
     exposures_s: Annotated[

@@ -23,6 +23,7 @@ from hlr_lab.mesh import ColouredMesh, file_sha256
 from hlr_lab.segment import Region, Segmentation
 
 REGIONS_FORMAT = "hlr-lab.regions"
+Label = Annotated[int, Field(ge=0, le=2**31 - 1)]  # a region id (the range check against the regions follows)
 Colour8 = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)]
 
 
@@ -65,8 +66,8 @@ class RegionsFile(BaseModel):
     texture_sha256: str | None = None
     parameters: SegmentParameters
     regions: list[RegionEntry]
-    vertex_labels: list[int]
-    face_labels: list[int]
+    vertex_labels: list[Label]
+    face_labels: list[Label]
 
 
 def mesh_reference(mesh_path: Path | str, relative_to: Path) -> str:

@@ -56,7 +56,11 @@ def keep_object(session: Path, plan_path: Path) -> dict:
 def kept_plan(session: Path, copy: dict) -> tuple[PlanFile, Path]:
     """The session's own copy of its plan (``copy`` as :func:`keep_object` returned it) and its path,
     checked against the sha256 recorded when the session started."""
-    path = session / copy["file"]
+    if copy.get("file") != PLAN_COPY or not isinstance(copy.get("sha256"), str):
+        raise InputError(
+            f"the record of the plan's copy is damaged (plan.copy: {copy!r})", path=session / "session.json"
+        )
+    path = session / PLAN_COPY
     if not path.is_file():
         raise InputError(
             f"the session's copy of its plan ({copy['file']}) is missing; restore the session folder whole",

@@ -30,14 +30,15 @@ def read_record(session: Path) -> dict:
         )
     record = read_json(path)
     check_header(record, path, SESSION_FORMAT, {1})
-    try:
-        for section, key in (("plan", "path"), ("plan", "sha256"), ("rig", "sha256"), ("rig", "snapshot")):
-            record[section][key]
-    except (KeyError, TypeError) as exc:
-        raise InputError(
-            f"the session record is damaged (no {exc}); give a new --out to start a new session",
-            path=path,
-        ) from exc
+    for section, key, kind in (("plan", "path", str), ("plan", "sha256", str), ("rig", "sha256", str),
+                               ("rig", "snapshot", dict)):  # fmt: skip
+        value = record.get(section, {}).get(key) if isinstance(record.get(section), dict) else None
+        if not isinstance(value, kind):
+            raise InputError(
+                f"the session record is damaged ({section}.{key} is missing or not a {kind.__name__}); give a "
+                "new --out to start a new session",
+                path=path,
+            )
     return record
 
 
@@ -46,7 +47,11 @@ def session_plan(session: Path, record: dict) -> tuple[PlanFile, Path]:
     (:mod:`hlr_lab.session.kept_object`); for a session from before copies were kept, the plan where it
     was then, checked against its sha256."""
     copy = record["plan"].get("copy")
-    if isinstance(copy, dict) and {"file", "sha256"} <= copy.keys():
+    if copy is not None:
+        if not isinstance(copy, dict):
+            raise InputError(
+                f"the record of the plan's copy is damaged (plan.copy: {copy!r})", path=session / SESSION
+            )
         return kept_plan(session, copy)
     plan_path = Path(record["plan"]["path"])
     if not plan_path.is_file():

@@ -112,61 +112,107 @@ def pose_matrix(translation=(0.0, 0.0, 0.0), rotation_deg=(0.0, 0.0, 0.0)) -> np
 
 
 def load_scene(path: str | Path) -> SceneSpec:
+    """Read a scene file (module docstring); any field missing, of the wrong type or out of range, and a
+    mesh or texture that cannot be read, is one :class:`SceneError` naming the file and the field."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SceneError(f"{path}: cannot read the scene ({exc})") from exc
-    obj, regions, light = data.get("object", {}), data.get("region", []), data.get("light", {})
-    if "mesh" not in obj:
-        raise SceneError(f"{path}: object.mesh is missing")
-    if not regions:
-        raise SceneError(f"{path}: at least one [[region]] is needed")
-    mesh = trimesh.load(path.parent / obj["mesh"], process=False, force="mesh")
-    faces = np.asarray(mesh.faces, np.int64)
-    if len(faces) == 0:
-        raise SceneError(f"{path}: object.mesh has no faces")
-    texture = path.parent / obj["texture"] if "texture" in obj else None
-    face_colour = _face_colours(mesh, faces, texture)
-    palette = np.array([r["color"] for r in regions], np.float64)
-    region = _nearest(face_colour, palette)
-    textured = texture is not None or getattr(mesh.visual, "kind", None) == "texture"
-    uv = region_texture = normals = None
-    if textured:
-        image = (
-            np.asarray(Image.open(texture).convert("RGB"))
-            if texture
-            else np.asarray(mesh.visual.material.image.convert("RGB"))
-        )
-        region_texture = _nearest(image.reshape(-1, 3).astype(np.float64), palette).reshape(image.shape[:2])
-        uv = np.asarray(mesh.visual.uv, np.float64)
-        normals = _welded_normals(np.asarray(mesh.vertices, np.float64), faces)
-    materials = []
-    for i, r in enumerate(regions):
-        try:
-            m = Material(tuple(float(v) for v in r["rd"]), tuple(float(v) for v in r["rs"]), float(r["n"]))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise SceneError(f"{path}: region[{i}] needs rd, rs and n ({exc})") from exc
-        if len(m.rd) != 3 or len(m.rs) != 3:
-            raise SceneError(f"{path}: region[{i}]: rd and rs are three numbers each (linear RGB)")
-        if not all(math.isfinite(v) and 0 <= v <= 1 for v in (*m.rd, *m.rs)):
-            raise SceneError(f"{path}: region[{i}]: rd and rs are reflectances, each in [0, 1]")
-        if not (math.isfinite(m.n) and 0 < m.n <= 1e5):
-            raise SceneError(f"{path}: region[{i}]: n = {m.n:g}; a Phong exponent is positive (and finite)")
-        materials.append(m)
-    pose = obj.get("pose", {})
-    return SceneSpec(
-        np.asarray(mesh.vertices, np.float64),
-        faces,
-        region,
-        materials,
-        pose_matrix(pose.get("translation", (0, 0, 0)), pose.get("rotation_deg", (0, 0, 0))),
-        light.get("type", "point"),
-        float(light.get("power", 1.0)),
-        uv,
-        region_texture,
-        normals,
+    obj = _table(data, "object", path)
+    light = _table(data, "light", path, required=False)
+    regions = data.get("region", [])
+    if not isinstance(regions, list) or not regions or not all(isinstance(r, dict) for r in regions):
+        raise SceneError(f"{path}: region: at least one [[region]] table is needed")
+    mesh_path = path.parent / _text(obj, "mesh", path, "object.mesh")
+    texture = path.parent / _text(obj, "texture", path, "object.texture") if "texture" in obj else None
+    pose = _table(obj, "pose", path, required=False, where="object.pose")
+    placement = pose_matrix(
+        _numbers(pose.get("translation", [0, 0, 0]), 3, path, "object.pose.translation", bound=100.0),
+        _numbers(pose.get("rotation_deg", [0, 0, 0]), 3, path, "object.pose.rotation_deg", bound=3600.0),
     )
+    palette = np.array(
+        [
+            _numbers(r.get("color"), 3, path, f"region[{i}].color", low=0, high=255)
+            for i, r in enumerate(regions)
+        ]
+    )
+    materials = [_material(r, i, path) for i, r in enumerate(regions)]
+    kind = light.get("type", "point")
+    if kind not in ("point", "directional"):
+        raise SceneError(f'{path}: light.type: "point" or "directional", not {kind!r}')
+    (power,) = _numbers([light.get("power", 1.0)], 1, path, "light.power", low=0, high=1e9)
+    try:
+        mesh = trimesh.load(mesh_path, process=False, force="mesh")
+        faces = np.asarray(mesh.faces, np.int64)
+        vertices = np.asarray(mesh.vertices, np.float64)
+        face_colour = _face_colours(mesh, faces, texture)
+        uv = region_texture = normals = None
+        if texture is not None or getattr(mesh.visual, "kind", None) == "texture":
+            image = np.asarray(
+                (Image.open(texture) if texture else mesh.visual.material.image).convert("RGB")
+            )
+            region_texture = _nearest(image.reshape(-1, 3).astype(np.float64), palette).reshape(
+                image.shape[:2]
+            )
+            uv = np.asarray(mesh.visual.uv, np.float64)
+    except Exception as exc:  # trimesh and PIL raise many types for a file they cannot read
+        raise SceneError(
+            f"{path}: object.mesh: cannot read {mesh_path.name} with its colours ({type(exc).__name__}: {exc})"
+        ) from exc
+    if len(faces) == 0 or not np.isfinite(vertices).all():
+        raise SceneError(
+            f"{path}: object.mesh: {mesh_path.name} has no faces, or coordinates that are not finite"
+        )
+    if uv is not None:
+        normals = _welded_normals(vertices, faces)
+    region = _nearest(face_colour, palette)
+    return SceneSpec(vertices, faces, region, materials, placement, kind, power, uv, region_texture, normals)
+
+
+def _table(data: dict, key: str, path: Path, *, required: bool = True, where: str | None = None) -> dict:
+    value = data.get(key)
+    if value is None and not required:
+        return {}
+    if not isinstance(value, dict):
+        raise SceneError(
+            f"{path}: {where or key}: a table is needed" + ("" if value is None else f", not {value!r}")
+        )
+    return value
+
+
+def _text(table: dict, key: str, path: Path, where: str) -> str:
+    value = table.get(key)
+    if not isinstance(value, str) or not value:
+        raise SceneError(f"{path}: {where}: a file name (text) is needed")
+    return value
+
+
+def _numbers(value, count: int, path: Path, where: str, *, low: float = -math.inf, high: float = math.inf,
+             bound: float | None = None) -> list[float]:  # fmt: skip
+    """``value`` as ``count`` finite numbers within [low, high] (or ±bound), else a SceneError for ``where``."""
+    if bound is not None:
+        low, high = -bound, bound
+    ok = (
+        isinstance(value, list)
+        and len(value) == count
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        and all(math.isfinite(v) and low <= v <= high for v in value)
+    )
+    if not ok:
+        raise SceneError(
+            f"{path}: {where}: {count} finite number(s) in [{low:g}, {high:g}] are needed, not {value!r}"
+        )
+    return [float(v) for v in value]
+
+
+def _material(r: dict, i: int, path: Path) -> Material:
+    rd = _numbers(r.get("rd"), 3, path, f"region[{i}].rd", low=0, high=1)  # reflectances: linear, in [0, 1]
+    rs = _numbers(r.get("rs"), 3, path, f"region[{i}].rs", low=0, high=1)
+    (n,) = _numbers(
+        [r.get("n")], 1, path, f"region[{i}].n", low=1e-6, high=1e5
+    )  # a Phong exponent is positive
+    return Material(tuple(rd), tuple(rs), n)
 
 
 def _nearest(colours: np.ndarray, palette: np.ndarray) -> np.ndarray:
