@@ -72,6 +72,23 @@ class _CameraSection(_Strict):
     reply_timeout_s: float = Field(default=20.0, gt=0, le=3600)
 
     @model_validator(mode="after")
+    def _a_view(self):
+        view, up = np.subtract(self.look_at_m, self.position_m), np.asarray(self.up, np.float64)
+        if np.linalg.norm(view) < 1e-3:
+            raise ValueError(
+                "look_at_m is where the camera is (position_m): give the point the camera looks at"
+            )
+        if (
+            np.linalg.norm(up) == 0
+            or np.linalg.norm(np.cross(view / np.linalg.norm(view), up / np.linalg.norm(up))) < 1e-3
+        ):
+            raise ValueError(
+                "the camera looks along up (position_m → look_at_m is parallel to up), so its image has no up: "
+                "give up a direction across the view (e.g. up = [0.0, 1.0, 0.0] for a camera looking down)"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _one_way_to_the_camera(self):
         if self.address and self.capture:
             raise ValueError("give either address (a frame endpoint) or [camera.capture] (OpenCV), not both")

@@ -145,10 +145,16 @@ def test_every_command_has_help_with_an_example(capsys, command):
     assert "Example" in out
 
 
-def test_usage_errors_exit_2(capsys):
-    code, _, err = run(capsys, "plan", "--theta-c", "-3")
-    assert code == 2
-    assert "theta-c" in err
+def test_usage_errors_exit_2_with_one_line_naming_the_option(capsys):
+    for args, said in ((("plan", "--theta-c", "-3"), "--theta-c"), (("segment", "--delta-e", "nan"), "--delta-e"),
+                       (("plan", "--nope"), "--nope"), (("sgment",), "No such command 'sgment'")):  # fmt: skip
+        code, _, err = run(capsys, *args)
+        assert code == 2
+        lines = err.strip().splitlines()
+        assert len(lines) == 1, err
+        assert lines[0].startswith("error: ")
+        assert said in lines[0]
+        assert "--help" in lines[0]
 
 
 def test_console_script_runs_as_a_process(tmp_path):

@@ -118,6 +118,13 @@ def _run(argv: list[str] | None) -> int:
     except click.exceptions.Abort:
         console.print("[red]interrupted[/]")
         return EXIT_INTERRUPTED
+    except click.UsageError as exc:  # a wrong option or value: one line naming it, and where help is
+        where = exc.ctx.command_path if exc.ctx is not None else "hlr-lab"
+        console.print(
+            f"[bold red]error:[/] {escape(exc.format_message().rstrip('.'))}; see {where} --help",
+            soft_wrap=True,
+        )
+        return exc.exit_code
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code

@@ -103,7 +103,16 @@ def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
 
 
 def read_json(path: str | Path) -> object:
-    return _parse(Path(path), json.loads, json.JSONDecodeError, "JSON")
+    """A JSON file of hlr-lab's: NaN and ±Infinity (which Python's json accepts) are refused with the
+    rest of what is not JSON, since no field of hlr-lab's may hold them."""
+    return _parse(Path(path), _strict_json, ValueError, "JSON")
+
+
+def _strict_json(text: str) -> object:
+    def refuse(constant: str):
+        raise ValueError(f"{constant} is not a number (JSON has no NaN or infinity)")
+
+    return json.loads(text, parse_constant=refuse)
 
 
 def read_toml(path: str | Path) -> dict:

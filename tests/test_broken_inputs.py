@@ -1,0 +1,217 @@
+"""The broken inputs a careless or hostile hand gives hlr-lab, at the command line, in one table: each is
+refused with one `error:` line (exit 1, or 2 for a usage error) that names the file, field or option,
+with no traceback and no "internal error", and nothing is written where the command would write.
+
+Other tables cover parts of this in depth: numbers at the options (tests/test_cli.py), read-only and
+full disks (tests/test_disk_full.py), damaged sessions (tests/test_journal_damage.py), and every file
+reader against generated broken files (tests/test_readers_property.py)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from hlr_lab.cli.main import main
+
+
+@dataclass(frozen=True)
+class Case:
+    """``make(folder, plan, session)`` writes the broken input into ``folder`` and returns the command;
+    ``plan`` is a good plan, ``session`` a copy of a finished session to damage. The error line must
+    match ``said``; ``written``: what must not exist afterwards (relative to ``folder``)."""
+
+    name: str
+    make: Callable[[Path, Path, Path], list[str]]
+    said: str
+    status: int = 1
+    written: str = "out"
+
+
+def _edit_json(source: Path, target: Path, change: Callable[[dict], None]) -> Path:
+    data = json.loads(source.read_text())
+    change(data)
+    target.write_text(json.dumps(data))
+    return target
+
+
+def _plan_with(change: Callable[[dict], None]):
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        broken = _edit_json(plan, folder / "plan.json", change)
+        return ["acquire", "--plan", str(broken), "--sim", "--dry-run", "--out", str(folder / "out")]
+
+    return make
+
+
+def _rig_with(pattern: str, replacement: str):
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        text = (resources.files("hlr_lab.data") / "sim-rig.toml").read_text()
+        rig = folder / "rig.toml"
+        rig.write_text(re.sub(pattern, replacement, text, count=1, flags=re.M))
+        return ["plan", "--mesh", "builtin:pebble", "--rig", str(rig), "-o", str(folder / "out")]
+
+    return make
+
+
+def _materials_with(change: Callable[[dict], None]):
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        good = {"format": "hlr-lab.materials", "version": 1, "model": "blinn-phong",
+                "regions": [{"id": 0, "color": [200, 50, 40], "vertices": 10, "rd": [0.5, 0.1, 0.1],
+                             "rd_se": [0.001] * 3, "specular": "unmeasured", "reason": "r", "theta_c_deg": 5.0,
+                             "pixels": {"diffuse": 100, "highlight": 0}, "residual_rms": 0.01,
+                             "estimator": "robust"}]}  # fmt: skip
+        change(good)
+        (folder / "m.json").write_text(json.dumps(good))
+        return ["export", str(folder / "m.json"), "--mesh", "builtin:pebble", "--format", "obj", "-o",
+                str(folder / "out" / "m.obj")]  # fmt: skip
+
+    return make
+
+
+def _mesh(text: bytes, suffix: str = ".obj"):
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        (folder / f"m{suffix}").write_bytes(text)
+        return ["segment", "--mesh", str(folder / f"m{suffix}"), "-o", str(folder / "out")]
+
+    return make
+
+
+def _session_with(damage: Callable[[Path], None]):
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        damage(session)
+        return ["fit", str(session), "-o", str(folder / "out")]
+
+    return make
+
+
+def _replace_frame(session: Path, pixels_of: Callable[[np.ndarray], np.ndarray]) -> None:
+    """The first frame's image replaced, its checksum updated in the journal and the sidecar (as a
+    careful hand would), so only its contents give it away."""
+    journal = session / "journal.jsonl"
+    events = [json.loads(line) for line in journal.read_text().splitlines()]
+    e = next(e for e in events if e["event"] == "frame")
+    image = session / e["file"]
+    _, png = cv2.imencode(".png", pixels_of(cv2.imread(str(image), cv2.IMREAD_UNCHANGED)))
+    image.write_bytes(png.tobytes())
+    sidecar_path = session / e["sidecar"]
+    sidecar = json.loads(sidecar_path.read_text())
+    sidecar["image_sha256"] = e["sha256"] = hashlib.sha256(png.tobytes()).hexdigest()
+    sidecar_path.write_text(json.dumps(sidecar))
+    e["sidecar_sha256"] = hashlib.sha256(sidecar_path.read_bytes()).hexdigest()
+    journal.write_text("".join(json.dumps(x) + "\n" for x in events))
+
+
+def _sidecar(session: Path, change: Callable[[dict], None]) -> None:
+    journal = session / "journal.jsonl"
+    events = [json.loads(line) for line in journal.read_text().splitlines()]
+    e = next(e for e in events if e["event"] == "frame")
+    path = session / e["sidecar"]
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+    e["sidecar_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    journal.write_text("".join(json.dumps(x) + "\n" for x in events))
+
+
+def _set(path: str, value):
+    """A change that sets ``path`` (dotted, with list indices) in a JSON document."""
+
+    def change(doc: dict) -> None:
+        *parents, last = [int(p) if p.isdigit() else p for p in path.split(".")]
+        for p in parents:
+            doc = doc[p]
+        doc[last] = value
+
+    return change
+
+
+def _two_poses_named_alike(doc: dict) -> None:
+    doc["poses"][1]["id"] = doc["poses"][0]["id"]
+
+
+def _resumed_on_another_rig(folder: Path, plan: Path, session: Path) -> list[str]:
+    """The session was acquired on the simulated rig; resumed with a rig file whose devices do not
+    exist: the changed rig is said before any device is opened (else: a device that does not answer)."""
+    text = (resources.files("hlr_lab.data") / "sim-rig.toml").read_text()
+    rig = folder / "rig.toml"
+    for section, link in (
+        ("gantry", 'port = "/dev/does-not-exist"'),
+        ("turntable", 'address = "127.0.0.1:9"'),
+    ):
+        text = text.replace(f"[{section}]\n", f"[{section}]\n{link}\n", 1)
+    rig.write_text(text)
+    shutil.copy(plan, folder / "plan.json")
+    return ["acquire", "--plan", str(folder / "plan.json"), "--rig", str(rig), "--out", str(session)]
+
+
+CASES = [
+    Case("pose id that climbs out of the session", _plan_with(_set("poses.0.id", "../../etc/evil")), r"poses\[0\]\.id"),
+    Case("two poses with one id", _plan_with(_two_poses_named_alike), r"poses\[1\]\.id"),
+    Case("a light position of 1e300 m", _plan_with(_set("poses.0.light.position_m", [1e300, 0, 0])),
+         r"poses\[0\]\.light\.position_m\[0\]"),
+    Case("a NaN exposure", _plan_with(_set("poses.0.exposures_s", [float("nan")])),
+         r"plan\.json: not valid JSON \(NaN"),
+    Case("an exposure of a million seconds", _plan_with(_set("poses.0.exposures_s", [1e6])), r"exposures_s\[0\]"),
+    Case("the paper's sphere, for no rig", _plan_with(_set("parameters.sphere_source", "scale")),
+         r"parameters\.sphere_source: this is an analysis plan"),
+    Case("a plan that is a folder", lambda f, p, s: (f / "d.json").mkdir() or
+         ["acquire", "--plan", str(f / "d.json"), "--sim", "--out", str(f / "out")], "d.json", status=2),
+    Case("a truncated plan", lambda f, p, s: (f / "t.json").write_bytes(p.read_bytes()[:200]) and
+         ["acquire", "--plan", str(f / "t.json"), "--sim", "--out", str(f / "out")], r"t\.json"),
+    Case("a camera 1e8 pixels wide", _rig_with(r"^width = .*$", "width = 100000000"), r"camera\.width"),
+    Case("a NaN focal length", _rig_with(r"^matrix = \[\[[0-9.]+", "matrix = [[nan"), r"camera\.matrix"),
+    Case("a camera at the gantry centre", _rig_with(r"^position_m = .*$", "position_m = [0.0, 0.0, 0.08]"),
+         r"camera"),
+    Case("materials with no region", _materials_with(_set("regions", [])), r"regions"),
+    Case("an Rd of 2", _materials_with(_set("regions.0.rd", [2.0, 0.1, 0.1])), r"regions\[0\]\.rd\[0\]"),
+    Case("a negative exponent", _materials_with(lambda d: d["regions"][0].update(specular="measured", n=-3.0,
+         rs=[0.1] * 3, rs_se=[0.01] * 3, n_se=1.0)), r"regions\[0\]\.n"),
+    Case("a mesh of random bytes", _mesh(bytes(range(256)) * 4), r"m\.obj: cannot read the mesh"),
+    Case("a mesh without faces", _mesh(b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"), r"m\.obj: the mesh has no faces"),
+    Case("an output that is a folder", lambda f, p, s: (f / "out").mkdir() or
+         ["segment", "--mesh", "builtin:pebble", "-o", str(f / "out")], r"out.* is a directory", status=2,
+         written=""),
+    Case("a NaN in session.json", _session_with(lambda s: (s / "session.json").write_text(
+         (s / "session.json").read_text().replace('"started_at": ', '"started_at": NaN, "x": ', 1))),
+         r"session\.json"),
+    Case("a journal that is a folder", _session_with(lambda s: (s / "journal.jsonl").unlink() or
+         (s / "journal.jsonl").mkdir()), r"journal\.jsonl"),
+    Case("an 8-bit frame in a 16-bit session", _session_with(lambda s: _replace_frame(
+         s, lambda px: (px >> 8).astype(np.uint8))), r"frames/p000_e0\.png.*8-bit"),
+    Case("a frame of another size", _session_with(lambda s: _replace_frame(s, lambda px: px[:-2])),
+         r"frames/p000_e0\.png"),
+    Case("a sidecar's ticks of 1e300", _session_with(lambda s: _sidecar(
+         s, _set("measured.gantry_ticks", [1e300, 0]))), r"gantry_ticks"),
+    Case("a sidecar's negative exposure", _session_with(lambda s: _sidecar(s, lambda d: d.update(
+         exposure_s=-1.0))), r"exposure"),
+    Case("resumed on another rig", _resumed_on_another_rig, r"started with another rig", written=""),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_a_broken_input_is_one_line_naming_it(case, tmp_path, builtin_plan, finished_session, capsys):
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    folder = tmp_path / "in"
+    folder.mkdir()
+    command = case.make(folder, builtin_plan, session)
+    capsys.readouterr()
+    assert main(command) == case.status
+    said = capsys.readouterr().err
+    errors = [line for line in said.splitlines() if "error" in line.lower()]
+    assert len(errors) == 1, said  # (acquire prints its motion table before anything can go wrong)
+    assert said.strip().splitlines()[-1] == errors[0], said
+    assert errors[0].startswith("error: "), errors[0]
+    assert "Traceback" not in said
+    assert re.search(case.said, errors[0]), errors[0]
+    if case.written:
+        assert not (folder / case.written).exists()
