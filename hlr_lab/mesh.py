@@ -188,6 +188,8 @@ def load_mesh(
     path = Path(path)
     if not path.is_file():
         raise InputError("no such mesh file; check the path", path=path)
+    if path.suffix.lower() in (".obj", ".gltf"):  # text formats: trimesh guesses a non-UTF-8 file's
+        _check_utf8(path)  # encoding with a package it may lack, and says only that
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for malformed files
@@ -244,6 +246,18 @@ def write_vertex_coloured_ply(path: str | Path, mesh: ColouredMesh) -> None:
         file_type="ply"
     )
     atomic_write_bytes(path, data)
+
+
+def _check_utf8(path: Path) -> None:
+    """Refuse a text mesh file that is not UTF-8 text, saying where it stops being text."""
+    try:
+        path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"not a text {path.suffix[1:].upper()} file (byte {exc.object[exc.start]:#04x} at offset {exc.start} "
+            "is not UTF-8 text): give an OBJ, PLY, glTF or GLB file",
+            path=path,
+        ) from exc
 
 
 def _colour_of(loaded: trimesh.Trimesh, faces: np.ndarray):

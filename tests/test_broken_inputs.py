@@ -175,7 +175,8 @@ CASES = [
     Case("an Rd of 2", _materials_with(_set("regions.0.rd", [2.0, 0.1, 0.1])), r"regions\[0\]\.rd\[0\]"),
     Case("a negative exponent", _materials_with(lambda d: d["regions"][0].update(specular="measured", n=-3.0,
          rs=[0.1] * 3, rs_se=[0.01] * 3, n_se=1.0)), r"regions\[0\]\.n"),
-    Case("a mesh of random bytes", _mesh(bytes(range(256)) * 4), r"m\.obj: cannot read the mesh"),
+    Case("a mesh of random bytes", _mesh(bytes(range(256)) * 4),
+         r"m\.obj: not a text OBJ file \(byte 0x80 at offset 128"),
     Case("a mesh without faces", _mesh(b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"), r"m\.obj: the mesh has no faces"),
     Case("an output that is a folder", lambda f, p, s: (f / "out").mkdir() or
          ["segment", "--mesh", "builtin:pebble", "-o", str(f / "out")], r"out.* is a directory", status=2,
