@@ -18,6 +18,13 @@
   under one lock, and a port left busy is cleared before the next one (:meth:`_transaction`).
 * :meth:`park` is the safe-state step: it retries the torque-off writes and reads them back, so it says
   only what the servos confirmed.
+* Position Control mode is set on every connect. A real servo then reads its position within one turn
+  (0–4095; e-manual, "Present Position"), however far a previous program turned it in Extended
+  Position mode, so the first move goes the short way; the mode change also zeroes the profile, which
+  is therefore written after it.
+* REG_WRITE/ACTION are not used: a servo answers ACTION with a status packet, which the SDK's
+  ``action()`` does not read, so the next exchange would take it for its own reply. Code that ever uses
+  them must flush the port (``clearPort``) after each ACTION.
 """
 
 from __future__ import annotations

@@ -138,3 +138,20 @@ def test_a_servo_in_overload_confirms_its_torque_off(bus):
     bus.servo(2).hardware_fault(OVERLOAD)  # it answers every packet with the alert bit from now on
     assert g.park() == "torque off (read back)"
     g.release()
+
+
+def test_a_servo_left_past_a_turn_is_moved_the_short_way(bus):
+    """A servo another program left in Extended Position mode at 6000 ticks (a turn and a half): the
+    driver's switch to Position Control mode brings Present Position within one turn, as the e-manual
+    says a real servo does (1904), and the first move to 2048 goes 144 ticks, not 3952 back round."""
+    servo = bus.servo(1)
+    servo.table[11] = 4  # extended position mode
+    servo._profile.start = servo._profile.goal = 6000.0
+    assert servo.present_position() == 6000
+    g = gantry_on(bus)
+    g.connect()
+    assert g.position()[0] == 1904
+    g.move_to((2048, 1500))
+    assert g.wait_settled(timeout_s=5)[0] == pytest.approx(2048, abs=2)
+    assert abs(servo._profile.goal - servo._profile.start) == pytest.approx(144, abs=2)
+    g.close()

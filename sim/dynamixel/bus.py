@@ -1,23 +1,37 @@
 """The simulated bus: servos behind one serial line, served on a pseudo-terminal or a TCP socket.
 
 :meth:`SimBus.handle` turns received bytes into the bytes the servos answer (every instruction of
-Protocol 2.0 the project uses); the transports only move bytes. Faults can be injected per servo, and
-every goal position a servo accepts is logged, so tests can prove that nothing outside the limits was
-ever commanded.
+Protocol 2.0); the transports only move bytes. Faults can be injected per servo, and every goal position
+a servo accepts is logged, so tests can prove that nothing outside the limits was ever commanded.
+
+As a real bus does (ROBOTIS e-manual, Protocol 2.0 and the X-series control table):
+* nothing a master sends ends the bus: a packet the simulator cannot answer is logged in one line and
+  dropped, and the next one is served;
+* a partial packet followed by :data:`INTER_BYTE_TIMEOUT_S` of silence is dropped (the servo's receive
+  timeout), so a bad length field cannot swallow the packets after it;
+* a read beyond the control table is an Access Error with no data (never a reply longer than the table);
+* Secondary ID (12): a servo also obeys packets sent to its secondary ID, without a status packet;
+* Protocol Type (13): a servo switched to Protocol 1.0 no longer answers Protocol 2.0 (1.0 itself is not
+  simulated: it stays silent);
+* Baud Rate (8): a pseudo-terminal has no speed of its own, so each servo takes the speed the master's
+  port is set to when it first hears it as its setting; once Baud Rate is written, it ignores packets
+  sent at any other speed until the master's port is switched too.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import select
 import socket
+import termios
 import threading
 import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from sim.dynamixel.control_table import BY_NAME
+from sim.dynamixel.control_table import BAUD_RATES, BY_NAME
 from sim.dynamixel.protocol import (
     BROADCAST_ID,
     STATUS,
@@ -30,7 +44,11 @@ from sim.dynamixel.protocol import (
 )
 from sim.dynamixel.servo import SimServo
 
+log = logging.getLogger(__name__)
 GOAL_POSITION = BY_NAME["goal_position"]
+INTER_BYTE_TIMEOUT_S = 0.01  # silence that ends a partial packet (a master writes a packet in one go)
+BAUD_CODES = {bps: code for code, bps in BAUD_RATES.items()}
+_TERMIOS_SPEEDS = {getattr(termios, f"B{b}"): b for b in BAUD_CODES if hasattr(termios, f"B{b}")}
 
 
 @dataclass
@@ -64,7 +82,11 @@ class SimBus:
     instructions: int = 0  # instruction packets received (transactions, for the acquisition benchmark)
 
     def __post_init__(self):
-        self._reader = PacketReader()
+        for (
+            s
+        ) in self.servos:  # every goal a servo is sent, accepted or not, directly or through Indirect Data
+            s.on_goal = lambda servo, goal: self.goals.append(GoalRecord(servo.id, goal, servo.clock()))
+        self._reader = PacketReader(INTER_BYTE_TIMEOUT_S)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -91,19 +113,44 @@ class SimBus:
         return self.faults.setdefault(servo_id, Faults())
 
     # -- protocol ---------------------------------------------------------------------------------
-    def handle(self, data: bytes) -> bytes:
-        """Bytes in from the master → bytes the servos send back (faults applied)."""
+    def handle(self, data: bytes, *, line_baud: int | None = None) -> bytes:
+        """Bytes in from the master → bytes the servos send back (faults applied). ``line_baud``: the
+        speed the master's port is set to (None: a link without one, e.g. TCP)."""
         with self._lock:
             out = bytearray()
-            for packet in self._reader.feed(data):
+            for packet in self._reader.feed(data, time.monotonic()):
                 self.instructions += 1
-                for reply in self._dispatch(packet):
-                    out.extend(self._apply_faults(reply))
+                try:
+                    for reply in self._dispatch(packet, line_baud):
+                        out.extend(self._apply_faults(reply))
+                except Exception as exc:  # a bug answering one packet must not end the bus for good
+                    log.warning("dropped instruction 0x%02x to ID %d: %s: %s", packet.instruction, packet.id,
+                                type(exc).__name__, exc)  # fmt: skip
+                    log.debug("the packet that could not be answered", exc_info=True)
             return bytes(out)
 
-    def _dispatch(self, p: Packet) -> list[_Reply]:
+    def _listening(self, line_baud: int | None) -> list[SimServo]:
+        """The servos that can hear a Protocol 2.0 packet sent at ``line_baud``."""
+        heard = []
+        for s in self.servos:
+            if s.get("protocol_type") != 2:
+                continue
+            if line_baud in BAUD_CODES:
+                if s.line_baud is None:  # first contact: the servo is set to the master's speed
+                    s.set_baud_code(BAUD_CODES[line_baud])
+                if s.line_baud != line_baud:
+                    continue
+            heard.append(s)
+        return heard
+
+    def _dispatch(self, p: Packet, line_baud: int | None = None) -> list[_Reply]:
+        listening = self._listening(line_baud)
         broadcast = p.id == BROADCAST_ID
-        targets = self.servos if broadcast else [s for s in self.servos if s.id == p.id]
+        if not broadcast:  # a servo also obeys its secondary ID, silently (no status packet)
+            for s in listening:
+                if s.id != p.id and s.get("secondary_id") == p.id and p.crc_ok:
+                    self._single(s, p.instruction, p.params, True)
+        targets = listening if broadcast else [s for s in listening if s.id == p.id]
         if not p.crc_ok:
             return (
                 [] if broadcast else [_Reply(s.id, status_packet(s.id, Error.CRC | s.alert)) for s in targets]
@@ -117,7 +164,11 @@ class SimBus:
             Instruction.FAST_BULK_READ,
             Instruction.BULK_WRITE,
         ):
-            return self._group(i, params) if broadcast else self._unicast_error(targets, Error.INSTRUCTION)
+            return (
+                self._group(i, params, listening)
+                if broadcast
+                else self._unicast_error(targets, Error.INSTRUCTION)
+            )
         replies = []
         for s in targets:
             error, payload, level = self._single(s, i, params, broadcast)
@@ -144,15 +195,9 @@ class SimBus:
             address, data = _u16(params, 0), params[2:]
             write = s.write if i == Instruction.WRITE else s.reg_write
             error = write(address, data)
-            if i == Instruction.WRITE:
-                self._log_goals(s, address, data, error)
             return error, b"", 2
         if i == Instruction.ACTION:
-            registered = s._registered
-            error = s.action()
-            if registered:
-                self._log_goals(s, *registered, error)
-            return error, b"", 2
+            return s.action(), b"", 2
         if i == Instruction.FACTORY_RESET:
             option = params[0] if params else 0xFF
             if broadcast and option == 0xFF:
@@ -166,7 +211,7 @@ class SimBus:
             return s.clear_multi_turn(), b"", 2
         return Error.INSTRUCTION | s.alert, b"", 2
 
-    def _group(self, i: int, params: bytes) -> list[_Reply]:
+    def _group(self, i: int, params: bytes, listening: list[SimServo]) -> list[_Reply]:
         if i in (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ, Instruction.SYNC_WRITE):
             if len(params) < 4:
                 return []
@@ -175,9 +220,9 @@ class SimBus:
                 step = 1 + length
                 for k in range(4, len(params) - step + 1, step):
                     s = self._find(params[k])
-                    if s is not None:
+                    if s is not None and s in listening:
                         data = params[k + 1 : k + step]
-                        self._log_goals(s, address, data, s.write(address, data))
+                        s.write(address, data)
                 return []
             reads = [(sid, address, length) for sid in params[4:]]
         elif i == Instruction.BULK_WRITE:
@@ -186,8 +231,8 @@ class SimBus:
                 sid, address, length = params[k], _u16(params, k + 1), _u16(params, k + 3)
                 data = params[k + 5 : k + 5 + length]
                 s = self._find(sid)
-                if s is not None:
-                    self._log_goals(s, address, data, s.write(address, data))
+                if s is not None and s in listening:
+                    s.write(address, data)
                 k += 5 + length
             return []
         else:
@@ -197,12 +242,15 @@ class SimBus:
         results = []
         for sid, address, length in reads:
             s = self._find(sid)
-            if s is None or s.get("status_return_level") < 1:
+            if s is None or s not in listening or s.get("status_return_level") < 1:
                 continue  # a missing servo stays silent, as on a real bus
-            error, data = s.read(address, length)
-            results.append((s, error, data if error & 0x7F == 0 else bytes(length)))
+            error, data = s.read(address, length)  # an error: no data (never more than the table holds)
+            results.append((s, error, data))
         if i in (Instruction.SYNC_READ, Instruction.BULK_READ):
             return [_Reply(s.id, status_packet(s.id, error, data)) for s, error, data in results]
+        # a FAST read's one packet has a fixed-size block per servo, with no room for a refusal: a servo
+        # that cannot read what was asked leaves its block out (the master sees it missing, not garbage)
+        results = [r for r in results if r[1] & 0x7F == 0]
         return [_Reply(BROADCAST_ID, _fast_read_packet(results))] if results else []
 
     def _unicast_error(self, targets, error) -> list[_Reply]:
@@ -210,13 +258,6 @@ class SimBus:
 
     def _find(self, servo_id: int) -> SimServo | None:
         return next((s for s in self.servos if s.id == servo_id), None)
-
-    def _log_goals(self, s: SimServo, address: int, data: bytes, error: int) -> None:
-        """Record every goal position a servo was sent (whether it accepted it or not)."""
-        if address <= GOAL_POSITION.address and address + len(data) >= GOAL_POSITION.end:
-            off = GOAL_POSITION.address - address
-            goal = int.from_bytes(data[off : off + 4], "little", signed=True)
-            self.goals.append(GoalRecord(s.id, goal, s.clock()))
 
     def _apply_faults(self, reply: _Reply) -> bytes:
         f = self.faults.get(reply.servo_id)
@@ -239,7 +280,7 @@ class SimBus:
         master, slave = os.openpty()
         tty.setraw(slave)
         self._fds += [master, slave]  # keep the slave open: the master reads EIO when no one holds it
-        self._start(lambda: self._pump_fd(master))
+        self._start(lambda: self._pump_fd(master, slave))
         return os.ttyname(slave)
 
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> str:
@@ -255,16 +296,17 @@ class SimBus:
         t.start()
         self._threads.append(t)
 
-    def _pump_fd(self, fd: int) -> None:
+    def _pump_fd(self, fd: int, slave: int) -> None:
         while not self._stop.is_set():
             ready, _, _ = select.select([fd], [], [], 0.05)
             if not ready:
                 continue
             try:
                 data = os.read(fd, 4096)
-            except OSError:
+                line_baud = _TERMIOS_SPEEDS.get(termios.tcgetattr(slave)[5])  # as the master set its port
+            except (OSError, termios.error):
                 return
-            reply = self.handle(data)
+            reply = self.handle(data, line_baud=line_baud)
             if reply:
                 self._delay(reply)
                 os.write(fd, reply)

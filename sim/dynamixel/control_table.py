@@ -1,7 +1,10 @@
 """The X-series control table (XM430-W350: model 1020; XL430-W250: 1060), as the simulated servo keeps it.
 
 Each field: address, size in bytes, whether it can be written, EEPROM (locked while torque is on) or
-RAM, the factory value, the valid range, and signedness. Values travel little-endian.
+RAM, the factory value, the valid range, and signedness. Values travel little-endian. Addresses and
+ranges are the ROBOTIS e-manual's (XM430-W350, "Control Table"), including the two blocks of Indirect
+Address (168–223, 578–633: 2 bytes each, which control-table address each Indirect Data byte stands
+for) and Indirect Data (224–251, 634–661: 1 byte each), which the servo resolves (sim.dynamixel.servo).
 """
 
 from __future__ import annotations
@@ -9,7 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 EEPROM_END = 64  # addresses below this are EEPROM: writable only with torque off
-TABLE_SIZE = 147  # through Present Temperature (146)
+TABLE_SIZE = 662  # through Indirect Data 56 (661)
+RAM_AREA = (64, 661)  # what an Indirect Address may point at (the e-manual: the RAM area, 64–661)
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,9 @@ FIELDS = [
     Field("position_d_gain", 80, 2, True, 0, 0, 16383),
     Field("position_i_gain", 82, 2, True, 0, 0, 16383),
     Field("position_p_gain", 84, 2, True, 800, 0, 16383),
+    Field("feedforward_2nd_gain", 88, 2, True, 0, 0, 16383),
+    Field("feedforward_1st_gain", 90, 2, True, 0, 0, 16383),
+    Field("bus_watchdog", 98, 1, True, 0, -1, 127, True),  # 20 ms per unit; 0 off; −1 once it has expired
     Field("goal_pwm", 100, 2, True, 0, -885, 885, True),
     Field("goal_current", 102, 2, True, 0, -1193, 1193, True),
     Field("goal_velocity", 104, 4, True, 0, -1023, 1023, True),
@@ -77,10 +84,38 @@ FIELDS = [
     Field("position_trajectory", 140, 4, False, 0, signed=True),
     Field("present_input_voltage", 144, 2, False, 120),
     Field("present_temperature", 146, 1, False, 30),
+    Field("backup_ready", 147, 1, False, 0),
 ]
+
+
+def _indirect(
+    first_number: int, address_at: int, data_at: int, count: int
+) -> tuple[list[Field], list[Field]]:
+    """Indirect Address n (2 bytes, factory value: its own Indirect Data's address) and Indirect Data n."""
+    addresses = [Field(f"indirect_address_{first_number + k}", address_at + 2 * k, 2, True, data_at + k,
+                       RAM_AREA[0], RAM_AREA[1]) for k in range(count)]  # fmt: skip
+    data = [Field(f"indirect_data_{first_number + k}", data_at + k, 1, True, 0, 0, 255) for k in range(count)]
+    return addresses, data
+
+
+INDIRECT_ADDRESSES, INDIRECT_DATA = (
+    [*a, *b] for a, b in zip(_indirect(1, 168, 224, 28), _indirect(29, 578, 634, 28), strict=True)
+)
+FIELDS += INDIRECT_ADDRESSES + INDIRECT_DATA
+INDIRECT_OF_DATA = {d.address: a for a, d in zip(INDIRECT_ADDRESSES, INDIRECT_DATA, strict=True)}
 BY_NAME = {f.name: f for f in FIELDS}
 BY_ADDRESS = {f.address: f for f in FIELDS}
 OPERATING_MODES = {0, 1, 3, 4, 5, 16}
+BAUD_RATES = {
+    0: 9600,
+    1: 57600,
+    2: 115200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
 
 # Units (X-series e-manual): velocity 0.229 rev/min per LSB, acceleration 214.577 rev/min² per LSB,
 # 4096 ticks per revolution.

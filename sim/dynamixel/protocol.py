@@ -8,6 +8,7 @@ header through last parameter. Byte stuffing: from INST to the last parameter, `
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 HEADER = b"\xff\xff\xfd\x00"
@@ -125,10 +126,18 @@ class PacketReader:
 
     MAX_LENGTH = 1024
 
-    def __init__(self):
+    def __init__(self, inter_byte_timeout_s: float = 0.01):
         self._buf = bytearray()
+        self.inter_byte_timeout_s = inter_byte_timeout_s
+        self._last = -math.inf
 
-    def feed(self, data: bytes) -> list[Packet]:
+    def feed(self, data: bytes, now: float | None = None) -> list[Packet]:
+        """Whole packets from ``data``; ``now`` (monotonic seconds) drops a partial packet that waited
+        longer than the inter-byte timeout for its next bytes."""
+        if now is not None:
+            if now - self._last > self.inter_byte_timeout_s:
+                self._buf.clear()
+            self._last = now
         self._buf.extend(data)
         packets = []
         while True:

@@ -2,7 +2,19 @@
 
 Motion follows the trapezoidal profile of Profile Velocity / Profile Acceleration (0 = as fast as the
 velocity limit / no ramp), evaluated lazily from a clock, so no thread ticks in the background. Time is
-the bus's clock: real time × the speed factor.
+the bus's clock: real time × the speed factor. In Velocity Control Mode (1) the axis turns at Goal
+Velocity (no ramp).
+
+What the e-manual (XM430-W350) says and the servo does:
+* Present Position is brought within one turn (0–4095, Homing Offset applied) when Operating Mode is
+  changed to Position Control Mode (3) and when torque is enabled in that mode ("Present Position(132)",
+  note); a change of Operating Mode also resets Profile Velocity and Profile Acceleration to 0 and Goal
+  PWM / Goal Current to their limits ("Operating Mode(11)", note).
+* Indirect Data n reads and writes the control-table byte that Indirect Address n names, with that
+  byte's field's size, range and access ("Indirect Address, Indirect Data"): a multi-byte field is
+  written whole, through consecutive Indirect Data bytes naming its consecutive addresses. (An Indirect
+  Address naming Indirect Data itself answers an Access Error here.)
+* Clear Multi-Turn is refused only while the axis really moves.
 """
 
 from __future__ import annotations
@@ -13,17 +25,22 @@ from dataclasses import dataclass
 
 from sim.dynamixel.control_table import (
     ACCELERATION_UNIT_TICKS_PER_S2,
+    BAUD_RATES,
     BY_ADDRESS,
     BY_NAME,
     EEPROM_END,
     FIELDS,
+    INDIRECT_OF_DATA,
     OPERATING_MODES,
     TABLE_SIZE,
+    TICKS_PER_REV,
     VELOCITY_UNIT_TICKS_PER_S,
     Field,
 )
 from sim.dynamixel.protocol import Error
 
+VELOCITY_MODE = 1
+POSITION_MODES = (3, 4, 5)  # position, extended position, current-based position
 # Hardware Error Status bits
 OVERHEATING = 0x04
 OVERLOAD = 0x20
@@ -71,6 +88,21 @@ class _Profile:
         return t - self.t0 >= self.timing()[2]
 
 
+@dataclass
+class _Spin:
+    """Velocity Control Mode: from ``start`` at ``velocity`` ticks/s since ``t0``, until told otherwise."""
+
+    start: float
+    velocity: float
+    t0: float
+
+    def state(self, t: float) -> tuple[float, float]:
+        return self.start + self.velocity * max(0.0, t - self.t0), self.velocity
+
+    def done(self, t: float) -> bool:
+        return self.velocity == 0
+
+
 class SimServo:
     def __init__(
         self,
@@ -92,6 +124,8 @@ class SimServo:
         self._registered: tuple[int, bytes] | None = None
         self.stuck = False  # an injected fault: the axis does not follow its profile
         self.temperature_c = 30.0  # at rest; torque adds a little heat
+        self.on_goal: Callable[[SimServo, int], None] = lambda _servo, _goal: None  # hears every goal sent
+        self.line_baud: int | None = None  # the speed it listens at (set at first contact: sim.dynamixel.bus)
         self.input_voltage_dv = 120  # 12.0 V
 
     # -- table access -------------------------------------------------------------------------
@@ -111,39 +145,83 @@ class SimServo:
         return Error.ALERT if self.get("hardware_error_status") else 0
 
     def read(self, address: int, length: int) -> tuple[int, bytes]:
+        """(error, data): ``length`` bytes from ``address``, Indirect Data resolved. Beyond the table is
+        an Access Error with no data (the e-manual, Protocol 2.0 status errors: "read a value in an
+        Address that ... has not been defined")."""
         if length < 1 or address < 0 or address + length > TABLE_SIZE:
             return Error.ACCESS | self.alert, b""
         self._refresh()
-        return self.alert, bytes(self.table[address : address + length])
+        data = bytearray(self.table[address : address + length])
+        for a in range(address, address + length):
+            if a in INDIRECT_OF_DATA:
+                target = self._indirect_target(a)
+                if target is None:
+                    return Error.ACCESS | self.alert, b""
+                data[a - address] = self.table[target]
+        return self.alert, bytes(data)
+
+    def _indirect_target(self, data_address: int) -> int | None:
+        """The control-table address Indirect Data at ``data_address`` stands for (None: itself indirect)."""
+        target = self.get(INDIRECT_OF_DATA[data_address].name)
+        return None if target in INDIRECT_OF_DATA else target
 
     def write(self, address: int, data: bytes, *, apply: bool = True) -> int:
         """Check a write against the device's rules; apply it unless ``apply`` is False (reg write)."""
-        fields, error = self._fields_covering(address, len(data))
+        error, values = self._checked(address, data, sent=apply)
         if error:
             return error | self.alert
-        values = []
+        if apply:
+            for f, value in values:
+                self._apply(f, value)
+        return self.alert
+
+    def _checked(self, address: int, data: bytes, *, sent: bool) -> tuple[int, list[tuple[Field, int]]]:
+        """(error, the (field, value) pairs to apply) of a write, Indirect Data resolved to its targets;
+        ``sent``: a write being carried out (not a REG_WRITE held for ACTION), whose goals are heard."""
+        fields, error = self._fields_covering(address, len(data))
+        if error:
+            return error, []
+        values: list[tuple[Field, int]] = []
+        through: list[tuple[int, int]] = []  # (target address, byte) written through Indirect Data
         for f in fields:
             raw = data[f.address - address : f.end - address]
+            if f.address in INDIRECT_OF_DATA:
+                target = self._indirect_target(f.address)
+                if target is None:
+                    return Error.ACCESS, []
+                through.append((target, raw[0]))
+                continue
             value = int.from_bytes(raw, "little", signed=f.signed)
+            if sent and f.name == "goal_position":
+                self.on_goal(self, value)
             if not f.writable:
-                return Error.ACCESS | self.alert
+                return Error.ACCESS, []
             if f.address < EEPROM_END and self.get("torque_enable"):
-                return Error.ACCESS | self.alert  # EEPROM is locked while torque is on
+                return Error.ACCESS, []  # EEPROM is locked while torque is on
             if not f.low <= value <= f.high or (f.name == "operating_mode" and value not in OPERATING_MODES):
-                return Error.DATA_RANGE | self.alert
+                return Error.DATA_RANGE, []
             if (
                 f.name == "goal_position"
                 and self.get("operating_mode") == 3
                 and not (self.get("min_position_limit") <= value <= self.get("max_position_limit"))
             ):
-                return Error.DATA_LIMIT | self.alert
+                return Error.DATA_LIMIT, []
+            if f.name == "goal_velocity" and abs(value) > self.get("velocity_limit"):
+                return Error.DATA_LIMIT, []
             if f.name == "torque_enable" and value == 1 and self.get("hardware_error_status"):
-                return Error.RESULT_FAIL | self.alert  # after a shutdown only a reboot restores torque
+                return Error.RESULT_FAIL, []  # after a shutdown only a reboot restores torque
             values.append((f, value))
-        if apply:
-            for f, value in values:
-                self._apply(f, value)
-        return self.alert
+        k = 0
+        while k < len(through):  # runs of consecutive target addresses, each a write of its own
+            run = 1
+            while k + run < len(through) and through[k + run][0] == through[k][0] + run:
+                run += 1
+            error, more = self._checked(through[k][0], bytes(b for _, b in through[k : k + run]), sent=sent)
+            if error:
+                return error, []
+            values += more
+            k += run
+        return Error.NONE, values
 
     def _fields_covering(self, address: int, length: int) -> tuple[list[Field], int]:
         if length < 1 or address + length > TABLE_SIZE:
@@ -160,11 +238,39 @@ class SimServo:
         return fields, Error.NONE
 
     def _apply(self, f: Field, value: int) -> None:
-        if f.name == "goal_position":
-            self._start_motion(value)
+        mode = self.get("operating_mode")
+        if f.name == "operating_mode" and value != mode:
+            resets = {"profile_velocity": 0, "profile_acceleration": 0, "goal_pwm": self.get("pwm_limit"),
+                      "goal_current": self.get("current_limit")}  # fmt: skip
+            for name, reset in resets.items():
+                self._put(BY_NAME[name], reset)
         if f.name == "torque_enable" and value == 0:
             self._freeze()
         self._put(f, value)
+        if f.name == "baud_rate":
+            self.line_baud = BAUD_RATES[value]
+        if f.name == "goal_position" and mode in POSITION_MODES:
+            self._start_motion(value)
+        if (f.name == "operating_mode" and value == 3 and value != mode) or (
+            f.name == "torque_enable" and value == 1 and mode == 3
+        ):
+            self._within_one_turn()
+        if mode == VELOCITY_MODE and (
+            f.name == "goal_velocity" or (f.name == "torque_enable" and value == 1)
+        ):
+            self._spin()
+
+    def set_baud_code(self, code: int) -> None:
+        """Baud Rate (8) set to ``code``: the servo now listens at that speed."""
+        self._put(BY_NAME["baud_rate"], code)
+        self.line_baud = BAUD_RATES[code]
+
+    def _within_one_turn(self) -> None:
+        """Present Position brought to 0–4095 (Homing Offset applied), the axis where it is."""
+        here, _ = self._profile.state(self.clock())
+        offset = self.get("homing_offset")
+        turned = (round(here) + offset) % TICKS_PER_REV - offset
+        self._profile = _Profile(turned, turned, self.clock(), 1.0, math.inf)
 
     # -- motion -------------------------------------------------------------------------------
     def _start_motion(self, goal: int) -> None:
@@ -181,6 +287,14 @@ class SimServo:
             v * VELOCITY_UNIT_TICKS_PER_S,
             a * ACCELERATION_UNIT_TICKS_PER_S2 if a else math.inf,
         )
+
+    def _spin(self) -> None:
+        """Velocity Control Mode with torque on: turn at Goal Velocity from where the axis is."""
+        if not self.get("torque_enable"):
+            return
+        now = self.clock()
+        here, _ = self._profile.state(now)
+        self._profile = _Spin(here, self.get("goal_velocity") * VELOCITY_UNIT_TICKS_PER_S, now)
 
     def _freeze(self) -> None:
         here, _ = self._profile.state(self.clock())
@@ -256,9 +370,9 @@ class SimServo:
         return self.alert
 
     def clear_multi_turn(self) -> int:
-        if self.get("moving"):
+        if not self._profile.done(self.clock()):  # the axis itself, not a Moving byte last read
             return Error.RESULT_FAIL | self.alert
-        here = self.present_position() % 4096
+        here = self.present_position() % TICKS_PER_REV
         self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
         return self.alert
 
@@ -269,6 +383,9 @@ class SimServo:
         now = self.clock()
         here, _ = self._profile.state(now)
         p = self._profile
+        if isinstance(p, _Spin):
+            self._profile = _Spin(here + ticks, p.velocity, now + hold_s)
+            return
         self._profile = _Profile(here + ticks, p.goal, now + hold_s, p.v_max, p.accel)
 
     def hardware_fault(self, bits: int = OVERLOAD) -> None:
