@@ -63,7 +63,7 @@ def test_a_group_read_bigger_than_the_control_table_is_refused_and_the_bus_lives
     64 KiB reply and never an exception in the bus; pings answer afterwards. (At 4 Mbps: the SDK waits
     as long as such a reply would take to arrive.)"""
     bus, port, ph = sdk
-    assert port.setBaudRate(4_000_000)  # before the servos first hear the line: they take its speed
+    assert port.setBaudRate(4_000_000)  # (the servos hear any speed until their Baud Rate is written)
     for length in (32763, 32764, 65532):
         for fast in (False, True):
             reader = GroupSyncRead(port, ph, 0, length)
@@ -188,7 +188,8 @@ def test_velocity_mode_turns_at_goal_velocity(sdk):
 
 
 def test_baud_rate_protocol_type_and_secondary_id_take_effect(sdk):
-    """After Baud Rate is set to 1 Mbps the servo ignores packets at 57 600 until the port is switched;
+    """After Baud Rate is set to 1 Mbps a servo ignores packets at any other speed (until then it hears
+    any: the pty has no speed of its own);
     after Protocol Type 1 it no longer answers Protocol 2.0; a goal sent to its Secondary ID moves it
     without a status packet."""
     bus, port, ph = sdk
@@ -198,8 +199,9 @@ def test_baud_rate_protocol_type_and_secondary_id_take_effect(sdk):
     assert port.setBaudRate(1_000_000)
     assert ph.ping(port, 2)[1] == COMM_SUCCESS
     assert ph.read1ByteTxRx(port, 2, 8)[0] == 3
-    assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT
+    assert ph.ping(port, 1)[1] == COMM_SUCCESS  # never set: a pty has no speed, so it hears any
     assert port.setBaudRate(57600)
+    assert ph.ping(port, 2)[1] == COMM_RX_TIMEOUT
 
     assert ph.write1ByteTxRx(port, 1, 12, 7) == (COMM_SUCCESS, 0)  # Secondary ID 7
     ph.write1ByteTxRx(port, 1, TORQUE, 1)

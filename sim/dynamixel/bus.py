@@ -13,9 +13,10 @@ As a real bus does (ROBOTIS e-manual, Protocol 2.0 and the X-series control tabl
 * Secondary ID (12): a servo also obeys packets sent to its secondary ID, without a status packet;
 * Protocol Type (13): a servo switched to Protocol 1.0 no longer answers Protocol 2.0 (1.0 itself is not
   simulated: it stays silent);
-* Baud Rate (8): a pseudo-terminal has no speed of its own, so each servo takes the speed the master's
-  port is set to when it first hears it as its setting; once Baud Rate is written, it ignores packets
-  sent at any other speed until the master's port is switched too.
+* Baud Rate (8): a pseudo-terminal has no speed of its own, so a servo hears a master at whatever speed
+  its port is set to, as if it had been set to match; once Baud Rate is written, it ignores packets sent
+  at any other speed until the master's port is switched too (the speed is read from the pty's
+  settings, which the master's ``tcsetattr`` sets; over TCP there is none, and every servo hears).
 """
 
 from __future__ import annotations
@@ -135,11 +136,8 @@ class SimBus:
         for s in self.servos:
             if s.get("protocol_type") != 2:
                 continue
-            if line_baud in BAUD_CODES:
-                if s.line_baud is None:  # first contact: the servo is set to the master's speed
-                    s.set_baud_code(BAUD_CODES[line_baud])
-                if s.line_baud != line_baud:
-                    continue
+            if s.line_baud is not None and line_baud in BAUD_CODES and s.line_baud != line_baud:
+                continue
             heard.append(s)
         return heard
 

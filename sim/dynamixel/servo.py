@@ -125,7 +125,7 @@ class SimServo:
         self.stuck = False  # an injected fault: the axis does not follow its profile
         self.temperature_c = 30.0  # at rest; torque adds a little heat
         self.on_goal: Callable[[SimServo, int], None] = lambda _servo, _goal: None  # hears every goal sent
-        self.line_baud: int | None = None  # the speed it listens at (set at first contact: sim.dynamixel.bus)
+        self.line_baud: int | None = None  # the speed it listens at, once Baud Rate was written (sim.dynamixel.bus)
         self.input_voltage_dv = 120  # 12.0 V
 
     # -- table access -------------------------------------------------------------------------
@@ -260,11 +260,6 @@ class SimServo:
         ):
             self._spin()
 
-    def set_baud_code(self, code: int) -> None:
-        """Baud Rate (8) set to ``code``: the servo now listens at that speed."""
-        self._put(BY_NAME["baud_rate"], code)
-        self.line_baud = BAUD_RATES[code]
-
     def _within_one_turn(self) -> None:
         """Present Position brought to 0–4095 (Homing Offset applied), the axis where it is."""
         here, _ = self._profile.state(self.clock())
@@ -367,6 +362,8 @@ class SimServo:
         for f in FIELDS:
             if f.writable and f.name not in keep:
                 self._put(f, self._defaults[f.name] if f.name != "id" else 1)
+        if self.line_baud is not None and "baud_rate" not in keep:  # back at the factory 57 600
+            self.line_baud = BAUD_RATES[self.get("baud_rate")]
         return self.alert
 
     def clear_multi_turn(self) -> int:
