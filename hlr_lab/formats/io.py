@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import re
 import shutil
@@ -103,16 +104,21 @@ def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
 
 
 def read_json(path: str | Path) -> object:
-    """A JSON file of hlr-lab's: NaN and ±Infinity (which Python's json accepts) are refused with the
-    rest of what is not JSON, since no field of hlr-lab's may hold them."""
-    return _parse(Path(path), _strict_json, ValueError, "JSON")
+    """A JSON file. NaN and ±Infinity (which Python's json accepts) are read as numbers, so that the
+    format's model refuses them naming the field (or :func:`non_finite` finds them in a free-form one)."""
+    return _parse(Path(path), json.loads, json.JSONDecodeError, "JSON")
 
 
-def _strict_json(text: str) -> object:
-    def refuse(constant: str):
-        raise ValueError(f"{constant} is not a number (JSON has no NaN or infinity)")
-
-    return json.loads(text, parse_constant=refuse)
+def non_finite(data: object, at: str = "") -> str | None:
+    """The path (``a.b[2]``) of the first NaN or infinity in parsed JSON ``data``, or None."""
+    if isinstance(data, float) and not math.isfinite(data):
+        return at or "(the whole file)"
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else ()
+    for key, value in items:
+        found = non_finite(value, f"{at}[{key}]" if isinstance(key, int) else f"{at}.{key}".lstrip("."))
+        if found:
+            return found
+    return None
 
 
 def read_toml(path: str | Path) -> dict:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from hlr_lab import __version__
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_create_bytes, check_header, dumps, read_json
+from hlr_lab.formats.io import atomic_create_bytes, check_header, dumps, non_finite, read_json
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.mesh import file_sha256
 from hlr_lab.rig import Rig
@@ -30,6 +30,9 @@ def read_record(session: Path) -> dict:
         )
     record = read_json(path)
     check_header(record, path, SESSION_FORMAT, {1})
+    if (where := non_finite(record)) is not None:
+        raise InputError("is not a number (NaN or infinity): the session record is damaged; restore it from a "
+                         "backup of the session", path=path, field=where)  # fmt: skip
     for section, key, kind in (("plan", "path", str), ("plan", "sha256", str), ("rig", "sha256", str),
                                ("rig", "snapshot", dict)):  # fmt: skip
         value = record.get(section, {}).get(key) if isinstance(record.get(section), dict) else None

@@ -125,7 +125,7 @@ class SimServo:
         self.stuck = False  # an injected fault: the axis does not follow its profile
         self.temperature_c = 30.0  # at rest; torque adds a little heat
         self.on_goal: Callable[[SimServo, int], None] = lambda _servo, _goal: None  # hears every goal sent
-        self.line_baud: int | None = None  # the speed it listens at, once Baud Rate was written (sim.dynamixel.bus)
+        self.line_baud: int | None = None  # once Baud Rate is written, the only speed it hears
         self.input_voltage_dv = 120  # 12.0 V
 
     # -- table access -------------------------------------------------------------------------
