@@ -21,8 +21,16 @@ Unit 1, the stage — holding registers, 32-bit values over two registers, high 
 |      40 | limit_high    | R      |  |
 
 Writing a bad value (op_type not 1/2, speed ≤ 0 or too high, acceleration ≤ 0, current > 1000) is
-answered with exception 3 (illegal value); an address outside the map with exception 2.
-Unit 2, the lamp relay — coil 0: the lamp (on = True).
+answered with exception 3 (illegal value), also when it is written one half at a time (FC 6: the other
+half as it stands); an address outside the map with exception 2. The data registers read what the
+drive will use (its defaults until written). The stage answers FC 3, 6, 16 and 23; other functions are
+exception 1 (sim.turntable.server).
+Unit 2, the lamp relay — coil 0: the lamp (on = True); FC 1, 5 (0xFF00 or 0x0000 only) and 15.
+Any other unit: exception 0x0B (gateway target failed to respond).
+
+This is not yet a real AZ driver's map (Oriental Motor documents the AZ series on Modbus RTU with
+direct data operation from 0058h, driver input command at 007Ch, output status at 007Eh, present alarm
+at 0080h); a rig file's ``[turntable] registers = {…}`` moves the driver's addresses (docs/rig.example.toml).
 """
 
 STAGE_UNIT = 1

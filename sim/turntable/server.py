@@ -1,8 +1,19 @@
 """The stage and lamp relay behind a real pymodbus server, on TCP (ephemeral port) or RTU over a pty.
 
 The server runs its own asyncio loop in a thread. Every register access goes through an ``action``
-that keeps the read-only registers current and turns writes into stage commands; faults can be
-injected: unanswered requests, exception replies, a dropped connection.
+that keeps the registers current (status and position, and the operation data the drive will use) and
+turns writes into stage commands; faults can be injected: unanswered requests, exception replies, a
+dropped connection.
+
+As the Modbus Application Protocol says a device answers (beyond what pymodbus does by itself:
+:mod:`sim.turntable.conformance`):
+* a function the device does not have is exception 1 (the stage: FC 3, 6, 16 and 23 on its holding
+  registers, no input registers or coils; the relay: FC 1, 5 and 15 on its coils);
+* a 32-bit field written one half at a time (FC 6) is checked whole, with its other half as it stands:
+  a speed of 0 is exception 3 however it is written;
+* a unit that is not there is exception 0x0B (gateway target failed to respond): the TCP endpoint plays
+  the gateway in front of an RS-485 line, as a real AZ driver (Modbus RTU only) is reached over TCP;
+  on RTU too (where a real line would stay silent; a client's timeout says the same thing slower).
 """
 
 from __future__ import annotations
@@ -19,6 +30,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
+from sim.turntable import conformance
 from sim.turntable import register_map as rm
 from sim.turntable.stage import RotaryStage
 
@@ -27,6 +39,11 @@ from sim.turntable.stage import RotaryStage
 class ModbusFaults:
     no_reply: int = 0  # the next N requests go unanswered
     exception: int = 0  # the next N stage requests are answered with exception 4 (device failure)
+
+
+STAGE_FUNCTIONS = {3, 6, 16, 23}  # holding registers only (the AZ driver's list of function codes)
+RELAY_FUNCTIONS = {1, 5, 15}  # coils
+READS = {3, 23}
 
 
 def _int32(hi: int, lo: int) -> int:
@@ -60,6 +77,12 @@ class TurntableServer:
 
     # -- devices ------------------------------------------------------------------------------
     def _devices(self) -> list[SimDevice]:
+        # pymodbus hands a request for a unit it does not have to unit 0: that one says "no such unit"
+        absent = SimDevice(
+            id=0,
+            simdata=[SimData(0, count=65536, values=0, datatype=DataType.REGISTERS)],
+            action=self._absent_action,
+        )
         stage = SimDevice(
             id=rm.STAGE_UNIT,
             simdata=[
@@ -80,29 +103,38 @@ class TurntableServer:
             use_bit_addressing=True,
             action=self._relay_action,
         )
-        return [stage, relay]
+        return [absent, stage, relay]
+
+    async def _absent_action(self, function_code, start, address, count, registers, values):
+        return ExcCodes.GATEWAY_NO_RESPONSE
 
     async def _stage_action(self, function_code, start, address, count, registers, values):
         with self._lock:
             self.requests += 1
+            if function_code not in STAGE_FUNCTIONS:
+                return ExcCodes.ILLEGAL_FUNCTION
             if self.faults.exception > 0:
                 self.faults.exception -= 1
                 return ExcCodes.DEVICE_FAILURE
             if values is not None:
-                error = self._write(address, values)
+                error = self._write(address, values, registers, start)
                 if error:
                     return error
             self._refresh(registers, start)
+            if function_code in READS:  # a trigger acts once: read after its write (echoed as sent), 0
+                registers[rm.TRIGGER - start : rm.TRIGGER - start + 2] = [0, 0]
         return None
 
-    def _write(self, address: int, values: list[int]):
+    def _write(self, address: int, values: list[int], registers: list[int], start: int):
+        """Act on a write of ``values`` at ``address``; each 32-bit field it touches is taken whole, its
+        other half as the registers hold it (``registers`` from ``start``), and checked before any is
+        applied."""
         s = self.stage
-        fields = [
-            a
-            for a in range(address - address % 2, address + len(values), 2)
-            if address <= a and a + 1 < address + len(values)
-        ]
-        decoded = {a: _int32(values[a - address], values[a + 1 - address]) for a in fields}
+        words = {a: registers[a - start] for a in range(address - address % 2, address + len(values) + 1)
+                 if 0 <= a - start < len(registers)}  # fmt: skip
+        words.update({address + i: v for i, v in enumerate(values)})
+        fields = range(address - address % 2, address + len(values), 2)
+        decoded = {a: _int32(words.get(a, 0), words.get(a + 1, 0)) for a in fields}
         if any(not s.valid(a, v) for a, v in decoded.items()):
             return ExcCodes.ILLEGAL_VALUE
         for a, v in decoded.items():
@@ -110,7 +142,6 @@ class TurntableServer:
                 s.data[a] = v
             elif a == rm.TRIGGER and v == 1:
                 s.start()
-                values[a - address : a - address + 2] = [0, 0]  # the trigger reads back 0
             elif a == rm.COMMAND:
                 s.set_command(v)
         return None
@@ -118,6 +149,7 @@ class TurntableServer:
     def _refresh(self, registers: list[int], start: int) -> None:
         s = self.stage
         for address, value in (
+            *s.data.items(),  # what the drive will use, as a fresh drive shows its defaults
             (rm.STATUS, s.status()),
             (rm.ALARM_CODE, s.alarm),
             (rm.POSITION, round(s.position())),
@@ -126,11 +158,14 @@ class TurntableServer:
             (rm.LIMIT_HIGH, s.limits[1]),
             (rm.COMMAND, s.command),
         ):
-            registers[address - start : address - start + 2] = _words(value)
+            if address - start >= 0 and address - start + 2 <= len(registers):
+                registers[address - start : address - start + 2] = _words(value)
 
     async def _relay_action(self, function_code, start, address, count, registers, values):
         with self._lock:
             self.requests += 1
+            if function_code not in RELAY_FUNCTIONS:
+                return ExcCodes.ILLEGAL_FUNCTION
             if values is not None and address == rm.LAMP_COIL:
                 self.stage.lamp = bool(values[0])
         return None
@@ -144,8 +179,9 @@ class TurntableServer:
     # -- transports -----------------------------------------------------------------------------
     def serve_tcp(self, host: str = "127.0.0.1") -> tuple[str, int]:
         server = self._run(
-            self._start(ModbusTcpServer, self._devices(), address=(host, 0), trace_packet=self._trace)
-        )
+            self._start(ModbusTcpServer, self._devices(), address=(host, 0), trace_packet=self._trace,
+                        trace_pdu=conformance.received, custom_pdu=conformance.requests(tcp=True))
+        )  # fmt: skip
         return host, server.transport.sockets[0].getsockname()[1]
 
     def serve_rtu(self, baudrate: int = 115_200) -> str:
@@ -162,6 +198,8 @@ class TurntableServer:
                 port=os.ttyname(server_slave),
                 baudrate=baudrate,
                 trace_packet=self._trace,
+                trace_pdu=conformance.received,
+                custom_pdu=conformance.requests(tcp=False),
             )
         )
         self._bridge = threading.Thread(

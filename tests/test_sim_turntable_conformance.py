@@ -1,0 +1,142 @@
+"""The simulated stage and lamp relay answer as the Modbus Application Protocol (v1.1b3) says a device
+does, seen by clients that are not pymodbus: raw frames on a socket, and pyModbusTCP. And no frame,
+however broken, stops the server or prints a traceback."""
+
+from __future__ import annotations
+
+import logging
+import random
+import socket
+import struct
+
+import pytest
+from pyModbusTCP.client import ModbusClient
+
+from sim.turntable import register_map as rm
+from sim.turntable.server import TurntableServer
+
+
+@pytest.fixture
+def server():
+    with TurntableServer.simulated(speed_factor=20.0) as srv:
+        host, port = srv.serve_tcp()
+        yield srv, host, port
+
+
+def ask(host: str, port: int, unit: int, pdu: bytes, transaction: int = 7) -> bytes:
+    """One request (MBAP header + ``pdu``) on a fresh connection; the reply's PDU (b"" when none)."""
+    with socket.create_connection((host, port), timeout=2) as s:
+        s.sendall(struct.pack(">HHHB", transaction, 0, len(pdu) + 1, unit) + pdu)
+        try:
+            reply = s.recv(512)
+        except TimeoutError:
+            return b""
+    assert reply[:4] == struct.pack(">HH", transaction, 0)  # same transaction, protocol 0
+    assert reply[6] == unit
+    return reply[7:]
+
+
+def words(value: int) -> bytes:
+    return struct.pack(">i", value)
+
+
+@pytest.mark.parametrize(
+    ("what", "unit", "pdu", "reply"),
+    [
+        ("read 0 registers", 1, bytes([3, 0, 0, 0, 0]), bytes([0x83, 3])),
+        ("read 126 registers", 1, bytes([3, 0, 0, 0, 126]), bytes([0x83, 3])),
+        ("read 0 coils", 2, bytes([1, 0, 0, 0, 0]), bytes([0x81, 3])),
+        ("an unknown function", 1, bytes([0x41, 0, 0]), bytes([0xC1, 1])),
+        ("input registers of the stage", 1, bytes([4, 0, 0, 0, 2]), bytes([0x84, 1])),
+        ("coils of the stage", 1, bytes([1, 0, 0, 0, 1]), bytes([0x81, 1])),
+        ("registers of the relay", 2, bytes([3, 0, 0, 0, 1]), bytes([0x83, 1])),
+        ("a coil value that is neither on nor off", 2, bytes([5, 0, 0, 0x12, 0x34]), bytes([0x85, 3])),
+        ("a unit that is not there", 9, bytes([3, 0, 0, 0, 1]), bytes([0x83, 0x0B])),
+        ("a register beyond the map", 1, bytes([3, 0, 200, 0, 2]), bytes([0x83, 2])),
+        ("speed 0 through its low half", 1, bytes([6, 0, rm.SPEED + 1, 0, 0]), bytes([0x86, 3])),
+        ("a diagnostic that does not exist", 1, bytes([8, 0x12, 0x34, 0, 0]), bytes([0x88, 1])),
+        ("an exception code as a request", 1, bytes([0x83, 2]), bytes([0x83, 1])),
+        ("diagnostics: return the query data", 1, bytes([8, 0, 0, 0x12, 0x34]), bytes([8, 0, 0, 0x12, 0x34])),
+    ],
+    ids=lambda v: v if isinstance(v, str) else "",
+)
+def test_exception_replies_as_the_specification_says(server, what, unit, pdu, reply):
+    _, host, port = server
+    assert ask(host, port, unit, pdu) == reply
+
+
+def test_coil_values_on_and_off_switch_the_lamp(server):
+    srv, host, port = server
+    assert ask(host, port, 2, bytes([5, 0, 0, 0xFF, 0])) == bytes([5, 0, 0, 0xFF, 0])
+    assert srv.stage.lamp
+    assert ask(host, port, 2, bytes([5, 0, 0, 0x12, 0x34]))[0] == 0x85
+    assert srv.stage.lamp  # the refused write changed nothing
+    assert ask(host, port, 2, bytes([5, 0, 0, 0, 0])) == bytes([5, 0, 0, 0, 0])
+    assert not srv.stage.lamp
+
+
+def test_a_fresh_drive_shows_the_operation_data_it_will_use(server):
+    """pyModbusTCP reads the data registers of a drive nobody wrote to: they say what a move would use
+    (absolute, speed 2000, acceleration and deceleration 4000, current 500), not zeros."""
+    _, host, port = server
+    client = ModbusClient(host=host, port=port, unit_id=rm.STAGE_UNIT, auto_open=True, timeout=2)
+    regs = client.read_holding_registers(rm.OP_TYPE, 12)
+    values = [struct.unpack(">i", struct.pack(">HH", regs[i], regs[i + 1]))[0] for i in range(0, 12, 2)]
+    assert values == [rm.ABSOLUTE, 0, 2000, 4000, 4000, 500]
+    client.close()
+
+
+def test_a_32_bit_field_written_one_half_at_a_time_is_taken_whole(server):
+    """FC 6 to each half of Speed (pyModbusTCP's write_single_register): the move runs at the speed the
+    two halves make, and a half that would make it 0 or negative is exception 3, changing nothing."""
+    srv, host, port = server
+    client = ModbusClient(host=host, port=port, unit_id=rm.STAGE_UNIT, auto_open=True, timeout=2)
+    assert client.write_single_register(rm.SPEED + 1, 500)  # low half; the high half is 0
+    assert srv.stage.data[rm.SPEED] == 500
+    for half, value in ((rm.SPEED, 1), (rm.SPEED + 1, 0), (rm.SPEED, 0x8000)):  # 66 036 (too fast), 0, < 0
+        assert not client.write_single_register(half, value)
+        assert client.last_except == 3
+    assert srv.stage.data[rm.SPEED] == 500
+    for address, value in ((rm.TARGET, 0), (rm.TARGET + 1, 1200), (rm.TRIGGER + 1, 1)):
+        assert client.write_single_register(address, value)
+    assert srv.stage.moves == [1200]
+    client.close()
+
+
+def test_ten_thousand_broken_frames_leave_the_server_answering(server, caplog, capfd):
+    """Random bytes, requests of every function code with random fields (to units that are there and
+    one that is not), truncated and bit-flipped frames: each broken one on a connection of its own (a
+    broken MBAP header leaves a stream no device can resynchronise), the well-formed ones on one
+    connection, each answered. Afterwards a fresh client reads the status, and no traceback was logged
+    or printed."""
+    _, host, port = server
+    rng = random.Random(14)
+    steady = socket.create_connection((host, port), timeout=2)
+    answered = 0
+    with caplog.at_level(logging.WARNING):
+        for k in range(10_000):
+            pdu = bytes([rng.choice([1, 2, 3, 4, 5, 6, 8, 15, 16, 17, 23, 43, 0x41, 0x7F])]) + rng.randbytes(
+                rng.choice([4, 4, 4, rng.randint(0, 12)])
+            )
+            frame = bytearray(struct.pack(">HHHB", k, 0, len(pdu) + 1, rng.choice([0, 1, 2, 9])) + pdu)
+            how = k % 4
+            if how == 1:
+                steady.sendall(bytes(frame))
+                reply = steady.recv(512)
+                assert reply[:2] == frame[:2], (frame.hex(" "), reply.hex(" "))  # its own answer
+                answered += 1
+                continue
+            if how == 0:
+                frame = bytearray(rng.randbytes(rng.randint(1, 20)))
+            elif how == 2:
+                frame = frame[: rng.randint(1, len(frame) - 1)]
+            else:
+                frame[rng.randrange(len(frame))] ^= 1 << rng.randrange(8)
+            with socket.create_connection((host, port), timeout=2) as broken:
+                broken.sendall(bytes(frame))
+    steady.close()
+    status = ask(host, port, rm.STAGE_UNIT, bytes([3, 0, rm.STATUS, 0, 2]))
+    assert status[:2] == bytes([3, 4])
+    assert answered == 2_500
+    assert "Traceback" not in caplog.text
+    assert "Traceback" not in capfd.readouterr().err
