@@ -92,9 +92,10 @@ def test_a_group_read_bigger_than_the_control_table_is_refused_and_the_bus_lives
 def test_a_partial_packet_is_dropped_after_the_inter_byte_timeout(sdk):
     """A header declaring 1024 bytes, then silence: the next ping is answered (on a real servo, and now
     here, the partial packet is dropped after a few ms of silence), across reconnections too."""
-    _, port, ph = sdk
+    bus, port, ph = sdk
     for declared in (1024, 200):
         port.writePort(HEADER + b"\x01" + declared.to_bytes(2, "little") + b"\x02\x00")
+        wait_until(lambda: len(bus._reader._buf) > 0)  # the bus holds the partial packet
         time.sleep(3 * INTER_BYTE_TIMEOUT_S)
         answered = sum(ph.ping(port, 1)[1] == COMM_SUCCESS for _ in range(5))
         assert answered == 5
@@ -105,6 +106,7 @@ def test_clear_multi_turn_after_a_stop_resets_present_position(sdk):
     Present Position comes back within one turn; refused only while the axis really moves."""
     _, port, ph = sdk
     assert ph.write1ByteTxRx(port, 1, MODE, EXTENDED_MODE) == (COMM_SUCCESS, 0)
+    assert ph.write4ByteTxRx(port, 1, 112, 3) == (COMM_SUCCESS, 0)  # slow: ~1 s on the way
     assert ph.write1ByteTxRx(port, 1, TORQUE, 1) == (COMM_SUCCESS, 0)
     assert ph.write4ByteTxRx(port, 1, GOAL, 6000) == (COMM_SUCCESS, 0)
     assert ph.clearMultiTurn(port, 1) == (COMM_SUCCESS, Error.RESULT_FAIL)  # still on its way
