@@ -1,12 +1,16 @@
-"""The turntable (a Modbus rotary stage, AZ-style direct data operation) and the lamp relay, over pymodbus.
+"""The turntable (a Modbus rotary stage: an Oriental Motor AZ driver's direct data operation) and the lamp
+relay, over pymodbus.
 
-The register map comes from the rig file (:class:`StageMap`; the defaults are the simulated stage's, see
-``sim/turntable/register_map.py``). 32-bit values span two registers, high word first. The operation
-data goes in one FC16 write; START acts on its rising edge. Reads and writes are retried with backoff
-(reconnecting after a dropped link), each retry logged with ``RETRY``. Repeating a write is safe because
-every write here sets a value: an absolute target, a coil state, or a command word whose bit acts on
-its rising edge (commands clear the word first, so a repeated "set" never starts a second move). A
-move is thus never repeated, silently or otherwise. pymodbus types never leave this module.
+The register map is :class:`StageMap`: by default an AZ series driver's (Oriental Motor, AZ Series
+Function Edition HM-60262E, "Modbus RTU control"; the simulator serves the same map,
+``sim/turntable/register_map.py``); the rig file's ``[turntable] registers = {…}`` moves any address or
+bit for another drive. 32-bit values span two registers, the upper word first. A move is one FC16 write
+of the direct data (position, speed, rates, current) with its trigger set to 1, which starts it; ZHOME,
+STOP and ALM-RST are driver input command bits acting on their rising edge. Reads and writes are retried
+with backoff (reconnecting after a dropped link), each retry logged with ``RETRY``. Repeating a write is
+safe because every write here sets a value: an absolute target (a repeated start goes where the first
+went), a coil state, or a command word whose bit acts on its rising edge (commands clear the word first,
+so a repeated "set" never starts a second move). pymodbus types never leave this module.
 """
 
 from __future__ import annotations
@@ -34,24 +38,30 @@ EXCEPTIONS = {1: "illegal function", 2: "illegal address", 3: "illegal value", 4
 
 @dataclass(frozen=True)
 class StageMap:
+    """Where the drive keeps what the driver uses (register numbers, 0-based) and which bits mean what;
+    the defaults are an AZ series driver's (module docstring)."""
+
     unit: int = 1
-    op_type: int = 0
-    target: int = 2
-    speed: int = 4
-    acceleration: int = 6
-    deceleration: int = 8
-    current: int = 10
-    command: int = 20
-    status: int = 30  # status, alarm code, position, velocity follow, 2 registers each
-    start_bit: int = 0x08
-    home_bit: int = 0x10
-    stop_bit: int = 0x20
-    alarm_reset_bit: int = 0x80
-    ready_bit: int = 0x01
-    move_bit: int = 0x02
-    in_position_bit: int = 0x04
-    alarm_bit: int = 0x80
-    absolute: int = 1
+    op_type: int = 0x5A  # direct data operation: operation type …
+    target: int = 0x5C  # … position …
+    speed: int = 0x5E  # … operating speed (steps/s) …
+    acceleration: int = 0x60  # … starting/changing rate (steps/s²) …
+    deceleration: int = 0x62  # … stopping rate …
+    current: int = 0x64  # … operating current (0.1 %) …
+    trigger: int = 0x66  # … and its trigger (1: start with all of it)
+    command: int = 0x7C  # driver input command
+    status: int = 0x7E  # driver output status
+    alarm: int = 0x80  # present alarm
+    position: int = 0xCC  # feedback position
+    home_bit: int = 0x10  # ZHOME
+    stop_bit: int = 0x20  # STOP
+    alarm_reset_bit: int = 0x80  # ALM-RST
+    ready_bit: int = 0x20  # READY
+    move_bit: int = 0x2000  # MOVE
+    in_position_bit: int = 0x4000  # IN-POS
+    alarm_bit: int = 0x80  # ALM-A
+    absolute: int = 1  # operation type: absolute positioning
+    start: int = 1  # trigger value that starts the operation
 
 
 @dataclass(frozen=True)
@@ -106,7 +116,7 @@ class ModbusStage:
 
     def connect(self) -> None:
         """Refuse a drive in alarm (or reset it if allowed), then load the operation data in one write."""
-        status, alarm = self._read_block(2)[:2]
+        status, alarm, _ = self._state()
         if status & self.config.map.alarm_bit:
             if not self.config.reset_alarm:
                 raise HardwareAlarm(
@@ -116,15 +126,9 @@ class ModbusStage:
                 )
             self._command(self.config.map.alarm_reset_bit)
         m = self.config.map
-        data = [
-            m.absolute,
-            0,
-            self.config.speed,
-            self.config.acceleration,
-            self.config.acceleration,
-            self.config.current,
-        ]
-        self._write(m.op_type, data)
+        self._write_fields([(m.op_type, m.absolute), (m.speed, self.config.speed),
+                            (m.acceleration, self.config.acceleration), (m.deceleration, self.config.acceleration),
+                            (m.current, self.config.current)])  # fmt: skip
 
     def move_to(self, goal: tuple[int, ...]) -> None:
         (steps,) = goal
@@ -134,8 +138,11 @@ class ModbusStage:
                 "nothing was sent",
                 device=self.name,
             )
-        self._write(self.config.map.target, [int(steps)])
-        self._command(self.config.map.start_bit)
+        m = self.config.map
+        c = self.config
+        self._write_fields([(m.op_type, m.absolute), (m.target, int(steps)), (m.speed, c.speed),
+                            (m.acceleration, c.acceleration), (m.deceleration, c.acceleration),
+                            (m.current, c.current), (m.trigger, m.start)])  # fmt: skip  # one write: it starts
         self._goal = int(steps)
 
     def home(self, timeout_s: float) -> None:
@@ -144,13 +151,13 @@ class ModbusStage:
         self.wait_settled(timeout_s)
 
     def position(self) -> tuple[int, ...]:
-        return (self._read_block(3)[2],)
+        return (self._state()[2],)
 
     def wait_settled(self, timeout_s: float) -> tuple[int, ...]:
         deadline = time.monotonic() + timeout_s
         m = self.config.map
         while True:
-            status, alarm, position = self._read_block(3)
+            status, alarm, position = self._state()
             if status & m.alarm_bit:
                 raise HardwareAlarm(
                     f"the drive raised alarm 0x{alarm:02x} while moving", device=self.name, status=alarm
@@ -177,7 +184,7 @@ class ModbusStage:
         self.stop()
         deadline = time.monotonic() + timeout_s
         while True:
-            status, _, position = self._read_block(3)
+            status, _, position = self._state()
             if not status & self.config.map.move_bit:
                 return f"stopped at {position} steps (read back)"
             if time.monotonic() > deadline:
@@ -196,7 +203,7 @@ class ModbusStage:
 
     def inspect(self) -> DriveReport:
         """The drive's status, alarm code and position; writes nothing (``hlr-lab doctor``)."""
-        status, alarm, position = self._read_block(3)
+        status, alarm, position = self._state()
         m = self.config.map
         return DriveReport(
             ready=bool(status & m.ready_bit),
@@ -215,6 +222,7 @@ class ModbusStage:
         self._write(self.config.map.command, [bit])
 
     def _write(self, address: int, values: list[int]) -> None:
+        """``values`` as consecutive int32 fields from ``address``, in one FC16 write."""
         registers = [
             r for v in values for r in self.client.convert_to_registers(int(v), self.client.DATATYPE.INT32)
         ]
@@ -227,17 +235,39 @@ class ModbusStage:
             )
         )
 
-    def _read_block(self, n: int) -> list[int]:
-        """n int32 values from the status block (status, alarm, position, velocity), retried on link faults."""
+    def _write_fields(self, fields: list[tuple[int, int]]) -> None:
+        """(address, int32 value) fields, in order: each run of adjacent ones in one write (on an AZ
+        driver the whole direct data is one run, so a move is one write whose trigger starts it)."""
+        run: list[tuple[int, int]] = []
+        for address, value in fields:
+            if run and address != run[-1][0] + 2:
+                self._write(run[0][0], [v for _, v in run])
+                run = []
+            run.append((address, value))
+        if run:
+            self._write(run[0][0], [v for _, v in run])
+
+    def _state(self) -> tuple[int, int, int]:
+        """(status, alarm code, position): one read when they are adjacent, else one per field."""
+        m = self.config.map
+        if m.alarm == m.status + 2 and m.position == m.alarm + 2:
+            status, alarm, position = self._read(m.status, 3)
+            return status, alarm, position
+        status, alarm = self._read(m.status, 2) if m.alarm == m.status + 2 else (*self._read(m.status, 1),
+                                                                                  *self._read(m.alarm, 1))  # fmt: skip
+        return status, alarm, self._read(m.position, 1)[0]
+
+    def _read(self, address: int, n: int) -> list[int]:
+        """n int32 values from ``address``, retried on link faults."""
 
         def read():
             rr = self._check(
                 self._io(
                     lambda: self.client.read_holding_registers(
-                        self.config.map.status, count=2 * n, device_id=self.config.map.unit
+                        address, count=2 * n, device_id=self.config.map.unit
                     )
                 ),
-                "status read",
+                f"read at {address}",
             )
             return [
                 self.client.convert_from_registers(

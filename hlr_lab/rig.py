@@ -173,7 +173,7 @@ class _TurntableSection(_Strict):
     current_permille: int = Field(default=500, gt=0, le=1000)
     tolerance_steps: int = Field(default=1, ge=0)
     reset_alarm: bool = False  # reset a drive alarm only when the operator allows it
-    # overrides of the AZ-style direct-data register map (drivers.modbus_stage.StageMap), by field name
+    # overrides of the AZ driver's register map (drivers.modbus_stage.StageMap), by field name
     registers: dict[str, int] = {}
 
     @field_validator("registers")

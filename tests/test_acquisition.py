@@ -356,6 +356,11 @@ def _inject_on_second_pose(inject):
     return progress
 
 
+def _places(steps: list[int]) -> list[int]:
+    """The places a stage was sent to, a start repeated in place counted once."""
+    return [x for k, x in enumerate(steps) if k == 0 or x != steps[k - 1]]
+
+
 LINK_FAULTS = {  # fault → the logger of the driver that must retry it
     "servo no reply": (lambda w: setattr(w.bus.fault(2), "drop_replies", 1), "drivers.dynamixel"),
     "servo corrupted byte": (lambda w: setattr(w.bus.fault(1), "corrupt_replies", 1), "drivers.dynamixel"),
@@ -367,14 +372,17 @@ LINK_FAULTS = {  # fault → the logger of the driver that must retry it
 @pytest.mark.parametrize("fault", LINK_FAULTS)
 def test_a_link_fault_is_retried_journaled_and_the_run_completes(fault, plan_file, rig, tmp_path):
     """One lost, corrupted or disconnected exchange while moving to the second pose: retried with backoff,
-    journaled, every frame taken; the stage started exactly one move per pose (no move repeated)."""
+    journaled, every frame taken; the stage went to each pose's place once (a start whose reply was lost
+    and is sent again names the same absolute place: no extra motion)."""
     inject, source = LINK_FAULTS[fault]
     plan = read_plan(plan_file[0])
     plan = plan.model_copy(update={"poses": plan.poses[:2]})
     targets = motion_targets(plan, rig)
     with world_of(plan_file) as world:
         outcome = run(world, rig, plan, tmp_path, progress=_inject_on_second_pose(lambda: inject(world)))
-        assert world.turntable.stage.moves == [t.turntable_steps for t in targets]
+        moves = world.turntable.stage.moves
+        assert _places(moves) == _places([t.turntable_steps for t in targets])
+        assert len(moves) <= len(targets) + 1
     assert outcome.taken == sum(len(p.exposures_s) for p in plan.poses)
     events = read_journal(tmp_path / JOURNAL)
     retries = [e for e in events if e["event"] == "retry"]

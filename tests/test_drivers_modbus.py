@@ -55,7 +55,7 @@ def test_drive_alarms_are_reported(server):
     )  # wider than the drive's
     wide.connect()
     wide.move_to((30_000,))
-    with pytest.raises(HardwareAlarm, match="alarm 0x66"):
+    with pytest.raises(HardwareAlarm, match="alarm 0x67"):
         wide.wait_settled(2)
     with pytest.raises(HardwareAlarm, match="allow an alarm reset"):
         wide.connect()  # a drive in alarm is refused unless a reset is allowed

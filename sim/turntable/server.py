@@ -86,14 +86,10 @@ class TurntableServer:
         stage = SimDevice(
             id=rm.STAGE_UNIT,
             simdata=[
-                SimData(0, count=rm.STATUS, values=0, datatype=DataType.REGISTERS),
                 SimData(
-                    rm.STATUS,
-                    count=rm.REGISTERS - rm.STATUS,
-                    values=0,
-                    datatype=DataType.REGISTERS,
-                    readonly=True,
-                ),
+                    first, count=end - first, values=0, datatype=DataType.REGISTERS, readonly=not writable
+                )
+                for first, end, writable in rm.BLOCKS
             ],
             action=self._stage_action,
         )
@@ -121,8 +117,9 @@ class TurntableServer:
                 if error:
                     return error
             self._refresh(registers, start)
-            if function_code in READS:  # a trigger acts once: read after its write (echoed as sent), 0
-                registers[rm.TRIGGER - start : rm.TRIGGER - start + 2] = [0, 0]
+            if function_code in READS and 0 <= rm.TRIGGER - start < len(registers):
+                # a trigger of 1 acts once: echoed as written, then read as 0 (a negative one stays)
+                registers[rm.TRIGGER - start : rm.TRIGGER - start + 2] = _words(self.stage.trigger)
         return None
 
     def _write(self, address: int, values: list[int], registers: list[int], start: int):
@@ -137,13 +134,19 @@ class TurntableServer:
         decoded = {a: _int32(words.get(a, 0), words.get(a + 1, 0)) for a in fields}
         if any(not s.valid(a, v) for a, v in decoded.items()):
             return ExcCodes.ILLEGAL_VALUE
+        started = False
         for a, v in decoded.items():
             if a in s.data:
                 s.data[a] = v
-            elif a == rm.TRIGGER and v == 1:
-                s.start()
+            elif a == rm.TRIGGER:
+                s.trigger = v if v < 0 else 0
+                started |= v == rm.TRIGGER_ALL
             elif a == rm.COMMAND:
                 s.set_command(v)
+        # a negative trigger: the named item's write starts the move with the data as it now stands
+        started |= s.trigger < 0 and rm.TRIGGERED_BY[s.trigger] in decoded
+        if started:
+            s.start()
         return None
 
     def _refresh(self, registers: list[int], start: int) -> None:
@@ -154,8 +157,6 @@ class TurntableServer:
             (rm.ALARM_CODE, s.alarm),
             (rm.POSITION, round(s.position())),
             (rm.VELOCITY, round(s.velocity())),
-            (rm.LIMIT_LOW, s.limits[0]),
-            (rm.LIMIT_HIGH, s.limits[1]),
             (rm.COMMAND, s.command),
         ):
             if address - start >= 0 and address - start + 2 <= len(registers):

@@ -65,14 +65,17 @@ class RotaryStage:
         self.clock = clock
         self.limits = limits
         self.max_speed = max_speed
-        self.data = {
+        self.data = {  # the direct data operation's fields, as a fresh drive holds them
+            rm.DATA_NO: 0,
             rm.OP_TYPE: rm.ABSOLUTE,
             rm.TARGET: 0,
             rm.SPEED: 2000,
             rm.ACCELERATION: 4000,
             rm.DECELERATION: 4000,
             rm.CURRENT: 500,
+            rm.FORWARDING: 0,
         }
+        self.trigger = 0  # a negative trigger: the item whose next write starts a move
         self.command = 0
         self.alarm = 0
         self.homed = False
@@ -92,6 +95,7 @@ class RotaryStage:
         return not self._move.done(self.clock())
 
     def status(self) -> int:
+        """Driver output status, lower word (register_map)."""
         moving = self.moving()
         bits = 0 if moving or self.alarm else rm.READY
         if moving:
@@ -107,13 +111,15 @@ class RotaryStage:
     # -- what the server writes --------------------------------------------------------------------
     def valid(self, address: int, value: int) -> bool:
         return {
-            rm.OP_TYPE: value in (rm.ABSOLUTE, rm.INCREMENTAL),
+            rm.DATA_NO: 0 <= value <= 255,
+            rm.OP_TYPE: value in (rm.ABSOLUTE, rm.INCREMENTAL, rm.INCREMENTAL_FEEDBACK),
             rm.SPEED: 0 < value <= self.max_speed,
             rm.ACCELERATION: value > 0,
             rm.DECELERATION: value > 0,
             rm.CURRENT: 0 <= value <= 1000,
             rm.TARGET: True,
-            rm.TRIGGER: value in (0, 1),
+            rm.TRIGGER: -7 <= value <= 1,
+            rm.FORWARDING: value in (0, 1),
         }.get(address, True)
 
     def set_command(self, bits: int) -> None:
@@ -136,7 +142,8 @@ class RotaryStage:
     def start(self) -> None:
         """Start the direct operation held in the data registers."""
         here = round(self.position())
-        target = self.data[rm.TARGET] + (here if self.data[rm.OP_TYPE] == rm.INCREMENTAL else 0)
+        incremental = self.data[rm.OP_TYPE] in (rm.INCREMENTAL, rm.INCREMENTAL_FEEDBACK)
+        target = self.data[rm.TARGET] + (here if incremental else 0)
         self.moves.append(target)
         self._go(target)
 
