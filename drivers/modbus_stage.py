@@ -9,8 +9,8 @@ of the direct data (position, speed, rates, current) with its trigger set to 1, 
 STOP and ALM-RST are driver input command bits acting on their rising edge. Reads and writes are retried
 with backoff (reconnecting after a dropped link), each retry logged with ``RETRY``. Repeating a write is
 safe because every write here sets a value: an absolute target (a repeated start goes where the first
-went), a coil state, or a command word whose bit acts on its rising edge (commands clear the word first,
-so a repeated "set" never starts a second move). pymodbus types never leave this module.
+went), a coil state, or a command word pulsed clear-set-clear whose bit acts on its rising edge (so a repeated
+"set" never acts twice). pymodbus types never leave this module.
 """
 
 from __future__ import annotations
@@ -217,9 +217,10 @@ class ModbusStage:
 
     # -- transport ------------------------------------------------------------------------------------
     def _command(self, bit: int) -> None:
-        """Command bits act on their rising edge: clear, then set."""
-        self._write(self.config.map.command, [0])
-        self._write(self.config.map.command, [bit])
+        """A pulse of one input bit: clear, set (its rising edge acts), clear again (an AZ driver starts
+        nothing while STOP is held, and a held bit could not rise for the next command)."""
+        for word in (0, bit, 0):
+            self._write(self.config.map.command, [word])
 
     def _write(self, address: int, values: list[int]) -> None:
         """``values`` as consecutive int32 fields from ``address``, in one FC16 write."""

@@ -22,6 +22,7 @@ from sim.camera import SimCamera
 
 log = logging.getLogger(__name__)
 MAX_GAIN_DB = 24.0  # a machine-vision sensor's analogue range
+MAX_EXPOSURE_S = 3600.0  # as a plan's exposures
 
 
 class CameraServer:
@@ -74,12 +75,14 @@ class CameraServer:
     def _answer(self, line: bytes) -> bytes:
         try:
             request = json.loads(line)
+            if not isinstance(request, dict):
+                raise TypeError("a request is a JSON object")
             exposure, gain = float(request["exposure_s"]), float(request.get("gain_db", 0.0))
-            if not exposure > 0:
-                raise ValueError("exposure_s must be positive")
+            if not 0 < exposure <= MAX_EXPOSURE_S:  # (NaN fails every comparison, so it is refused too)
+                raise ValueError(f"exposure_s must lie in (0, {MAX_EXPOSURE_S:g}]")
             if not 0 <= gain <= MAX_GAIN_DB:
                 raise ValueError(f"gain_db must lie in [0, {MAX_GAIN_DB:g}]")
-        except (ValueError, KeyError, TypeError) as exc:
+        except (ValueError, KeyError, TypeError, OverflowError) as exc:
             return (
                 json.dumps({"error": f'bad request ({exc}); send {{"exposure_s": seconds, "gain_db": dB}}'})
                 + "\n"

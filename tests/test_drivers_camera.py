@@ -90,3 +90,37 @@ def test_after_a_dropped_link_the_next_frame_comes_on_a_new_one(sim):
         camera.capture()
     assert camera.capture().pixels.shape == (480, 640, 3)
     camera.close()
+
+
+def test_ten_thousand_broken_requests_leave_the_camera_answering(sim, caplog):
+    """Random bytes, JSON that is not an object, exposures and gains of the wrong type, NaN, ±inf, 0,
+    negative or beyond an hour, missing keys, all on one connection: each is answered with one error
+    line (never a render, never a traceback), and a proper request afterwards gets its frame."""
+    import json
+    import logging
+    import random
+
+    rng = random.Random(14)
+    odd = [None, "x", [], {}, -1, 1e308, 3601, float("nan"), float("inf"), -float("inf")]  # none valid
+    host, port = sim.endpoints.camera.rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=10) as conn, caplog.at_level(logging.WARNING):
+        replies = conn.makefile("rb")
+        for k in range(10_000):
+            kind = k % 4
+            if kind == 0:
+                line = rng.randbytes(rng.randint(0, 30)).replace(b"\n", b" ")
+            elif kind == 1:
+                line = json.dumps(rng.choice([[], 3, "exposure", None, {"gain_db": 0}])).encode()
+            else:
+                request = (
+                    {"exposure_s": rng.choice([*odd, 0])}
+                    if kind == 2
+                    else {"exposure_s": 0.01, "gain_db": rng.choice([*odd, 25])}
+                )
+                line = json.dumps(request).encode()
+            conn.sendall(line + b"\n")
+            assert json.loads(replies.readline())["error"].startswith("bad request")
+        conn.sendall(b'{"exposure_s": 0.01}\n')
+        header = json.loads(replies.readline())
+        assert (header["width"], header["height"], header["channels"]) == (640, 480, 3)
+    assert "Traceback" not in caplog.text
