@@ -48,7 +48,8 @@ def servo_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
 
 
 def modbus_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
-    """Reading the stage's status block (6 × int32) and writing a command, with pymodbus over TCP and RTU."""
+    """Reading the stage's status and alarm (2 × int32, as the driver polls them) and writing a command,
+    with pymodbus over TCP and RTU."""
     figures = {}
     with TurntableServer.simulated() as server:
         host, port = server.serve_tcp()
@@ -59,9 +60,9 @@ def modbus_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
         for name, client in clients.items():
             client.connect()
             try:
-                figures[f"read status block, {name}"] = _timed(
+                figures[f"read status and alarm, {name}"] = _timed(
                     lambda c=client: _ok(
-                        c.read_holding_registers(rm.STATUS, count=12, device_id=rm.STAGE_UNIT)
+                        c.read_holding_registers(rm.STATUS, count=4, device_id=rm.STAGE_UNIT)
                     ),
                     n,
                 )

@@ -197,7 +197,7 @@ def test_acquire_benchmark_prints_figures(capsys):
     assert 0 < float(overhead[1]) < 1000
     counts = re.search(r"transactions per pose, median: servo (\d+), Modbus (\d+)", out)
     assert counts
-    # a move and its settling take several servo sync reads, and the stage a write, START and status reads
+    # a move and its settling take several servo sync reads, and the stage its start and status reads
     assert int(counts[1]) >= 3
     assert int(counts[2]) >= 4
 
