@@ -199,15 +199,14 @@ def sim_links(
     scene file's world, or the plan's mesh with a default material per region; its rig as ``true_rig``
     says, else as ``rig``."""
     # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import sim_scene, world_geometry
+    from hlr_lab.cli.sim_world import sim_scene, world_geometry, world_links
     from sim.rig import SimRig
 
     scene = sim_scene(plan, plan_path, scene_path)
     world = stack.enter_context(
         SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig, true_rig))
     )
-    e = world.endpoints
-    return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera, clock=world.clock)
+    return world_links(world)
 
 
 def _motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:

@@ -22,8 +22,7 @@ from pathlib import Path
 
 from drivers.protocols import Camera, Positioner, RawFrame
 from hlr_lab.acquisition import Instruments, Step, acquire
-from hlr_lab.cli.sim_world import sim_scene, world_geometry
-from hlr_lab.devices import Links
+from hlr_lab.cli.sim_world import sim_scene, world_geometry, world_links
 from hlr_lab.formats.plan import PlanFile, write_plan
 from hlr_lab.mesh import file_sha256
 from hlr_lab.motion import motion_targets
@@ -149,8 +148,7 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
             plan_path = keep / "plan.json"
             write_plan(plan_path, plan)
             start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
-        e = world.endpoints
-        with open_rig(rig, Links(e.dynamixel, e.modbus, e.camera, world.clock)) as opened:
+        with open_rig(rig, world_links(world)) as opened:
             marks = [_mark(world, waiting, capturing)]
 
             def on_step(step: Step) -> None:

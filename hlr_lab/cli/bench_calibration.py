@@ -29,8 +29,7 @@ import numpy as np
 from hlr_lab.acquisition import Instruments
 from hlr_lab.cli.bench_acquire import Stopwatch, TimedCamera, TimedPositioner, repeated_poses
 from hlr_lab.cli.calibrate_cmd import ball_world, board_world, rig_source_path, white_world
-from hlr_lab.cli.sim_world import sim_scene, world_geometry
-from hlr_lab.devices import Links
+from hlr_lab.cli.sim_world import sim_scene, world_geometry, world_links
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.lamp_watch import UNWATCHED, LampWatch
 from hlr_lab.pipeline import acquire_plan, fit_into, load_object, plan_object
@@ -270,12 +269,11 @@ def end_to_end(folder: Path, believed: Rig, true_rig: str, speed_factor: float, 
     plan = read_plan(plan_path)
     scene = sim_scene(plan, plan_path, None)
     with SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(believed, true_rig)) as world:
-        e = world.endpoints
         acquire_plan(
             plan_path,
             believed,
             folder / "session",
-            links=Links(e.dynamixel, e.modbus, e.camera, world.clock),
+            links=world_links(world),
             lamp=lamp,
         )
     fitted = fit_into(folder / "session").materials

@@ -135,7 +135,7 @@ def board_world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
 
         return Links(), ask
     # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import world_geometry
+    from hlr_lab.cli.sim_world import world_geometry, world_links
     from sim.rig import SimRig
     from sim.targets import Board, Wedge, charuco_scene
 
@@ -153,10 +153,7 @@ def board_world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
             **world_geometry(rig, true_rig),
         )
     )
-    e = world.endpoints
-    return Links(e.dynamixel, e.modbus, e.camera, world.clock), lambda face: world.show(
-        charuco_scene(board, faces[face])
-    )
+    return world_links(world), lambda face: world.show(charuco_scene(board, faces[face]))
 
 
 def _table(before: Rig, after: Rig, result) -> Table:
@@ -501,11 +498,10 @@ def _target_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, what: str,
         click.confirm(f"Put {what} on the plate where the rig file says. Ready?", abort=True, err=True)
         return Links()
     # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import world_geometry
+    from hlr_lab.cli.sim_world import world_geometry, world_links
     from sim.rig import SimRig
 
     world = stack.enter_context(
         SimRig(scene=scene(), speed_factor=speed_factor, spp=spp, **world_geometry(rig, true_rig))
     )
-    e = world.endpoints
-    return Links(e.dynamixel, e.modbus, e.camera, world.clock)
+    return world_links(world)

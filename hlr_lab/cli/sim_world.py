@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hlr_lab.colour import srgb8_to_linear
+from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.mesh import file_sha256
@@ -31,6 +32,12 @@ from hlr_lab.rig import SIM_RIG, Rig
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
 
 DEFAULT_RS, DEFAULT_N, RD_SCALE = (0.25, 0.25, 0.25), 40.0, 0.8  # Rd + Rs ≤ 1: energy is not created
+
+
+def world_links(world) -> Links:
+    """Where hlr-lab reaches a running :class:`sim.rig.SimRig`: its devices' endpoints, and its clock."""
+    e = world.endpoints
+    return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera, clock=world.clock)
 
 
 def world_geometry(rig: Rig, true_rig: str | Path | None = None) -> dict:
