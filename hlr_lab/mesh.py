@@ -188,11 +188,11 @@ def load_mesh(
     path = Path(path)
     if not path.is_file():
         raise InputError("no such mesh file; check the path", path=path)
-    if path.suffix.lower() in (".obj", ".gltf"):  # text formats: trimesh guesses a non-UTF-8 file's
-        _check_utf8(path)  # encoding with a package it may lack, and says only that
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for malformed files
+        if path.suffix.lower() in (".obj", ".gltf"):  # a text format: trimesh guesses a non-UTF-8 file's
+            _check_utf8(path)  # encoding with a package it may lack, and says only that
         raise InputError(
             f"cannot read the mesh ({type(exc).__name__}: {exc}); give an OBJ, PLY, glTF or GLB file",
             path=path,
@@ -249,7 +249,8 @@ def write_vertex_coloured_ply(path: str | Path, mesh: ColouredMesh) -> None:
 
 
 def _check_utf8(path: Path) -> None:
-    """Refuse a text mesh file that is not UTF-8 text, saying where it stops being text."""
+    """Refuse a text mesh file that is not UTF-8 text, saying where it stops being text (called once
+    trimesh has failed on it: the good path reads the file once)."""
     try:
         path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
