@@ -249,14 +249,18 @@ class ModbusStage:
             self._write(run[0][0], [v for _, v in run])
 
     def _state(self) -> tuple[int, int, int]:
-        """(status, alarm code, position): one read when they are adjacent, else one per field."""
+        """(status, alarm code, position), in as few reads as the map allows (an AZ: status and alarm
+        are adjacent, the position is not)."""
         m = self.config.map
         if m.alarm == m.status + 2 and m.position == m.alarm + 2:
             status, alarm, position = self._read(m.status, 3)
             return status, alarm, position
-        status, alarm = self._read(m.status, 2) if m.alarm == m.status + 2 else (*self._read(m.status, 1),
-                                                                                  *self._read(m.alarm, 1))  # fmt: skip
-        return status, alarm, self._read(m.position, 1)[0]
+        if m.alarm == m.status + 2:
+            status, alarm = self._read(m.status, 2)
+        else:
+            (status,), (alarm,) = self._read(m.status, 1), self._read(m.alarm, 1)
+        (position,) = self._read(m.position, 1)
+        return status, alarm, position
 
     def _read(self, address: int, n: int) -> list[int]:
         """n int32 values from ``address``, retried on link faults."""

@@ -54,6 +54,11 @@ class _Profile:
     v_max: float  # ticks/s
     accel: float  # ticks/s², inf for no ramp
 
+    @classmethod
+    def held(cls, position: float, t: float) -> _Profile:
+        """The axis standing at ``position`` from ``t`` on."""
+        return cls(position, position, t, 1.0, math.inf)
+
     def timing(self) -> tuple[float, float, float]:
         """(ramp time, peak speed, total time)."""
         d = abs(self.goal - self.start)
@@ -120,7 +125,7 @@ class SimServo:
         for f in FIELDS:
             self._put(f, self._defaults[f.name])
         self._put(BY_NAME["goal_position"], position)
-        self._profile = _Profile(position, position, clock(), 1.0, math.inf)
+        self._profile = _Profile.held(position, clock())
         self._registered: tuple[int, bytes] | None = None
         self.stuck = False  # an injected fault: the axis does not follow its profile
         self.temperature_c = 30.0  # at rest; torque adds a little heat
@@ -265,7 +270,7 @@ class SimServo:
         here, _ = self._profile.state(self.clock())
         offset = self.get("homing_offset")
         turned = (round(here) + offset) % TICKS_PER_REV - offset
-        self._profile = _Profile(turned, turned, self.clock(), 1.0, math.inf)
+        self._profile = _Profile.held(turned, self.clock())
 
     # -- motion -------------------------------------------------------------------------------
     def _start_motion(self, goal: int) -> None:
@@ -293,7 +298,7 @@ class SimServo:
 
     def _freeze(self) -> None:
         here, _ = self._profile.state(self.clock())
-        self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
+        self._profile = _Profile.held(here, self.clock())
 
     def _refresh(self) -> None:
         now = self.clock()
@@ -349,7 +354,7 @@ class SimServo:
                 self._put(f, self._defaults[f.name])
         self._put(BY_NAME["hardware_error_status"], 0)
         self._put(BY_NAME["goal_position"], here)
-        self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
+        self._profile = _Profile.held(here, self.clock())
         self._registered = None
         self._put(BY_NAME["registered_instruction"], 0)
 
@@ -370,7 +375,7 @@ class SimServo:
         if not self._profile.done(self.clock()):  # the axis itself, not a Moving byte last read
             return Error.RESULT_FAIL | self.alert
         here = self.present_position() % TICKS_PER_REV
-        self._profile = _Profile(here, here, self.clock(), 1.0, math.inf)
+        self._profile = _Profile.held(here, self.clock())
         return self.alert
 
     def slip(self, ticks: int, *, hold_s: float = math.inf) -> None:
