@@ -53,12 +53,14 @@ def keep_object(session: Path, plan_path: Path) -> dict:
     return {"file": PLAN_COPY, "sha256": file_sha256(session / PLAN_COPY)}
 
 
-def kept_plan(session: Path, copy: dict) -> tuple[PlanFile, Path]:
-    """The session's own copy of its plan (``copy`` as :func:`keep_object` returned it) and its path,
-    checked against the sha256 recorded when the session started."""
-    if copy.get("file") != PLAN_COPY or not isinstance(copy.get("sha256"), str):
+def kept_plan(session: Path, copy: object) -> tuple[PlanFile, Path]:
+    """The session's own copy of its plan (``copy``: the record's entry, as :func:`keep_object` returned
+    it) and its path, checked against the sha256 recorded when the session started."""
+    if not isinstance(copy, dict) or copy.get("file") != PLAN_COPY or not isinstance(copy.get("sha256"), str):
         raise InputError(
-            f"the record of the plan's copy is damaged (plan.copy: {copy!r})", path=session / "session.json"
+            f"the record of the plan's copy is damaged (plan.copy: {copy!r}); restore session.json from a "
+            "backup of the session",
+            path=session / "session.json",
         )
     path = session / PLAN_COPY
     if not path.is_file():
@@ -129,7 +131,7 @@ def _copy(source: Path, target: Path, named_in: Path, field: str) -> None:
     try:
         data = source.read_bytes()
     except OSError as exc:
-        raise InputError(f"cannot read {source} to keep it with the session ({exc.strerror})", path=named_in,
-                         field=field) from exc  # fmt: skip
+        raise InputError(f"cannot read {source} to keep it with the session ({exc.strerror}); put it where "
+                         "the plan says, or plan again", path=named_in, field=field) from exc  # fmt: skip
     target.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(target, data)

@@ -51,10 +51,6 @@ def session_plan(session: Path, record: dict) -> tuple[PlanFile, Path]:
     was then, checked against its sha256."""
     copy = record["plan"].get("copy")
     if copy is not None:
-        if not isinstance(copy, dict):
-            raise InputError(
-                f"the record of the plan's copy is damaged (plan.copy: {copy!r})", path=session / SESSION
-            )
         return kept_plan(session, copy)
     plan_path = Path(record["plan"]["path"])
     if not plan_path.is_file():
