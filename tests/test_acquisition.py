@@ -386,10 +386,12 @@ def test_a_link_fault_is_retried_journaled_and_the_run_completes(fault, plan_fil
     assert outcome.taken == sum(len(p.exposures_s) for p in plan.poses)
     events = read_journal(tmp_path / JOURNAL)
     retries = [e for e in events if e["event"] == "retry"]
-    assert [(e["pose"], e["source"]) for e in retries] == [(plan.poses[1].id, source)]
+    # the injected fault is the first retry, where it was injected; a host loaded with other work can add
+    # a genuine one (a reply later than the SDK's 34 ms), which is journaled and counted like any other
+    assert (retries[0]["pose"], retries[0]["source"]) == (plan.poses[1].id, source)
     assert "retrying (1 of 3)" in retries[0]["error"]
     assert events[-1]["event"] == "run_end"
-    assert (outcome.retries, events[-1]["retries"]) == (1, 1)
+    assert outcome.retries == events[-1]["retries"] == len(retries)
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
 
 
