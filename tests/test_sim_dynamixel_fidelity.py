@@ -23,10 +23,11 @@ from dynamixel_sdk import (
 from sim.dynamixel.bus import INTER_BYTE_TIMEOUT_S, SimBus
 from sim.dynamixel.protocol import HEADER, Error, crc16, instruction_packet, status_packet
 
-TORQUE, MODE, HOMING, GOAL_VELOCITY, GOAL, MOVING, PRESENT_VELOCITY, PRESENT = (
+TORQUE, MODE, HOMING, BUS_WATCHDOG, GOAL_VELOCITY, GOAL, MOVING, PRESENT_VELOCITY, PRESENT = (
     64,
     11,
     20,
+    98,
     104,
     116,
     122,
@@ -187,6 +188,35 @@ def test_velocity_mode_turns_at_goal_velocity(sdk):
     assert ph.write4ByteTxRx(port, 1, GOAL_VELOCITY, 300)[1] == Error.DATA_LIMIT  # above Velocity Limit (200)
     ph.write4ByteTxRx(port, 1, GOAL_VELOCITY, 0)
     assert ph.read4ByteTxRx(port, 1, PRESENT_VELOCITY)[0] == 0
+
+
+def test_the_bus_watchdog_stops_a_servo_the_bus_left_alone(sdk):
+    """The e-manual's Bus Watchdog example: turning in velocity mode, Bus Watchdog 100 (2 s of the
+    servo's time); while packets keep coming nothing happens; 2 s of silence stop the axis where it was
+    then, Bus Watchdog reads −1 and a new Goal Velocity is a Data Range Error until Bus Watchdog is
+    written 0, after which the goal is obeyed again."""
+    _, port, ph = sdk  # the bus's time runs 20× real time: 2 s of it are 0.1 s here
+    ph.write1ByteTxRx(port, 1, MODE, VELOCITY_MODE)
+    ph.write1ByteTxRx(port, 1, TORQUE, 1)
+    assert ph.write4ByteTxRx(port, 1, GOAL_VELOCITY, 50) == (COMM_SUCCESS, 0)
+    assert ph.write1ByteTxRx(port, 1, BUS_WATCHDOG, 100) == (COMM_SUCCESS, 0)
+    for _ in range(15):  # 0.3 s of reads 20 ms apart: never 2 s of the bus's time without a packet
+        assert ph.read1ByteTxRx(port, 1, BUS_WATCHDOG)[0] == 100
+        time.sleep(0.02)
+    before = ph.read4ByteTxRx(port, 1, PRESENT)[0]
+    time.sleep(0.4)  # 8 s of the bus's time in silence
+    assert ph.read1ByteTxRx(port, 1, BUS_WATCHDOG)[0] == 0xFF  # −1: Bus Watchdog Error
+    stopped = ph.read4ByteTxRx(port, 1, PRESENT)[0]
+    travel = 50 * 0.229 / 60 * 4096 * 2.0  # 2 s at goal velocity 50 after the last packet
+    assert stopped - before == pytest.approx(travel, rel=0.05)  # (5 %: the read's own time on the line)
+    assert ph.read4ByteTxRx(port, 1, PRESENT_VELOCITY)[0] == 0
+    assert ph.read1ByteTxRx(port, 1, TORQUE)[0] == 1  # torque stays on
+    assert ph.write4ByteTxRx(port, 1, GOAL_VELOCITY, 150)[1] == Error.DATA_RANGE
+    assert ph.write4ByteTxRx(port, 1, GOAL, 0)[1] == Error.DATA_RANGE
+    assert ph.write1ByteTxRx(port, 1, BUS_WATCHDOG, 0xFF)[1] == Error.DATA_RANGE  # −1 is the servo's to set
+    assert ph.write1ByteTxRx(port, 1, BUS_WATCHDOG, 0) == (COMM_SUCCESS, 0)
+    assert ph.write4ByteTxRx(port, 1, GOAL_VELOCITY, 150) == (COMM_SUCCESS, 0)
+    assert ph.read4ByteTxRx(port, 1, PRESENT_VELOCITY)[0] == 150
 
 
 def test_baud_rate_protocol_type_and_secondary_id_take_effect(sdk):

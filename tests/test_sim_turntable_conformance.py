@@ -8,6 +8,7 @@ import logging
 import random
 import socket
 import struct
+import time
 
 import pytest
 from pyModbusTCP.client import ModbusClient
@@ -100,6 +101,50 @@ def test_a_32_bit_field_written_one_half_at_a_time_is_taken_whole(server):
     for address, value in ((rm.TARGET, 0), (rm.TARGET + 1, 1200), (rm.TRIGGER + 1, 1)):
         assert client.write_single_register(address, value)
     assert srv.stage.moves == [1200]
+    client.close()
+
+
+def test_a_client_that_talks_to_an_az_as_oriental_motors_examples_do(server):
+    """pyModbusTCP used the way Oriental Motor's sample code drives an AZ: the driver input command's lower
+    word alone at 007Dh, 32-bit reads of status, alarm and feedback position, a direct data operation in
+    one write with trigger 1, a pulsed STOP, the alarm reset and P-PRESET maintenance commands written
+    1 then 0; and a one-register read of a status word's lower half."""
+    srv, host, port = server
+    client = ModbusClient(host=host, port=port, unit_id=rm.STAGE_UNIT, auto_open=True, timeout=2)
+
+    def int32(address: int) -> int:
+        hi, lo = client.read_holding_registers(address, 2)
+        return struct.unpack(">i", struct.pack(">HH", hi, lo))[0]
+
+    def halves(*values: int) -> list[int]:
+        return [w for v in values for w in struct.unpack(">HH", struct.pack(">i", v))]
+
+    assert client.read_holding_registers(rm.COMMAND + 1, 1) == [0]
+    operation = halves(0, rm.ABSOLUTE, 3600, 4000, 1_000_000, 1_000_000, 1000, rm.TRIGGER_ALL, 0)
+    assert client.write_multiple_registers(rm.DATA_NO, operation)
+    assert srv.stage.moves == [3600]
+    deadline = time.monotonic() + 5
+    while int32(rm.STATUS) & rm.MOVE:
+        assert time.monotonic() < deadline
+    assert client.read_holding_registers(rm.STATUS + 1, 1) == [rm.READY | rm.IN_POS]  # the lower word alone
+    assert int32(rm.POSITION) == 3600
+    beyond = halves(0, rm.ABSOLUTE, 40_000, 4000)  # a target beyond the drive's limit
+    assert client.write_multiple_registers(rm.DATA_NO, beyond)
+    assert client.write_multiple_registers(rm.TRIGGER, halves(rm.TRIGGER_ALL))
+    assert int32(rm.ALARM_CODE) == rm.ALARM_OVERTRAVEL
+    assert int32(rm.STATUS) & rm.ALARM
+    for value in (1, 0):
+        assert client.write_multiple_registers(rm.MAINTENANCE_ALARM_RESET, halves(value))
+    assert int32(rm.ALARM_CODE) == 0
+    for value in (1, 0):
+        assert client.write_single_register(rm.COMMAND + 1, rm.STOP * value)  # a pulsed STOP, lower word
+    assert srv.stage.command == 0
+    for value in (1, 0):
+        assert client.write_multiple_registers(rm.MAINTENANCE_P_PRESET, halves(value))
+    assert int32(rm.POSITION) == 0
+    assert int32(rm.STATUS) & rm.HOME_END
+    assert not client.write_multiple_registers(rm.MAINTENANCE_ALARM_RESET, halves(2))
+    assert client.last_except == 3
     client.close()
 
 

@@ -16,7 +16,9 @@ As a real bus does (ROBOTIS e-manual, Protocol 2.0 and the X-series control tabl
 * Baud Rate (8): a pseudo-terminal has no speed of its own, so a servo hears a master at whatever speed
   its port is set to, as if it had been set to match; once Baud Rate is written, it ignores packets sent
   at any other speed until the master's port is switched too (the speed is read from the pty's
-  settings, which the master's ``tcsetattr`` sets; over TCP there is none, and every servo hears).
+  settings, which the master's ``tcsetattr`` sets; over TCP there is none, and every servo hears);
+* Bus Watchdog (98): every instruction packet a servo hears, with a good CRC, restarts its watchdog's
+  timer (the servo stops itself when the bus stays silent too long: sim.dynamixel.servo).
 """
 
 from __future__ import annotations
@@ -143,6 +145,9 @@ class SimBus:
 
     def _dispatch(self, p: Packet, line_baud: int | None = None) -> list[_Reply]:
         listening = self._listening(line_baud)
+        if p.crc_ok:
+            for servo in listening:
+                servo.heard()
         broadcast = p.id == BROADCAST_ID
         if not broadcast:  # a servo also obeys its secondary ID, silently (no status packet)
             for s in listening:

@@ -13,6 +13,9 @@ from dataclasses import dataclass
 
 EEPROM_END = 64  # addresses below this are EEPROM: writable only with torque off
 TABLE_SIZE = 662  # through Indirect Data 56 (661)
+BUS_WATCHDOG_UNIT_S = 0.020
+# read-only while the bus watchdog has expired (sim.dynamixel.servo)
+GOAL_VALUES = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 RAM_AREA = (64, 661)  # what an Indirect Address may point at (the e-manual: the RAM area, 64–661)
 
 
@@ -66,7 +69,7 @@ FIELDS = [
     Field("position_p_gain", 84, 2, True, 800, 0, 16383),
     Field("feedforward_2nd_gain", 88, 2, True, 0, 0, 16383),
     Field("feedforward_1st_gain", 90, 2, True, 0, 0, 16383),
-    Field("bus_watchdog", 98, 1, True, 0, -1, 127, True),  # 20 ms per unit; 0 off; −1 once it has expired
+    Field("bus_watchdog", 98, 1, True, 0, 0, 127, True),  # 20 ms per unit; 0 off; the servo sets −1 on expiry
     Field("goal_pwm", 100, 2, True, 0, -885, 885, True),
     Field("goal_current", 102, 2, True, 0, -1193, 1193, True),
     Field("goal_velocity", 104, 4, True, 0, -1023, 1023, True),

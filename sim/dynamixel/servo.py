@@ -15,6 +15,11 @@ What the e-manual (XM430-W350) says and the servo does:
   written whole, through consecutive Indirect Data bytes naming its consecutive addresses. (An Indirect
   Address naming Indirect Data itself answers an Access Error here.)
 * Clear Multi-Turn is refused only while the axis really moves.
+* Bus Watchdog (98), 1–127 × 20 ms: with torque on, a silence on the bus longer than that stops the axis
+  where it is (no profile) and sets Bus Watchdog to −1; Goal PWM, Current, Velocity and Position then
+  answer a Data Range Error until Bus Watchdog is written 0 ("Bus Watchdog(98)"). Every instruction
+  packet the servo hears restarts the timer (the e-manual counts "all the Instruction Packet"), whoever
+  it is addressed to.
 """
 
 from __future__ import annotations
@@ -26,10 +31,12 @@ from dataclasses import dataclass
 from sim.dynamixel.control_table import (
     ACCELERATION_UNIT_TICKS_PER_S2,
     BAUD_RATES,
+    BUS_WATCHDOG_UNIT_S,
     BY_ADDRESS,
     BY_NAME,
     EEPROM_END,
     FIELDS,
+    GOAL_VALUES,
     INDIRECT_OF_DATA,
     OPERATING_MODES,
     TABLE_SIZE,
@@ -132,6 +139,24 @@ class SimServo:
         self.on_goal: Callable[[SimServo, int], None] = lambda _servo, _goal: None  # hears every goal sent
         self.line_baud: int | None = None  # once Baud Rate is written, the only speed it hears
         self.input_voltage_dv = 120  # 12.0 V
+        self._heard_at = clock()  # the last instruction packet heard (the bus watchdog's timer)
+
+    def heard(self) -> None:
+        """An instruction packet reached the servo: the bus watchdog judges the silence before it, then its
+        timer restarts."""
+        now = self.clock()
+        self._watch(now)
+        self._heard_at = now
+
+    def _watch(self, now: float) -> None:
+        """Expire the bus watchdog if the bus has been silent longer than it allows, with torque on: the
+        axis stops where it was at that moment."""
+        allowed = self.get("bus_watchdog") * BUS_WATCHDOG_UNIT_S
+        if allowed <= 0 or not self.get("torque_enable") or now - self._heard_at <= allowed:
+            return
+        expired = self._heard_at + allowed
+        self._profile = _Profile.held(self._profile.state(expired)[0], expired)
+        self._put(BY_NAME["bus_watchdog"], -1)
 
     # -- table access -------------------------------------------------------------------------
     @property
@@ -213,6 +238,8 @@ class SimServo:
                 return Error.DATA_LIMIT, []
             if f.name == "goal_velocity" and abs(value) > self.get("velocity_limit"):
                 return Error.DATA_LIMIT, []
+            if f.name in GOAL_VALUES and self.get("bus_watchdog") == -1:
+                return Error.DATA_RANGE, []  # read-only until Bus Watchdog is written 0
             if f.name == "torque_enable" and value == 1 and self.get("hardware_error_status"):
                 return Error.RESULT_FAIL, []  # after a shutdown only a reboot restores torque
             values.append((f, value))
@@ -302,6 +329,7 @@ class SimServo:
 
     def _refresh(self) -> None:
         now = self.clock()
+        self._watch(now)
         if self.stuck:
             self._profile.t0 = now  # the profile never advances
             pos, vel, moving = self._profile.start, 0.0, True

@@ -1,7 +1,13 @@
 """The simulated stage's Modbus map: an Oriental Motor AZ series driver's (AZ Series Function Edition,
 HM-60262E, "Modbus RTU control": direct data operation, driver input command, driver output status,
-present alarm, monitor commands). Addresses are register numbers (0-based, as on the wire); 32-bit values
-span two registers, the upper word first, as the AZ keeps them.
+present alarm, monitor commands, maintenance commands). Addresses are register numbers (0-based, as on
+the wire); 32-bit values span two registers, the upper word first, as the AZ keeps them (Oriental Motor
+FAQ No. 331, https://www.orientalmotor.eu/eu/support/faq/0331: operation data No. 0 at 1800h, a position
+at +2 upper and +3 lower, two's complement). The addresses and bits below agree with three independent
+AZ client libraries, one of them written after Oriental Motor's own sample programs (direct data at
+0058h, the command's lower word at 007Dh, status 007Eh, alarm 0080h, feedback position 00CCh, feedback
+speed 00D0h in Hz, alarm reset 0180h); the manual's page numbers could not be checked where this was
+written: see docs/rig.example.toml for overriding any address on a bench that differs.
 
 Unit 1, the stage — holding registers (address: name, access, meaning):
 
@@ -25,11 +31,17 @@ Unit 1, the stage — holding registers (address: name, access, meaning):
   (EEPROM error) for an injected device fault
 * 00CCh (204): position, R — feedback position, steps
 * 00D0h (208): velocity, R — feedback speed, Hz
+* 0180h–018Dh (384–397): maintenance commands, RW — each executed when written 1 after 0: 0180h alarm
+  reset, 018Ah P-PRESET (the position becomes the preset position, 0, while the axis stands; HOME-END
+  comes on); the others (alarm and error histories, 018Ch configuration) are accepted with nothing
+  simulated to act on; values other than 0 and 1 are exception 3
 
 A write with a bad value (op_type not 1–3, speed ≤ 0 or too high, acceleration ≤ 0, current > 1000,
 trigger outside −7…1) is exception 3, also when a 32-bit field is written one half at a time (FC 6:
 the other half as it stands); an address outside these is exception 2. The data registers read what
-the drive will use (its defaults until written). The stage answers FC 3, 6, 16 and 23; other functions
+the drive will use (its defaults until written); a read or write may take one half of a 32-bit field
+(the lower word of the driver input command at 007Dh, say, as Oriental Motor's own examples write it).
+The stage answers FC 3, 6, 16 and 23; other functions
 are exception 1 (sim.turntable.server). Software overtravel limits are the drive's parameters (not on
 this map): a move beyond them raises alarm 67h.
 
@@ -47,8 +59,11 @@ DATA_NO, OP_TYPE, TARGET, SPEED, ACCELERATION, DECELERATION, CURRENT, TRIGGER, F
 COMMAND = 0x7C
 STATUS, ALARM_CODE = 0x7E, 0x80
 POSITION, VELOCITY = 0xCC, 0xD0
+MAINTENANCE_ALARM_RESET, MAINTENANCE_P_PRESET, MAINTENANCE_END = 0x180, 0x18A, 0x18E
+MAINTENANCE = range(MAINTENANCE_ALARM_RESET, MAINTENANCE_END, 2)
 BLOCKS = ((DATA_NO, FORWARDING + 2, True), (COMMAND, COMMAND + 2, True), (STATUS, ALARM_CODE + 2, False),
-          (POSITION, VELOCITY + 2, False))  # fmt: skip  # (first, end, writable) of each run of registers
+          (POSITION, VELOCITY + 2, False),
+          (MAINTENANCE_ALARM_RESET, MAINTENANCE_END, True))  # fmt: skip  # (first, end, writable) of each run
 
 START, ZHOME, STOP, FREE, ALARM_RESET = 0x08, 0x10, 0x20, 0x40, 0x80
 HOME_END, READY, ALARM, BUSY, MOVE, IN_POS = 0x10, 0x20, 0x80, 0x100, 0x2000, 0x4000

@@ -56,6 +56,14 @@ def _words(v: int) -> tuple[int, int]:
     return v >> 16, v & 0xFFFF
 
 
+def _show(registers: list[int], start: int, address: int, value: int) -> None:
+    """Put the 32-bit ``value`` of the field at ``address`` into ``registers`` (a request's window from
+    ``start``), each of its words that the window holds: a request may take one half of a field."""
+    for a, word in zip((address, address + 1), _words(value), strict=True):
+        if 0 <= a - start < len(registers):
+            registers[a - start] = word
+
+
 class TurntableServer:
     def __init__(self, stage: RotaryStage):
         self.stage = stage
@@ -117,9 +125,9 @@ class TurntableServer:
                 if error:
                     return error
             self._refresh(registers, start)
-            if function_code in READS and 0 <= rm.TRIGGER - start < len(registers):
+            if function_code in READS:
                 # a trigger of 1 acts once: echoed as written, then read as 0 (a negative one stays)
-                registers[rm.TRIGGER - start : rm.TRIGGER - start + 2] = _words(self.stage.trigger)
+                _show(registers, start, rm.TRIGGER, self.stage.trigger)
         return None
 
     def _write(self, address: int, values: list[int], registers: list[int], start: int):
@@ -143,6 +151,8 @@ class TurntableServer:
                 started |= v == rm.TRIGGER_ALL
             elif a == rm.COMMAND:
                 s.set_command(v)
+            elif a in rm.MAINTENANCE:
+                s.maintain(a, v)
         # a negative trigger: the named item's write starts the move with the data as it now stands
         started |= s.trigger < 0 and rm.TRIGGERED_BY[s.trigger] in decoded
         if started:
@@ -158,9 +168,9 @@ class TurntableServer:
             (rm.POSITION, round(s.position())),
             (rm.VELOCITY, round(s.velocity())),
             (rm.COMMAND, s.command),
+            *s.maintenance.items(),
         ):
-            if address - start >= 0 and address - start + 2 <= len(registers):
-                registers[address - start : address - start + 2] = _words(value)
+            _show(registers, start, address, value)
 
     async def _relay_action(self, function_code, start, address, count, registers, values):
         with self._lock:

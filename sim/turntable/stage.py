@@ -77,6 +77,7 @@ class RotaryStage:
         }
         self.trigger = 0  # a negative trigger: the item whose next write starts a move
         self.command = 0
+        self.maintenance = dict.fromkeys(rm.MAINTENANCE, 0)  # each command acts as it goes from 0 to 1
         self.alarm = 0
         self.homed = False
         self.excited = True
@@ -120,7 +121,7 @@ class RotaryStage:
             rm.TARGET: True,
             rm.TRIGGER: -7 <= value <= 1,
             rm.FORWARDING: value in (0, 1),
-        }.get(address, True)
+        }.get(address, address not in rm.MAINTENANCE or value in (0, 1))
 
     def set_command(self, bits: int) -> None:
         rising = bits & ~self.command
@@ -138,6 +139,16 @@ class RotaryStage:
             self._go(0, homing=True)
         if rising & rm.START:
             self.start()
+
+    def maintain(self, address: int, value: int) -> None:
+        """A maintenance command written (register_map): executed when it goes from 0 to 1."""
+        rising = value == 1 and self.maintenance[address] == 0
+        self.maintenance[address] = value
+        if rising and address == rm.MAINTENANCE_ALARM_RESET:
+            self.alarm = 0
+        if rising and address == rm.MAINTENANCE_P_PRESET and not self.moving():
+            self._move = _Move(0, 0, self.clock(), 1.0, 1.0, 1.0)  # the preset position, 0
+            self.homed = True
 
     def start(self) -> None:
         """Start the direct operation held in the data registers."""
