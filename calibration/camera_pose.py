@@ -157,7 +157,10 @@ def refine_pose(
 
     fit = least_squares(residuals, start, x_scale="jac", method="lm")
     if not fit.success:
-        raise CalibrationError(f"the joint camera fit did not converge ({fit.message}); check the views")
+        raise CalibrationError(
+            f"the joint camera fit did not converge ({fit.message}): check that the photographs show the board "
+            "sharp on the wedge and that the rig file's camera pose is roughly right, then solve again with --from"
+        )
     cam, k, dist, brds = unpack(fit.x)
     # the gauge: turn the world about z until the camera stands at the azimuth the rig file gives it
     believed_centre = -believed_rotation.T @ believed_translation

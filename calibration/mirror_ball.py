@@ -226,7 +226,11 @@ def fit_gantry(
 
     fit = least_squares(lambda x: misses(x).ravel(), x0, x_scale="jac")
     if not fit.success:
-        raise CalibrationError(f"the gantry fit did not converge ({fit.message})")
+        raise CalibrationError(
+            f"the gantry fit did not converge ({fit.message}): check that [calibration.mirror_ball] gives the "
+            "ball's radius and rough place, and that the rig file's gantry is within a few centimetres of the "
+            "bench, then solve again with --from"
+        )
     dof = max(fit.fun.size - len(x0), 1)
     covariance = np.linalg.pinv(fit.jac.T @ fit.jac) * (fit.fun @ fit.fun) / dof
     se = np.sqrt(np.clip(np.diag(covariance), 0, None))
