@@ -82,8 +82,8 @@ def true_rig_option(f):
         "--true-rig",
         "true_rig",
         metavar="FILE|builtin:NAME",
-        help="With --sim: build the simulated world from this rig file (the rig as it really is, e.g. "
-        "builtin:bench-offsets), while hlr-lab keeps believing --rig (or the built-in simulated rig).",
+        help="Build the simulated world from this rig file (the rig as it really is, e.g. "
+        "builtin:bench-offsets), while hlr-lab keeps believing its own (--rig, or the built-in simulated rig).",
     )(f)
 
 
