@@ -41,9 +41,8 @@ trigger outside −7…1) is exception 3, also when a 32-bit field is written on
 the other half as it stands); an address outside these is exception 2. The data registers read what
 the drive will use (its defaults until written); a read or write may take one half of a 32-bit field
 (the lower word of the driver input command at 007Dh, say, as Oriental Motor's own examples write it).
-The stage answers FC 3, 6, 16 and 23; other functions
-are exception 1 (sim.turntable.server). Software overtravel limits are the drive's parameters (not on
-this map): a move beyond them raises alarm 67h.
+The stage answers FC 3, 6, 16 and 23; other functions are exception 1 (sim.turntable.server). Software
+overtravel limits are the drive's parameters (not on this map): a move beyond them raises alarm 67h.
 
 Unit 2, the lamp relay — coil 0: the lamp (on = True); FC 1, 5 (0xFF00 or 0x0000 only) and 15.
 Any other unit: exception 0Bh (gateway target failed to respond).
