@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hlr_lab.acquisition import Bracketing, Outcome, Step, Tolerance, acquire
+from hlr_lab.acquisition import Bracketing, Outcome, PoseBrightness, Step, Tolerance, acquire
 from hlr_lab.devices import Links, SafeState
 from hlr_lab.errors import HlrLabError
 from hlr_lab.formats.plan import PlanFile
@@ -49,9 +49,11 @@ def acquire_session(
     object_window: Callable[[float], np.ndarray] | None = None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
     lamp: LampWatch = UNWATCHED,
+    reference: PoseBrightness | None = None,
 ) -> Outcome:
     """Run ``plan`` on ``rig`` into ``session`` (created, or resumed when it exists); see the module's
-    docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready."""
+    docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready; ``lamp``
+    and ``reference``: how the lamp is watched (:func:`hlr_lab.acquisition.acquire`)."""
     resumed: bool | None = None
     opened: OpenRig | None = None
 
@@ -80,6 +82,7 @@ def acquire_session(
                     object_window=object_window,
                     tolerance=Tolerance(rig.file.turntable.tolerance_steps, rig.file.gantry.tolerance_ticks),
                     lamp=replace(lamp, black_level_dn=rig.file.sensor.black_level_dn),
+                    reference=reference,
                 )
                 log.info("run summary: %s", outcome.summary())
         except RunStopped as stop:

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -26,11 +27,20 @@ from drivers.protocols import Camera, Clock, Positioner, RawFrame, Switch, Therm
 from hlr_lab.clipping import clip_level, clipped
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
-from hlr_lab.lamp_watch import UNWATCHED, WALL_CLOCK, LampWatch, compared_pixels, relative_output, warm_up
+from hlr_lab.lamp_watch import (
+    UNWATCHED,
+    WALL_CLOCK,
+    WHITE_REFERENCE,
+    LampWatch,
+    compared_pixels,
+    relative_output,
+    warm_up,
+)
 from hlr_lab.motion import PoseTarget
 from hlr_lab.session.frames import FRAMES, frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 from hlr_lab.session.writer import FrameWriter
+from hlr_lab.white_reference import Reading
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +132,7 @@ def acquire(
     object_window: Callable[[float], np.ndarray] | None = None,
     tolerance: Tolerance = Tolerance(),
     lamp: LampWatch = UNWATCHED,
+    reference: PoseBrightness | None = None,
 ) -> Outcome:
     """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``, which
     this process alone writes (:func:`hlr_lab.locks.hold_session`).
@@ -132,6 +143,8 @@ def acquire(
     more than this is not kept but taken again after the rig settles (twice: :class:`AxisMoved`).
     lamp: how the lamp is watched (:mod:`hlr_lab.lamp_watch`): a warm-up, and the plan's first pose
     photographed again before the first pose, every ``lamp.every`` poses moved to and at the end.
+    reference: the lamp measured in each pose's own lit frames (a white reference beside the object:
+    :mod:`hlr_lab.white_reference`), a ``lamp`` line per pose where it can be.
     """
     outcome, started = Outcome(), time.monotonic()
     remove_temporaries(session)
@@ -145,8 +158,9 @@ def acquire(
         writer = FrameWriter(session, journal)
         try:
             with writer:
+                on_plate = _LampOnReference(journal, reference) if reference else None
                 run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket, object_window,
-                           tolerance)  # fmt: skip
+                           tolerance, on_plate)  # fmt: skip
                 watch = _LampReference(run, lamp, plan.poses[0], targets[0]) if lamp.active else None
                 if watch:
                     watch.warm_up(partial(_report, progress, 0, len(targets), "lamp"))
@@ -237,6 +251,7 @@ class _Run:
     bracket: Bracketing
     object_window: Callable[[float], np.ndarray] | None
     tolerance: Tolerance
+    reference: _LampOnReference | None = None
 
     def take_pose(
         self,
@@ -265,15 +280,19 @@ class _Run:
         place = _Place(self, pose, target)
         window = None if self.object_window is None else self.object_window(target.turntable_deg)
         instruments.lamp.set(True)
+        frames: list[RawFrame] = []  # this pose's lit frames, for the lamp measured on the white reference
+        shoot = partial(self._capture, place, window=window, progress=progress, kept=frames)
         for k in planned:
             lit[k] = pose.exposures_s[k]
-            shortest = min(shortest, (lit[k], self._capture(place, k, lit[k], window, "planned", progress)))
+            shortest = min(shortest, (lit[k], shoot(k, lit[k], kind="planned")))
         k = max(len(pose.exposures_s), max(lit) + 1)
         while self.bracket.wants_shorter(shortest[1], k - len(pose.exposures_s)):
             lit[k] = shortest[0] / self.bracket.factor
-            shortest = min(shortest, (lit[k], self._capture(place, k, lit[k], window, "adaptive", progress)))
+            shortest = min(shortest, (lit[k], shoot(k, lit[k], kind="adaptive")))
             k += 1
         instruments.lamp.set(False)
+        if self.reference and frames:
+            self.reference.measure(pose.id, place.state["measured"], frames)
         dark = sorted(set(lit) - darks) if self.bracket.dark_frames else []
         for k in dark:  # same pose and exposure, lamp off: the ambient light to subtract
             self._capture(place, k, lit[k], window, "dark", progress)
@@ -287,9 +306,11 @@ class _Run:
         window: np.ndarray | None,
         kind: str,
         progress: Callable[[str], None],
+        kept: list[RawFrame] | None = None,
     ) -> int:
-        """One frame, handed to the writer; returns its clipped-pixel count (inside ``window`` when
-        given). ``kind`` is "planned", "adaptive" (shorter, because of clipping) or "dark" (lamp off).
+        """One frame, handed to the writer (and appended to ``kept``); returns its clipped-pixel count
+        (inside ``window`` when given). ``kind`` is "planned", "adaptive" (shorter, because of clipping)
+        or "dark" (lamp off).
         A frame during which an axis left its place is dropped and taken again once the rig has settled
         there anew; if it happens again the run stops (:class:`AxisMoved`)."""
         progress(f"exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
@@ -337,10 +358,44 @@ class _Run:
             dark=dark,
             clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
         )
+        if kept is not None:
+            kept.append(frame)
         return clipped
 
 
 LAMP_REFERENCE = "lamp-reference"  # the pose id of the reference frames (never a plan's: ids are p000…)
+
+
+class PoseBrightness(Protocol):
+    """The lamp's brightness on the white reference in a pose's lit frames, from the axes' ``measured``
+    positions (``turntable_steps``, ``gantry_ticks``): a reading with ``brightness`` (S · Φ, any fixed
+    unit) and ``at`` (the Unix time of the frame it comes from); None where it cannot be measured
+    (:func:`hlr_lab.white_reference.pose_brightness`)."""
+
+    def __call__(self, measured: dict, frames: list[RawFrame]) -> Reading | None: ...
+
+
+class _LampOnReference:
+    """The lamp measured on the white reference in every pose: a ``lamp`` line per pose that shows it,
+    relative to the session's first such measurement (read back on a resumed run)."""
+
+    def __init__(self, journal: Journal, brightness: PoseBrightness):
+        self.journal, self.brightness = journal, brightness
+        first = next((e for e in journal.events if e.get("event") == "lamp" and e.get("baseline") == WHITE_REFERENCE
+                      and isinstance(e.get("brightness"), float)), None)  # fmt: skip
+        self.baseline: float | None = first["brightness"] / first["output"] if first else None
+
+    def measure(self, pose_id: str, measured: dict, frames: list[RawFrame]) -> None:
+        reading = self.brightness(measured, frames)
+        if reading is None or reading.brightness <= 0:
+            log.info("%s: no lamp measurement (the white reference hidden, shadowed or ill exposed)", pose_id)
+            return
+        k = reading.brightness
+        if self.baseline is None:
+            self.baseline = k
+        self.journal.append({"event": "lamp", "at": reading.at, "output": k / self.baseline,
+                             "baseline": WHITE_REFERENCE, "brightness": k, "pose": pose_id})  # fmt: skip
+        log.info("lamp: %.4f of the baseline (white reference, %s)", k / self.baseline, pose_id)
 
 
 class _LampReference:

@@ -25,6 +25,7 @@ import numpy as np
 from drivers.protocols import Clock
 
 WELL_EXPOSED = (0.1, 0.8)  # of full scale, in the first reference frame: the values compared
+WHITE_REFERENCE = "white reference"  # the baseline of lamp lines measured on it (hlr_lab.white_reference)
 TREND_READINGS = 4  # a warm-up judges the lamp's trend over this many readings
 
 

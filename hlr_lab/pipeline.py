@@ -43,6 +43,7 @@ from hlr_lab.rig import Rig
 from hlr_lab.rig_control import NO_OVERRIDES
 from hlr_lab.segment import Segmentation, segment
 from hlr_lab.silhouette import object_window
+from hlr_lab.white_reference import pose_brightness
 
 if TYPE_CHECKING:
     from hlr_lab.report.build import ReportFigures
@@ -106,17 +107,28 @@ def acquire_plan(
 ) -> Outcome:
     """Run the plan at ``plan_path`` on ``rig`` into ``session`` (created, or resumed): the motions are
     checked against the rig's limits before anything moves; adaptive bracketing watches the object's
-    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.lamp_watch`). ``links`` replace the
-    rig file's device addresses (the simulated rig's endpoints)."""
+    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.lamp_watch`), and a white reference
+    beside the object (the rig file's ``run_place_m``) measures it in every pose instead of a reference
+    pose (:mod:`hlr_lab.white_reference`). ``links`` replace the rig file's device addresses (the
+    simulated rig's endpoints)."""
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
     if rig.file.lamp is None:
         raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
+    reference = pose_brightness(rig, vertices)
+    if reference is not None and lamp.every:
+        raise InputError(
+            "the rig file's white reference lies beside the object during runs: the lamp is measured on it in "
+            "every pose; leave out --lamp-every (or remove run_place_m to use a reference pose instead)",
+            path=rig.source,
+            field="calibration.white_reference.run_place_m",
+        )
     # where the object may appear at each turntable angle, computed once per angle
     windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
     return acquire_session(plan, plan_path, targets, rig, session, links=links, bracket=bracket, force=force,
-                           progress=progress, object_window=windows, on_start=on_start, lamp=lamp)  # fmt: skip
+                           progress=progress, object_window=windows, on_start=on_start, lamp=lamp,
+                           reference=reference)  # fmt: skip
 
 
 def fit_into(

@@ -247,12 +247,15 @@ class _MirrorBallSection(_Strict):
 
 class _WhiteReferenceSection(_Strict):
     """The white reference of ``hlr-lab calibrate radiometric``: a flat Lambertian square lying on the
-    plate."""
+    plate (and, with ``run_place_m``, beside the object during runs)."""
 
     reflectance: Vec3 = [0.99, 0.99, 0.99]  # per channel (linear RGB), from its certificate
     size_m: float = Field(default=0.1, gt=0, le=0.5)  # the square's side
     place_m: Annotated[list[float], _PAIR] = [0.0, 0.0]  # its centre on the plate at turntable 0° (x, y)
     thickness_m: float = Field(default=0.0, ge=0, le=0.05)  # its face above the plate
+    # where it lies beside the object during runs (turntable 0°): acquire measures the lamp on it in every
+    # pose (hlr_lab.white_reference); absent: it is not there during runs
+    run_place_m: Annotated[list[float], _PAIR] | None = None
 
     @field_validator("reflectance")
     @classmethod

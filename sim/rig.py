@@ -8,14 +8,14 @@ file descriptors and sockets closed).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from sim.camera import GantryGeometry, SimCamera, StageGeometry
 from sim.clock import WorldClock
 from sim.dynamixel.bus import SimBus
 from sim.lamp import LampModel
 from sim.render.camera import CameraSpec
-from sim.render.scene import SceneSpec
+from sim.render.scene import Patch, SceneSpec
 from sim.render.sensor import SensorModel
 from sim.turntable import register_map as rm
 from sim.turntable.server import TurntableServer
@@ -48,7 +48,9 @@ class Endpoints:
 
 
 class SimRig:
-    """The simulated devices, and (given a scene and a camera) the camera that photographs them.
+    """The simulated devices, and (given a scene and a camera) the camera that photographs them; a
+    ``run_reference`` (a white reference on the plate) is added to that first scene, not to the targets
+    :meth:`show` puts in front of the camera later.
 
     The camera is made last and imports the renderer only then, so a rig without a scene needs no Mitsuba.
     """
@@ -66,6 +68,7 @@ class SimRig:
         stage: StageGeometry = STAGE,
         spp: int = 16,
         seed: int = 0,
+        run_reference: Patch | None = None,
     ):
         # the arm rests horizontal along +x (its zero ticks), inside any sensible joint limits
         rest = dict(zip(servo_ids, gantry.zero_ticks, strict=False))  # a test may leave a servo out
@@ -81,6 +84,8 @@ class SimRig:
                 from sim.camera_server import CameraServer
                 from sim.render.renderer import Renderer
 
+                if run_reference is not None:  # it lies beside the object during runs
+                    scene = replace(scene, patches=(*scene.patches, run_reference))
                 self.camera = SimCamera(
                     Renderer(scene, camera, spp=spp),
                     sensor or SensorModel(),

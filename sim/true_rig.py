@@ -5,7 +5,8 @@ another, the *true* rig (``--true-rig``), so that calibration has something to f
 reads it in its own words — its own TOML reading, camera pose and gantry kinematics, no code shared
 with hlr-lab — so that it stays an independent truth. Only what shapes the world is read: the
 camera's intrinsics and pose, the gantry's geometry and tick mapping, the turntable's step mapping,
-the sensor's response and noise (``[sensor]``) and the lamp's power and drift (``[light]``).
+the sensor's response and noise (``[sensor]``), the lamp's power and drift (``[light]``), and a white
+reference lying beside the object during runs (``[calibration.white_reference]`` with ``run_place_m``).
 
 Built-in true rigs live in ``sim/data`` (``builtin:bench-offsets``: geometry off its drawing;
 ``builtin:bench-night``: the same bench, its sensor and lamp off their nominal values too, and a lamp
@@ -24,6 +25,7 @@ import numpy as np
 from sim.camera import GantryGeometry, StageGeometry
 from sim.lamp import LampModel
 from sim.render.camera import CameraSpec
+from sim.render.scene import Patch
 from sim.render.sensor import SensorModel
 
 BUILTIN = "builtin:"
@@ -42,6 +44,7 @@ class TrueRig:
     source: str
     sensor: SensorModel = field(default_factory=SensorModel)  # [sensor]: what the camera's pixels really do
     lamp: LampModel = field(default_factory=LampModel)  # [light] power and drift: what the lamp really gives
+    run_reference: Patch | None = None  # a white reference on the plate beside the object during runs
 
 
 def builtin_true_rigs() -> list[str]:
@@ -91,7 +94,17 @@ def _world(data: dict, source: str) -> TrueRig:
     )
     stage = StageGeometry(float(t["steps_per_degree"]), int(t.get("zero_steps", 0)))
     return TrueRig(_camera(c), gantry, stage, ids, source, _sensor(data.get("sensor", {})),
-                   _lamp(data.get("light", {})))  # fmt: skip
+                   _lamp(data.get("light", {})), _run_reference(data.get("calibration", {})))  # fmt: skip
+
+
+def _run_reference(calibration: dict) -> Patch | None:
+    """The white reference where it lies during runs (``run_place_m``), if it stays on the plate then."""
+    w = calibration.get("white_reference", {})
+    if "run_place_m" not in w:
+        return None
+    x, y = (float(v) for v in w["run_place_m"])
+    return Patch((x, y), float(w.get("size_m", 0.1)), float(w.get("thickness_m", 0.0)),
+                 tuple(float(r) for r in w.get("reflectance", (0.99, 0.99, 0.99))))  # fmt: skip
 
 
 def _sensor(s: dict) -> SensorModel:

@@ -150,7 +150,7 @@ def board_world(stack, rig: Rig, sim: bool, true_rig, speed_factor):
             scene=charuco_scene(board, faces[0]),
             speed_factor=speed_factor,
             spp=8,
-            **world_geometry(rig, true_rig),
+            **world_geometry(rig, true_rig, runs=False),
         )
     )
     return world_links(world), lambda face: world.show(charuco_scene(board, faces[face]))
@@ -502,6 +502,6 @@ def _target_world(stack, rig: Rig, sim: bool, true_rig, speed_factor, what: str,
     from sim.rig import SimRig
 
     world = stack.enter_context(
-        SimRig(scene=scene(), speed_factor=speed_factor, spp=spp, **world_geometry(rig, true_rig))
+        SimRig(scene=scene(), speed_factor=speed_factor, spp=spp, **world_geometry(rig, true_rig, runs=False))
     )
     return world_links(world)

@@ -40,11 +40,12 @@ def world_links(world) -> Links:
     return Links(gantry=e.dynamixel, stage=e.modbus, camera=e.camera, clock=world.clock)
 
 
-def world_geometry(rig: Rig, true_rig: str | Path | None = None) -> dict:
+def world_geometry(rig: Rig, true_rig: str | Path | None = None, *, runs: bool = True) -> dict:
     """The simulated world's camera, gantry, turntable, servo ids, sensor and lamp, as :class:`sim.rig.SimRig` takes
     them: from ``true_rig`` (a rig file or ``builtin:NAME``: the world as it really is, while hlr-lab
     keeps believing ``rig``), else from ``rig``'s own file (the world is as hlr-lab believes). Either way
-    the simulator reads the file itself (:mod:`sim.true_rig`)."""
+    the simulator reads the file itself (:mod:`sim.true_rig`). ``runs``: a world for runs, with the white
+    reference beside the object when the file puts one there (not in front of calibration targets)."""
     from sim.true_rig import TrueRigError, load_true_rig
 
     try:
@@ -64,6 +65,7 @@ def world_geometry(rig: Rig, true_rig: str | Path | None = None) -> dict:
         "servo_ids": world.servo_ids,
         "sensor": world.sensor,
         "lamp": world.lamp,
+        "run_reference": world.run_reference if runs else None,
     }
 
 

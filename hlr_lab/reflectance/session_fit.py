@@ -31,7 +31,7 @@ from hlr_lab.formats.materials import (
 )
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.formats.regions import RegionEntry
-from hlr_lab.lamp_watch import lamp_at
+from hlr_lab.lamp_watch import WHITE_REFERENCE, lamp_at
 from hlr_lab.mesh import ColouredMesh
 from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.raycast import RayCaster
@@ -102,6 +102,7 @@ class LampRecord:
 
     times: np.ndarray
     outputs: np.ndarray
+    on_white_reference: bool = False  # measured on the white reference in the poses' own frames
 
     @classmethod
     def unwatched(cls) -> LampRecord:
@@ -118,7 +119,7 @@ class LampRecord:
         baseline = lines[-1].get("baseline")
         kept = sorted((e["at"], e["output"]) for e in lines if e.get("baseline") == baseline)
         times, outputs = (np.array(v, float) for v in zip(*kept, strict=True))
-        return cls(times, outputs)
+        return cls(times, outputs, baseline == WHITE_REFERENCE)
 
     def at(self, t: float) -> float:
         return lamp_at(self.times, self.outputs, t)

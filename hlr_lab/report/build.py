@@ -109,14 +109,17 @@ def _meta(session: Session) -> str:
 
 
 def _lamp(session: Session) -> str:
-    """The lamp's measured output over the run (acquire --lamp-every) and what fitting without it would
-    have cost: every pose's light off by its output's distance from 1, reflectances by as much."""
+    """The lamp's measured output over the run (acquire --lamp-every, or on the white reference beside the
+    object) and what fitting without it would have cost: every pose's light off by its output's distance
+    from 1, reflectances by as much."""
     lamp = session.lamp
     if len(lamp.times) == 0:
         return (
-            '<p class="note">The run did not watch its lamp (acquire --lamp-every N): the fit took its power '
-            "as the rig file says throughout.</p>"
+            '<p class="note">The run did not watch its lamp (acquire --lamp-every N, or a white reference '
+            "beside the object): the fit took its power as the rig file says throughout.</p>"
         )
+    source = "the white reference beside the object" if lamp.on_white_reference else "the reference pose"
+    measured = "measurements on it" if lamp.on_white_reference else "reference frames"
     minutes = (lamp.times - lamp.times[0]) / 60
     at_views = np.array([lamp.at(view_time(v)) for v in session.views])
     off = 100 * np.abs(at_views - 1)
@@ -127,11 +130,11 @@ def _lamp(session: Session) -> str:
         y_range=(float(lo), float(hi)),
         x_label="minutes since the first reference frame",
         y_label="lamp output / first",
-        title="the lamp's output, from the reference pose",
+        title=f"the lamp's output, from {source}",
         line=[(float(m), float(o)) for m, o in zip(minutes, lamp.outputs, strict=True)],
     )
     return (
-        f'<div class="charts">{chart}</div><p>{len(lamp.times)} reference frames; the output ranged over '
+        f'<div class="charts">{chart}</div><p>{len(lamp.times)} {measured}; the output ranged over '
         f"{lamp.outputs.min():.4f}–{lamp.outputs.max():.4f} of the first. The fit divided each pose's light by "
         f"the output at its time: without that, the poses' light would have been off by up to {off.max():.2f} % "
         f"(mean {off.mean():.2f} %), and the reflectances fitted under it with it.</p>"

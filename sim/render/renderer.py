@@ -54,6 +54,12 @@ class Renderer:
                         }
                     )
                     shapes[f"region_{r}"] = self._mesh(f"region_{r}", faces, vertices, normals, bsdf)
+        for i, patch in enumerate(scene.patches):  # already in the turntable frame; turned like the object
+            matte = {"type": phong.PLUGIN, "rd": list(patch.reflectance), "rs": [0.0] * 3, "n": 1.0}
+            bsdf = mi.load_dict(matte)
+            quad = np.array([[0, 1, 2], [0, 2, 3]])
+            up = np.tile([0.0, 0.0, 1.0], (4, 1))
+            shapes[f"patch_{i}"] = self._mesh(f"patch_{i}", quad, patch.corners(), up, bsdf)
         for i, ball in enumerate(scene.mirror_balls):  # placed (and turned with the table) in render()
             bsdf = {"type": "roughconductor", "material": "Al", "alpha": ball.alpha}
             shapes[f"ball_{i}"] = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "bsdf": bsdf}

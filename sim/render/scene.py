@@ -52,6 +52,24 @@ class MirrorBall:
     alpha: float = 0.01
 
 
+@dataclass(frozen=True)
+class Patch:
+    """A flat Lambertian square lying on the plate (a white reference): its centre (x, y) in the turntable
+    frame, its side and its face's height above the plate (metres), its reflectance per channel. It turns
+    with the turntable."""
+
+    centre_xy: tuple[float, float]
+    size: float
+    height: float
+    reflectance: tuple[float, float, float]
+
+    def corners(self) -> np.ndarray:
+        """(4, 3) counter-clockwise seen from above (its face looks up, +z), at its true height: a scene
+        with patches has no plate for it to flicker against."""
+        x, y, h, z = *self.centre_xy, self.size / 2, self.height
+        return np.array([[x - h, y - h, z], [x + h, y - h, z], [x + h, y + h, z], [x - h, y + h, z]])
+
+
 @dataclass(frozen=True, eq=False)
 class SceneSpec:
     """vertices (V, 3) and faces (F, 3) of the mesh in its own frame; face_region (F,) index into
@@ -74,6 +92,7 @@ class SceneSpec:
     region_texture: np.ndarray | None = None
     normals: np.ndarray | None = None
     mirror_balls: tuple[MirrorBall, ...] = ()
+    patches: tuple[Patch, ...] = ()  # white references beside the object, on the plate
 
     def vertex_normals(self) -> np.ndarray:
         return self.normals if self.normals is not None else _area_normals(self.vertices, self.faces)

@@ -1,0 +1,113 @@
+"""The lamp measured on a white reference beside the object (hlr_lab.white_reference): which of its points
+count in a pose (seen, lit, not grazing: never one the object hides or shadows, checked against a
+brute-force ray test on a box), and the brightness recovered from synthetic frames of a known sensor."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hlr_lab.rig import sim_rig
+from hlr_lab.sphere import rotation_z
+from hlr_lab.white_reference import MIN_COS, SAMPLES, Exposure, RunReference, brightness
+
+BOX = (np.array([-0.04, -0.04, 0.0]), np.array([0.04, 0.04, 0.10]))  # the object: 8 × 8 × 10 cm on the plate
+
+
+def box_vertices() -> np.ndarray:
+    lo, hi = BOX
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+def segment_hits_box(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) bool: the segments from a (N, 3) to b (N, 3) pass through the box (slab test)."""
+    lo, hi = BOX
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - a) / d, (hi - a) / d
+    near = np.nanmax(np.where(np.isfinite(np.minimum(t1, t2)), np.minimum(t1, t2), -np.inf), axis=1)
+    far = np.nanmin(np.where(np.isfinite(np.maximum(t1, t2)), np.maximum(t1, t2), np.inf), axis=1)
+    return (near <= far) & (far > 1e-9) & (near < 1 - 1e-9)
+
+
+def reference(place=(0.08, 0.0)) -> RunReference:
+    return RunReference(sim_rig().camera, box_vertices(), place_m=place, size_m=0.05, height_m=0.0,
+                        reflectance=np.array([0.99, 0.98, 0.97]))  # fmt: skip
+
+
+@pytest.mark.parametrize("turntable_deg", [0.0, 60.0, 120.0, 180.0, -60.0, -120.0])
+@pytest.mark.parametrize("lamp", [(0.25, -0.05, 0.25), (-0.1, 0.2, 0.3), (0.05, -0.25, 0.15)])
+def test_no_point_the_object_hides_or_shadows_is_measured(turntable_deg, lamp):
+    """Every point kept is in the frame, lit at cos θ ≥ MIN_COS, with nothing of the box between it and
+    the lamp or between it and the camera (rays checked one by one)."""
+    ref, camera = reference(), sim_rig().camera
+    lamp = np.array(lamp)
+    sight = ref.sight(turntable_deg, lamp)
+    assert sight is not None
+    turn = rotation_z(np.radians(turntable_deg))
+    lamp_tt = turn[:3, :3].T @ lamp
+    seen_from = camera.in_frame(turn)
+    uv, _ = seen_from.project(ref.points)
+    pixel = {(int(r), int(c)) for r, c in sight.rows_cols}
+    kept = np.array([np.isfinite(u) and (round(v), round(u)) in pixel for u, v in uv])
+    points = ref.points[kept]
+    camera_tt = seen_from.centre
+    assert not segment_hits_box(points, np.tile(lamp_tt, (len(points), 1))).any()
+    assert not segment_hits_box(points, np.tile(camera_tt, (len(points), 1))).any()
+    to_lamp = lamp_tt - points
+    cos = to_lamp[:, 2] / np.linalg.norm(to_lamp, axis=1)
+    assert (cos >= MIN_COS).all()
+    d2 = np.einsum("ij,ij->i", to_lamp, to_lamp)
+    np.testing.assert_allclose(np.sort(sight.irradiance), np.sort(cos / d2))
+
+
+def test_a_partly_shadowed_reference_keeps_its_lit_part():
+    """The box's shadow covers 361 of the 576 points (by the brute-force test): of the other 215, those
+    more than SHADOW_MARGIN_M from the shadow's edge are kept (the convex hull of a box's shadow is its
+    shadow; the margin takes at most two rows of points, 1.3 mm apart, along it)."""
+    ref = reference()
+    lamp = np.array([-0.1, 0.2, 0.3])
+    lamp_tt = rotation_z(np.radians(-120.0))[:3, :3].T @ lamp
+    shadowed = segment_hits_box(ref.points, np.tile(lamp_tt, (len(ref.points), 1)))
+    assert 0 < shadowed.sum() < len(ref.points)
+    kept = len(ref.sight(-120.0, lamp).irradiance)
+    assert (~shadowed).sum() - 2 * SAMPLES <= kept < (~shadowed).sum()
+
+
+def test_a_lamp_no_higher_than_the_object_measures_nothing():
+    assert reference().sight(0.0, np.array([0.3, 0.0, 0.09])) is None
+
+
+def test_the_reference_behind_the_object_is_not_seen():
+    """Turned to the far side (behind the box from the camera on −y), none of it is measured."""
+    sight = reference(place=(0.0, 0.07)).sight(0.0, np.array([0.0, 0.1, 0.3]))
+    assert sight is not None
+    assert len(sight.irradiance) == 0
+
+
+def test_brightness_is_recovered_from_frames_of_a_known_sensor():
+    """Synthetic 12-bit frames: DN = black + k · g · t · R · cos θ / d² + read noise (σ 1.5 DN, seeded) at the
+    points in sight; a bracket whose long frame clips and whose short one is dark. The brightness comes
+    from the middle frame, within 0.1 % (the noise averages over ~1 000 values of ~1 500 DN: ~0.002 %;
+    rounding to whole DN: less)."""
+    rng = np.random.default_rng(7)
+    ref = reference()
+    sight = ref.sight(-30.0, np.array([0.2, -0.1, 0.28]))
+    k, black, h, w = 2.0e5, 64.0, 960, 1280
+    assert len(sight.irradiance) > 100
+    frames = []
+    middle = 1500 / (k * np.median(sight.irradiance))  # ~1 500 DN: a third of full scale
+    for t, at in ((10 * middle, 1.0), (middle, 2.0), (middle / 10, 3.0)):
+        pixels = np.full((h, w, 3), black)
+        signal = k * t * sight.irradiance[:, None] * ref.reflectance[None, :]
+        pixels[sight.rows_cols[:, 0], sight.rows_cols[:, 1]] += signal
+        pixels = np.clip(np.round(pixels + rng.normal(0, 1.5, pixels.shape)), 0, 4095).astype(np.uint16)
+        frames.append(Exposure(pixels, t, 0.0, at))
+    reading = brightness(frames, sight, ref.reflectance, black, 12)
+    assert reading is not None
+    assert reading.at == 2.0  # the middle frame: well exposed
+    assert reading.brightness == pytest.approx(k, rel=1e-3)
+    gained = [Exposure(f.pixels, f.exposure_s / 2, 20 * np.log10(2), f.captured_at) for f in frames]
+    assert brightness(gained, sight, ref.reflectance, black, 12).brightness == pytest.approx(k, rel=1e-3)
+    dark = [Exposure(np.full((h, w, 3), 64, np.uint16), 0.04, 0.0, 1.0)]
+    assert brightness(dark, sight, ref.reflectance, black, 12) is None
