@@ -128,7 +128,7 @@ def _lamp(session: Session) -> str:
         [(float(m), float(o), "") for m, o in zip(minutes, lamp.outputs, strict=True)],
         x_range=(0.0, float(max(minutes[-1], 1.0))),
         y_range=(float(lo), float(hi)),
-        x_label="minutes since the first reference frame",
+        x_label="minutes since the first measurement",
         y_label="lamp output / first",
         title=f"the lamp's output, from {source}",
         line=[(float(m), float(o)) for m, o in zip(minutes, lamp.outputs, strict=True)],

@@ -179,7 +179,7 @@ class Renderer:
             p["light.irradiance.value"] = mi.Color3f([self._strength if lamp_on else 0.0] * 3)
         p.update()
         crop = np.asarray(mi.render(self.scene, seed=seed, spp=self.spp), dtype=np.float32)
-        # the scene holds only the object: outside its box the film is exactly 0 (box filter, no emitter seen)
+        # the scene holds only the object (and patches): outside their box the film is exactly 0 (box filter)
         x, y, w, h = self._crop
         film = np.zeros((self.film.height, self.film.width, 3), np.float32)
         film[y : y + h, x : x + w] = crop
