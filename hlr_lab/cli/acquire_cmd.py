@@ -62,7 +62,8 @@ from hlr_lab.rig import Rig
     show_default=True,
     metavar="N",
     help="Watch the lamp: photograph the plan's first pose again before the first pose, every N poses and "
-    "at the end; fit divides each pose's light by the lamp's output then (0: do not watch).",
+    "at the end; fit divides each pose's light by the lamp's output then (0: do not watch). A rig whose "
+    "white reference lies beside the object (run_place_m) watches it in every pose without this.",
 )
 @click.option(
     "--warm-up",
