@@ -175,3 +175,15 @@ def test_highlights_at_a_single_angle_cannot_give_n(paper_42):
     for method in ("robust", "paper"):
         with pytest.raises(DegenerateSamples, match="cannot be told"):
             fit_region(paper_42.intensity, paper_42.irradiance, paper_42.cos_alpha, cos_beta, method=method)
+
+
+def test_a_region_darker_toward_its_mirror_direction_keeps_a_finite_theta_c(paper_42):
+    """Pixels darker where the highlight should be (a black level or a rig far from the bench makes a
+    region look so): the robust fit finds Rs < 0, and θc stays a number — the noise at a peak below zero
+    is the noise floor — so the caller can say that no highlight was seen, within which angle."""
+    r, t = paper_42, PAPER_42
+    dimmed = r.intensity - 2 * predict(np.zeros(3), t.rs, t.n, r.irradiance, r.cos_alpha, r.cos_beta)
+    f = fit_region(dimmed, r.irradiance, r.cos_alpha, r.cos_beta, theta_c_deg="auto", method="robust")
+    assert np.mean(f.rs) < 0
+    assert np.isfinite(f.theta_c_deg)
+    assert np.isfinite(f.noise_sigma)

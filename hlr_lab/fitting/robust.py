@@ -43,8 +43,9 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
     start = np.concatenate([rd1, rs1, [n1]])
     p, cov, rms = _gauss_newton(s, start, _Variance(noise, start, s.log_cos_beta), n_range)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    mu_peak = float(np.mean(p[3:6]) * np.median(s.irradiance))
-    sigma = float(np.sqrt(noise[0] + noise[1] * mu_peak))
+    # the noise at the lobe's peak; a lobe fitted below zero (no highlight seen) has none: the floor's
+    mu_peak = max(float(np.mean(p[3:6]) * np.median(s.irradiance)), 0.0)
+    sigma = float(np.sqrt(max(noise[0] + noise[1] * mu_peak, 0.0)))
     return Estimate(
         p[:3],
         p[3:6],
