@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hlr_lab.acquisition import Bracketing, Outcome, PoseBrightness, Step, Tolerance, acquire
+from hlr_lab.acquisition import Bracketing, LampMeter, Outcome, Step, Tolerance, acquire
 from hlr_lab.devices import Links, SafeState
 from hlr_lab.errors import HlrLabError
 from hlr_lab.formats.plan import PlanFile
@@ -49,7 +49,7 @@ def acquire_session(
     object_window: Callable[[float], np.ndarray] | None = None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
     lamp: LampWatch = UNWATCHED,
-    reference: PoseBrightness | None = None,
+    reference: LampMeter | None = None,
 ) -> Outcome:
     """Run ``plan`` on ``rig`` into ``session`` (created, or resumed when it exists); see the module's
     docstring. ``on_start(resumed)`` is called once the session is open and the rig is ready; ``lamp``

@@ -132,7 +132,7 @@ def acquire(
     object_window: Callable[[float], np.ndarray] | None = None,
     tolerance: Tolerance = Tolerance(),
     lamp: LampWatch = UNWATCHED,
-    reference: PoseBrightness | None = None,
+    reference: LampMeter | None = None,
 ) -> Outcome:
     """Run ``plan`` (its poses already checked and converted into ``targets``) into ``session``, which
     this process alone writes (:func:`hlr_lab.locks.hold_session`).
@@ -366,36 +366,33 @@ class _Run:
 LAMP_REFERENCE = "lamp-reference"  # the pose id of the reference frames (never a plan's: ids are p000…)
 
 
-class PoseBrightness(Protocol):
-    """The lamp's brightness on the white reference in a pose's lit frames, from the axes' ``measured``
-    positions (``turntable_steps``, ``gantry_ticks``): a reading with ``brightness`` (S · Φ, any fixed
-    unit) and ``at`` (the Unix time of the frame it comes from); None where it cannot be measured
-    (:func:`hlr_lab.white_reference.pose_brightness`)."""
+class LampMeter(Protocol):
+    """The lamp measured on the white reference in a pose's lit frames, from the axes' ``measured``
+    positions (``turntable_steps``, ``gantry_ticks``): a reading with ``brightness`` (S · Φ) and ``at``
+    (the Unix time of the frame it comes from), or None where it cannot be measured; ``expected``: the
+    S · Φ the rig file says (:class:`hlr_lab.white_reference.ReferenceMeter`)."""
+
+    expected: float
 
     def __call__(self, measured: dict, frames: list[RawFrame]) -> Reading | None: ...
 
 
 class _LampOnReference:
-    """The lamp measured on the white reference in every pose: a ``lamp`` line per pose that shows it,
-    relative to the session's first such measurement (read back on a resumed run)."""
+    """The lamp measured on the white reference in every pose: a ``lamp`` line per pose that shows it, its
+    output the measured S · Φ over the rig file's (absolute: no baseline of the session's own)."""
 
-    def __init__(self, journal: Journal, brightness: PoseBrightness):
-        self.journal, self.brightness = journal, brightness
-        first = next((e for e in journal.events if e.get("event") == "lamp" and e.get("baseline") == WHITE_REFERENCE
-                      and isinstance(e.get("brightness"), float)), None)  # fmt: skip
-        self.baseline: float | None = first["brightness"] / first["output"] if first else None
+    def __init__(self, journal: Journal, meter: LampMeter):
+        self.journal, self.meter = journal, meter
 
     def measure(self, pose_id: str, measured: dict, frames: list[RawFrame]) -> None:
-        reading = self.brightness(measured, frames)
+        reading = self.meter(measured, frames)
         if reading is None or reading.brightness <= 0:
             log.info("%s: no lamp measurement (the white reference hidden, shadowed or ill exposed)", pose_id)
             return
-        k = reading.brightness
-        if self.baseline is None:
-            self.baseline = k
-        self.journal.append({"event": "lamp", "at": reading.at, "output": k / self.baseline,
-                             "baseline": WHITE_REFERENCE, "brightness": k, "pose": pose_id})  # fmt: skip
-        log.info("lamp: %.4f of the baseline (white reference, %s)", k / self.baseline, pose_id)
+        output = reading.brightness / self.meter.expected
+        self.journal.append({"event": "lamp", "at": reading.at, "output": output, "baseline": WHITE_REFERENCE,
+                             "brightness": reading.brightness, "pose": pose_id})  # fmt: skip
+        log.info("lamp: %.4f of the rig file's sensitivity × power (white reference, %s)", output, pose_id)
 
 
 class _LampReference:

@@ -43,7 +43,7 @@ from hlr_lab.rig import Rig
 from hlr_lab.rig_control import NO_OVERRIDES
 from hlr_lab.segment import Segmentation, segment
 from hlr_lab.silhouette import object_window
-from hlr_lab.white_reference import pose_brightness
+from hlr_lab.white_reference import reference_meter
 
 if TYPE_CHECKING:
     from hlr_lab.report.build import ReportFigures
@@ -116,7 +116,7 @@ def acquire_plan(
     if rig.file.lamp is None:
         raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
-    reference = pose_brightness(rig, vertices)
+    reference = reference_meter(rig, vertices)
     if reference is not None and lamp.every:
         raise InputError(
             "the rig file's white reference lies beside the object during runs: the lamp is measured on it in "

@@ -4,9 +4,10 @@
 A flat Lambertian square of known reflectance R (per channel) lies on the plate beside the object
 (``[calibration.white_reference] run_place_m``) and turns with it. A point of it, the lamp at distance d
 and at angle θ from its normal, reads DN − black = k · g · t · R · cos θ / d² in a frame of exposure t
-and gain g, where k (sensitivity × the lamp's output) is the same everywhere on it. Each pose's k
-against the session's first is the lamp's relative output then — measured where the poses are, without
-going back to a reference pose.
+and gain g, where k = S · Φ (sensitivity × the lamp's output) is the same everywhere on it. Each pose's
+k over the rig file's S · Φ is the lamp's output then, in the fit's terms — measured where the poses
+are, without going back to a reference pose, and absolute: whatever state the lamp was in when
+``calibrate radiometric`` measured S · Φ, the fit's light is the S · Φ of the pose's own moment.
 
 The points that count in a pose are those the camera sees (in the frame, outside the object's window:
 the object may hide them; :mod:`hlr_lab.silhouette`), that the lamp lights (outside the convex hull of
@@ -19,7 +20,6 @@ do.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -165,27 +165,37 @@ def brightness(
     return Reading(float(signal.sum() / scale.sum()), frame.captured_at)
 
 
-def pose_brightness(rig: Rig, vertices: np.ndarray) -> Callable[[dict, list], Reading | None] | None:
+class ReferenceMeter:
     """What acquisition measures the lamp with when ``rig`` puts its white reference beside the object
-    during runs (``run_place_m``): the axes' measured positions (``turntable_steps``, ``gantry_ticks``)
-    and a pose's lit frames (each with ``pixels``, ``exposure_s``, ``gain_db``, ``bits``,
-    ``captured_at``) → a :class:`Reading`, or None where the reference cannot be measured. None when the
-    rig file has no such reference. ``vertices`` (V, 3): the object in the turntable frame (m)."""
-    w = rig.file.calibration.white_reference
-    if w is None or w.run_place_m is None:
-        return None
-    reference = RunReference(rig.camera, vertices, place_m=tuple(w.run_place_m), size_m=w.size_m,
-                             height_m=w.thickness_m, reflectance=np.asarray(w.reflectance))  # fmt: skip
-    black = rig.file.sensor.black_level_dn
+    during runs (``run_place_m``; :func:`reference_meter`). Called with the axes' measured positions
+    (``turntable_steps``, ``gantry_ticks``) and a pose's lit frames (each with ``pixels``, ``exposure_s``,
+    ``gain_db``, ``bits``, ``captured_at``): a :class:`Reading`, or None where the reference cannot be
+    measured. ``expected``: the brightness the rig file predicts (``[sensor] sensitivity`` × ``[light]
+    power``): a reading over it is the lamp's output in the fit's terms, absolute."""
 
-    def measure(measured: dict, frames: list) -> Reading | None:
-        sight = reference.sight(
+    def __init__(self, rig: Rig, reference: RunReference):
+        self.rig, self.reference = rig, reference
+        self.expected = rig.file.sensor.sensitivity * rig.file.light.power
+
+    def __call__(self, measured: dict, frames: list) -> Reading | None:
+        rig = self.rig
+        sight = self.reference.sight(
             rig.turntable_kinematics.degrees_for(measured["turntable_steps"]),
             rig.gantry.kinematics.light_position(tuple(measured["gantry_ticks"])),
         )
         if sight is None:
             return None
         exposures = [Exposure(f.pixels, f.exposure_s, f.gain_db, f.captured_at) for f in frames]
-        return brightness(exposures, sight, reference.reflectance, black, frames[0].bits)
+        black = rig.file.sensor.black_level_dn
+        return brightness(exposures, sight, self.reference.reflectance, black, frames[0].bits)
 
-    return measure
+
+def reference_meter(rig: Rig, vertices: np.ndarray) -> ReferenceMeter | None:
+    """The lamp's meter on the white reference beside the object, or None when the rig file does not put
+    one there. ``vertices`` (V, 3): the object in the turntable frame (m)."""
+    w = rig.file.calibration.white_reference
+    if w is None or w.run_place_m is None:
+        return None
+    reference = RunReference(rig.camera, vertices, place_m=tuple(w.run_place_m), size_m=w.size_m,
+                             height_m=w.thickness_m, reflectance=np.asarray(w.reflectance))  # fmt: skip
+    return ReferenceMeter(rig, reference)

@@ -178,7 +178,8 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
     """16 poses of builtin:pebble's plan at turntable angles 45° apart, a white reference beside the object
     and a lamp warming up: a lamp line for each pose whose frames show the reference lit (hidden behind
     the object, in its shadow or lit too steeply in the others), each within 0.3 % of the simulator's own
-    record of the lamp at the frame it was measured in (measured: ≤ 0.11 %); no reference pose is taken;
+    record of the lamp at the frame it was measured in, in absolute terms (measured: ≤ 0.2 %); no
+    reference pose is taken;
     the fit's light follows the lines and the report says where they came from; --lamp-every is refused
     for such a rig, naming the field."""
     from hlr_lab.cli.main import main
@@ -210,13 +211,13 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
     lamps = [e for e in events if e["event"] == "lamp"]
     assert 4 <= len(lamps) < 16
     assert {e["baseline"] for e in lamps} == {"white reference"}
-    first = truth[lamps[0]["at"]]
-    for e in lamps:
-        assert e["output"] == pytest.approx(truth[e["at"]] / first, abs=0.003), e["pose"]
-    assert max(e["output"] for e in lamps) > 1.005  # the lamp warmed up during the run: the reference saw it
+    for e in lamps:  # absolute: the world's sensitivity and power are the rig file's, so output = the lamp's
+        assert e["output"] == pytest.approx(truth[e["at"]], abs=0.003), e["pose"]
+    outputs = [e["output"] for e in lamps]
+    assert max(outputs) - min(outputs) > 0.005  # the lamp warmed up during the run: the reference saw it
 
-    # a resumed run measures against the session's first measurement: a measured pose's frames lost and
-    # taken again give one more line, against the same baseline
+    # a resumed run measures as the first did: a measured pose's frames lost and taken again give one more
+    # line
     retaken = lamps[-1]["pose"]
     for path in (tmp_path / "s" / "frames").glob(f"{retaken}_e*"):
         path.unlink()
@@ -227,7 +228,7 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
     for sidecar in (tmp_path / "s" / "frames").glob(f"{retaken}_*.json"):
         record = json.loads(sidecar.read_text())
         truth[record["captured_at"]] = record["camera"]["lamp_output"]
-    assert again[0]["output"] == pytest.approx(truth[again[0]["at"]] / first, abs=0.003)
+    assert again[0]["output"] == pytest.approx(truth[again[0]["at"]], abs=0.003)
 
     session = open_session(tmp_path / "s")
     assert session.lamp.on_white_reference

@@ -118,8 +118,10 @@ def _lamp(session: Session) -> str:
             '<p class="note">The run did not watch its lamp (acquire --lamp-every N, or a white reference '
             "beside the object): the fit took its power as the rig file says throughout.</p>"
         )
-    source = "the white reference beside the object" if lamp.on_white_reference else "the reference pose"
-    measured = "measurements on it" if lamp.on_white_reference else "reference frames"
+    if lamp.on_white_reference:  # absolute: against what the rig file says
+        source, measured, unit = "the white reference by the object", "measurements on it", "the rig file's"
+    else:  # relative to the session's first reference frame
+        source, measured, unit = "the reference pose", "reference frames", "the first"
     minutes = (lamp.times - lamp.times[0]) / 60
     at_views = np.array([lamp.at(view_time(v)) for v in session.views])
     off = 100 * np.abs(at_views - 1)
@@ -129,13 +131,13 @@ def _lamp(session: Session) -> str:
         x_range=(0.0, float(max(minutes[-1], 1.0))),
         y_range=(float(lo), float(hi)),
         x_label="minutes since the first measurement",
-        y_label="lamp output / first",
+        y_label=f"lamp output / {unit}",
         title=f"the lamp's output, from {source}",
         line=[(float(m), float(o)) for m, o in zip(minutes, lamp.outputs, strict=True)],
     )
     return (
         f'<div class="charts">{chart}</div><p>{len(lamp.times)} {measured}; the output ranged over '
-        f"{lamp.outputs.min():.4f}–{lamp.outputs.max():.4f} of the first. The fit divided each pose's light by "
+        f"{lamp.outputs.min():.4f}–{lamp.outputs.max():.4f} of {unit}. The fit divided each pose's light by "
         f"the output at its time: without that, the poses' light would have been off by up to {off.max():.2f} % "
         f"(mean {off.mean():.2f} %), and the reflectances fitted under it with it.</p>"
     )
