@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
 from hlr_lab.camera import Camera
+from hlr_lab.errors import InputError
 from hlr_lab.lamp_watch import WELL_EXPOSED
 from hlr_lab.rig import Rig
 from hlr_lab.silhouette import object_window
@@ -196,6 +197,13 @@ def reference_meter(rig: Rig, vertices: np.ndarray) -> ReferenceMeter | None:
     w = rig.file.calibration.white_reference
     if w is None or w.run_place_m is None:
         return None
+    if rig.file.light.type != "point":
+        raise InputError(
+            "the white reference beside the object measures a point lamp (its light falls off as 1/d²); with "
+            f"a {rig.file.light.type} light remove run_place_m and watch the lamp with --lamp-every",
+            path=rig.source,
+            field="calibration.white_reference.run_place_m",
+        )
     reference = RunReference(rig.camera, vertices, place_m=tuple(w.run_place_m), size_m=w.size_m,
                              height_m=w.thickness_m, reflectance=np.asarray(w.reflectance))  # fmt: skip
     return ReferenceMeter(rig, reference)

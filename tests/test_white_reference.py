@@ -4,6 +4,8 @@ brute-force ray test on a box), and the brightness recovered from synthetic fram
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -111,3 +113,23 @@ def test_brightness_is_recovered_from_frames_of_a_known_sensor():
     assert brightness(gained, sight, ref.reflectance, black, 12).brightness == pytest.approx(k, rel=1e-3)
     dark = [Exposure(np.full((h, w, 3), 64, np.uint16), 0.04, 0.0, 1.0)]
     assert brightness(dark, sight, ref.reflectance, black, 12) is None
+
+
+def test_a_directional_light_with_a_run_reference_is_refused_naming_the_field(tmp_path):
+    """The reference's brightness is modelled for a point lamp (1/d²): a rig with a directional light and
+    run_place_m is one clear error."""
+    from hlr_lab.errors import InputError
+    from hlr_lab.rig import load_rig
+    from hlr_lab.white_reference import reference_meter
+
+    drawing = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
+    text = drawing.replace('type = "point"', 'type = "directional"').replace(
+        "place_m = [0.0, 0.0]             #", "run_place_m = [0.1, 0.0]\nplace_m = [0.0, 0.0]  #"
+    )
+    (tmp_path / "rig.toml").write_text(text)
+    rig = load_rig(tmp_path / "rig.toml")
+    assert rig.file.calibration.white_reference.run_place_m == [0.1, 0.0]
+    with pytest.raises(InputError, match="point lamp") as refused:
+        reference_meter(rig, box_vertices())
+    assert refused.value.field == "calibration.white_reference.run_place_m"
+    assert reference_meter(sim_rig(), box_vertices()) is None  # no run reference: the reference pose's way
