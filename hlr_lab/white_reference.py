@@ -9,19 +9,20 @@ k over the rig file's S · Φ is the lamp's output then, in the fit's terms — 
 are, without going back to a reference pose, and absolute: whatever state the lamp was in when
 ``calibrate radiometric`` measured S · Φ, the fit's light is the S · Φ of the pose's own moment.
 
-The points that count in a pose are those the camera sees (in the frame, outside the object's window:
-the object may hide them; :mod:`hlr_lab.silhouette`), that the lamp lights (outside the convex hull of
-the object's shadow on the plate: conservative, as the window is), at cos θ ≥ :data:`MIN_COS` (grazing
-light is where a small error of the lamp's place weighs most). They are read in the frame of the pose's
-bracket that gathered most light with none of them near clipping (:func:`brightness`). A pose where
-fewer than :data:`MIN_SAMPLES` count gives no measurement; ``fit`` interpolates between the poses that
-do.
+The pixels that count in a pose are those whose centres see the reference's middle (in the frame,
+outside the object's window: the object may hide it; :mod:`hlr_lab.silhouette`) at a point the lamp
+lights (outside the convex hull of the object's shadow on the plate: conservative, as the window is) at
+cos θ ≥ :data:`MIN_COS` (grazing light is where a small error of the lamp's place weighs most). They are
+read in the frame of the pose's bracket that gathered most light with none of them near clipping
+(:func:`brightness`). A pose where fewer than :data:`MIN_SAMPLES` count gives no measurement; ``fit``
+interpolates between the poses that do.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
@@ -33,9 +34,8 @@ from hlr_lab.silhouette import object_window
 from hlr_lab.sphere import rotation_z
 
 MIDDLE = 0.6  # of the reference's side: what is measured (its edges left out, as calibrate radiometric does)
-SAMPLES = 24  # points across the measured middle, each way
 MIN_COS = 0.3
-MIN_SAMPLES = 40  # points seen and lit, for a measurement
+MIN_SAMPLES = 40  # pixels seen and lit, for a measurement
 MIN_SIGNAL = 0.05  # of full scale: the least mean signal measured
 SHADOW_MARGIN_M = 0.002  # ~8 pixels' footprint on the plate at the simulated rig's distance
 # an octagon about the circle of that radius: added to the shadow's outline, it grows it by at least that much
@@ -45,10 +45,12 @@ _AROUND = SHADOW_MARGIN_M / np.cos(np.pi / 8) * np.column_stack([np.cos(_OCTAGON
 
 @dataclass(frozen=True)
 class Sight:
-    """Where the reference is measured in one pose: pixels (M, 2) as (row, column) and their points'
-    irradiance factor cos θ / d² (M,), m⁻²."""
+    """Where the reference is measured in one pose: pixels (M, 2) as (row, column), the points of the
+    reference their centres see (M, 3; turntable frame, m) and those points' irradiance factor cos θ / d²
+    (M,), m⁻²."""
 
     rows_cols: np.ndarray
+    points: np.ndarray
     irradiance: np.ndarray
 
 
@@ -87,7 +89,7 @@ class RunReference:
         height_m: float,
         reflectance: np.ndarray,
     ):
-        self.camera = camera
+        self.camera, self.height = camera, height_m
         self.reflectance = np.asarray(reflectance, np.float64)
         # the object's convex hull: its shadow and its window hold the object's own (a handful of points)
         v = np.asarray(vertices, np.float64)
@@ -96,42 +98,57 @@ class RunReference:
         except QhullError:  # flat or too few points: all of them
             self.hull = v
         half = MIDDLE * size_m / 2
-        u = np.linspace(-half, half, SAMPLES)
-        gx, gy = np.meshgrid(place_m[0] + u, place_m[1] + u)
-        self.points = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, height_m)])  # (N, 3)
+        self.low = np.array(place_m, np.float64) - half  # the measured middle: a square, (x, y) corners
+        self.high = np.array(place_m, np.float64) + half
+        corners = [(self.low[0], self.low[1]), (self.high[0], self.low[1]), (self.high[0], self.high[1]),
+                   (self.low[0], self.high[1])]  # fmt: skip
+        self.corners = np.column_stack([np.array(corners), np.full(4, height_m)])  # (4, 3)
 
     def sight(self, turntable_deg: float, lamp_m: np.ndarray) -> Sight | None:
-        """The points measured with the turntable at ``turntable_deg`` and the lamp at ``lamp_m`` (world,
-        m); None when the lamp is not above the whole object (its shadow on the plate is then unbounded)."""
+        """The pixels measured with the turntable at ``turntable_deg`` and the lamp at ``lamp_m`` (world,
+        m): those whose centres see the reference's middle, outside the object's window, lit; each with
+        the point its centre sees (so its irradiance is the pixel's own, not a neighbour's: a lamp low
+        beside the reference changes cos θ / d² by ~0.15 % a pixel). None when the lamp is not above the
+        whole object (its shadow on the plate is then unbounded)."""
         turn = rotation_z(np.radians(turntable_deg))
         lamp = turn[:3, :3].T @ np.asarray(lamp_m, np.float64)  # into the turntable frame
         if lamp[2] <= self.hull[:, 2].max() + 1e-3:
             return None
-        to_lamp = lamp - self.points
+        seen_from = self.camera.in_frame(turn)
+        uv, _ = seen_from.project(self.corners)
+        mask = np.zeros((self.camera.height, self.camera.width), np.uint8)
+        if np.isfinite(uv).all():
+            limit = 16 * max(self.camera.width, self.camera.height)  # far-off corners kept inside int32
+            cv2.fillConvexPoly(mask, np.round(np.clip(uv, -limit, limit)).astype(np.int32), 1)
+        mask = mask.astype(bool) & ~object_window(self.camera, self.hull, turntable_deg)
+        rows, cols = np.nonzero(mask)
+        if len(rows) == 0:  # hidden, or out of the frame
+            return Sight(np.zeros((0, 2), int), np.zeros((0, 3)), np.zeros(0))
+        origins, rays = seen_from.pixel_rays(np.column_stack([cols, rows]).astype(np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            along = (self.height - origins[:, 2]) / rays[:, 2]
+        points = origins + along[:, None] * rays  # (M, 3): what each pixel's centre sees on the plane
+        to_lamp = lamp - points
         d2 = np.einsum("ij,ij->i", to_lamp, to_lamp)
         cos = to_lamp[:, 2] / np.sqrt(d2)  # the reference faces up
-        keep = (cos >= MIN_COS) & ~self._shadowed(lamp)
-        seen_from = self.camera.in_frame(turn)
-        uv, _ = seen_from.project(self.points)
-        inside = np.isfinite(uv).all(axis=1)
-        col, row = np.full(len(uv), -1), np.full(len(uv), -1)
-        col[inside], row[inside] = np.round(uv[inside]).astype(int).T
-        keep &= (col >= 0) & (col < self.camera.width) & (row >= 0) & (row < self.camera.height)
-        where = np.flatnonzero(keep)
-        keep[where] = ~object_window(self.camera, self.hull, turntable_deg)[row[where], col[where]]
-        return Sight(np.column_stack([row[keep], col[keep]]), (cos / d2)[keep])
+        inside = np.all((points[:, :2] >= self.low) & (points[:, :2] <= self.high), axis=1) & (along > 0)
+        keep = inside & (cos >= MIN_COS)
+        keep[keep] = ~self._shadowed(lamp, points[keep])
+        return Sight(np.column_stack([rows, cols])[keep], points[keep], (cos / d2)[keep])
 
-    def _shadowed(self, lamp: np.ndarray) -> np.ndarray:
-        """(N,) bool: points inside the convex hull of the object's shadow on the reference's plane, grown
-        by :data:`SHADOW_MARGIN_M` (a pixel whose centre is lit may still hold some of the shadow's edge)."""
-        h = self.points[0, 2]
-        s = (h - lamp[2]) / (self.hull[:, 2] - lamp[2])  # > 1: every hull point lies below the lamp
+    def _shadowed(self, lamp: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(M,) bool: ``points`` (M, 3) inside the convex hull of the object's shadow on the reference's
+        plane, grown by :data:`SHADOW_MARGIN_M` (a pixel whose centre is lit may still hold some of the
+        shadow's edge)."""
+        if len(points) == 0:
+            return np.zeros(0, bool)
+        s = (self.height - lamp[2]) / (self.hull[:, 2] - lamp[2])  # > 1: every hull point lies below the lamp
         shadow = lamp[:2] + s[:, None] * (self.hull[:, :2] - lamp[:2])
         shadow = (shadow[:, None, :] + _AROUND[None, :, :]).reshape(-1, 2)  # (8 H, 2)
         try:
-            return Delaunay(shadow).find_simplex(self.points[:, :2]) >= 0
+            return Delaunay(shadow).find_simplex(points[:, :2]) >= 0
         except QhullError:  # a degenerate outline (a flat object seen edge-on): count it all as shadow
-            return np.ones(len(self.points), bool)
+            return np.ones(len(points), bool)
 
 
 def brightness(

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from hlr_lab.rig import sim_rig
 from hlr_lab.sphere import rotation_z
-from hlr_lab.white_reference import MIN_COS, SAMPLES, Exposure, RunReference, brightness
+from hlr_lab.white_reference import MIN_COS, SHADOW_MARGIN_M, Exposure, RunReference, brightness
 
 BOX = (np.array([-0.04, -0.04, 0.0]), np.array([0.04, 0.04, 0.10]))  # the object: 8 × 8 × 10 cm on the plate
 
@@ -40,8 +41,9 @@ def reference(place=(0.08, 0.0)) -> RunReference:
 @pytest.mark.parametrize("turntable_deg", [0.0, 60.0, 120.0, 180.0, -60.0, -120.0])
 @pytest.mark.parametrize("lamp", [(0.25, -0.05, 0.25), (-0.1, 0.2, 0.3), (0.05, -0.25, 0.15)])
 def test_no_point_the_object_hides_or_shadows_is_measured(turntable_deg, lamp):
-    """Every point kept is in the frame, lit at cos θ ≥ MIN_COS, with nothing of the box between it and
-    the lamp or between it and the camera (rays checked one by one)."""
+    """Every pixel kept sees, at its centre, a point of the reference's middle that nothing of the box
+    stands between and the lamp or the camera (rays checked one by one), lit at cos θ ≥ MIN_COS, with
+    that point's own cos θ / d²."""
     ref, camera = reference(), sim_rig().camera
     lamp = np.array(lamp)
     sight = ref.sight(turntable_deg, lamp)
@@ -49,31 +51,38 @@ def test_no_point_the_object_hides_or_shadows_is_measured(turntable_deg, lamp):
     turn = rotation_z(np.radians(turntable_deg))
     lamp_tt = turn[:3, :3].T @ lamp
     seen_from = camera.in_frame(turn)
-    uv, _ = seen_from.project(ref.points)
-    pixel = {(int(r), int(c)) for r, c in sight.rows_cols}
-    kept = np.array([np.isfinite(u) and (round(v), round(u)) in pixel for u, v in uv])
-    points = ref.points[kept]
-    camera_tt = seen_from.centre
+    points = sight.points
+    uv, _ = seen_from.project(points)  # each point is where its pixel's centre looks
+    np.testing.assert_allclose(uv, sight.rows_cols[:, ::-1], atol=1e-6)
+    assert np.all((points[:, :2] >= ref.low) & (points[:, :2] <= ref.high))
     assert not segment_hits_box(points, np.tile(lamp_tt, (len(points), 1))).any()
-    assert not segment_hits_box(points, np.tile(camera_tt, (len(points), 1))).any()
+    assert not segment_hits_box(points, np.tile(seen_from.centre, (len(points), 1))).any()
     to_lamp = lamp_tt - points
-    cos = to_lamp[:, 2] / np.linalg.norm(to_lamp, axis=1)
-    assert (cos >= MIN_COS).all()
     d2 = np.einsum("ij,ij->i", to_lamp, to_lamp)
-    np.testing.assert_allclose(np.sort(sight.irradiance), np.sort(cos / d2))
+    cos = to_lamp[:, 2] / np.sqrt(d2)
+    assert (cos >= MIN_COS).all()
+    np.testing.assert_allclose(sight.irradiance, cos / d2)
 
 
 def test_a_partly_shadowed_reference_keeps_its_lit_part():
-    """The box's shadow covers 361 of the 576 points (by the brute-force test): of the other 215, those
-    more than SHADOW_MARGIN_M from the shadow's edge are kept (the convex hull of a box's shadow is its
-    shadow; the margin takes at most two rows of points, 1.3 mm apart, along it)."""
+    """With the lamp high above, every pixel of the reference's middle is kept; with it low behind the box,
+    the box's shadow (by the brute-force test) covers part of them: the rest are kept, but for a band
+    SHADOW_MARGIN_M wide along the shadow's edge (the convex hull of a box's shadow is its shadow)."""
     ref = reference()
+    everything = ref.sight(-120.0, np.array([0.0, 0.0, 2.0]))
     lamp = np.array([-0.1, 0.2, 0.3])
     lamp_tt = rotation_z(np.radians(-120.0))[:3, :3].T @ lamp
-    shadowed = segment_hits_box(ref.points, np.tile(lamp_tt, (len(ref.points), 1)))
-    assert 0 < shadowed.sum() < len(ref.points)
-    kept = len(ref.sight(-120.0, lamp).irradiance)
-    assert (~shadowed).sum() - 2 * SAMPLES <= kept < (~shadowed).sum()
+    shadowed = segment_hits_box(everything.points, np.tile(lamp_tt, (len(everything.points), 1)))
+    assert 0.2 < shadowed.mean() < 0.8
+    sight = ref.sight(-120.0, lamp)
+    lit = {tuple(p) for p in everything.rows_cols[~shadowed]}
+    kept = {tuple(p) for p in sight.rows_cols}
+    assert kept <= lit
+    # kept: every lit pixel whose point lies farther than the margin (and a pixel's footprint) from the shadow
+    to_shadow = cKDTree(everything.points[shadowed, :2]).query(everything.points[~shadowed, :2])[0]
+    far = to_shadow > SHADOW_MARGIN_M + 5e-4
+    assert {tuple(p) for p in everything.rows_cols[~shadowed][far]} <= kept
+    assert far.sum() > 0.5 * len(lit)
 
 
 def test_a_lamp_no_higher_than_the_object_measures_nothing():
