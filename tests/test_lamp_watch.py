@@ -178,10 +178,10 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
     """16 poses of builtin:pebble's plan at turntable angles 45° apart, a white reference beside the object
     and a lamp warming up: a lamp line for each pose whose frames show the reference lit (hidden behind
     the object, in its shadow or lit too steeply in the others), each within 0.3 % of the simulator's own
-    record of the lamp at the frame it was measured in, in absolute terms (measured: ≤ 0.2 %); no
-    reference pose is taken;
-    the fit's light follows the lines and the report says where they came from; --lamp-every is refused
-    for such a rig, naming the field."""
+    record of the lamp at the frame it was measured in, in absolute terms (measured: ≤ 0.1 %); no
+    reference pose is taken; a pose lost and retaken is measured as the first time; the fit's light
+    follows the lines and the report says where they came from; --lamp-every is refused for such a rig,
+    naming the field."""
     from hlr_lab.cli.main import main
     from hlr_lab.formats.plan import read_plan, write_plan
     from hlr_lab.reflectance.session_fit import open_session, view_pose, view_time
