@@ -67,8 +67,13 @@ class Outcome:
     poses_moved: int = 0  # poses the rig went to (complete poses are not even moved to)
     retries: int = 0  # device exchanges retried (each has a journal line)
     duration_s: float = 0.0
+    # with a white reference beside the object: the poses taken, and those that measured the lamp on it
+    reference_poses: int | None = None
+    reference_measured: int = 0
 
     def summary(self) -> dict:
+        on_reference = {"poses": self.reference_poses, "measured": self.reference_measured}
+        lamp = {} if self.reference_poses is None else {"lamp_on_reference": on_reference}
         return {
             "frames_taken": self.taken,
             "frames_already_done": self.already_done,
@@ -76,6 +81,7 @@ class Outcome:
             "poses_moved": self.poses_moved,
             "retries": self.retries,
             "duration_s": round(self.duration_s, 3),
+            **lamp,
         }
 
 
@@ -158,7 +164,7 @@ def acquire(
         writer = FrameWriter(session, journal)
         try:
             with writer:
-                on_plate = _LampOnReference(journal, reference) if reference else None
+                on_plate = _LampOnReference(journal, reference, outcome) if reference else None
                 run = _Run(instruments, session, journal, writer, settle_timeout_s, bracket, object_window,
                            tolerance, on_plate)  # fmt: skip
                 watch = _LampReference(run, lamp, plan.poses[0], targets[0]) if lamp.active else None
@@ -189,6 +195,12 @@ def acquire(
             )
             raise
         _finish(outcome, started, retries.count, writer.stored)
+        if outcome.reference_poses and not outcome.reference_measured:
+            log.warning(
+                "the white reference beside the object was not seen lit in any of the %d poses taken: check "
+                "run_place_m (in view, beside the object, not under it)",
+                outcome.reference_poses,
+            )
         journal.append_last({"event": "run_end", "at": time.time(), **outcome.summary()})
     return outcome
 
@@ -381,14 +393,17 @@ class _LampOnReference:
     """The lamp measured on the white reference in every pose: a ``lamp`` line per pose that shows it, its
     output the measured S · Φ over the rig file's (absolute: no baseline of the session's own)."""
 
-    def __init__(self, journal: Journal, meter: LampMeter):
-        self.journal, self.meter = journal, meter
+    def __init__(self, journal: Journal, meter: LampMeter, outcome: Outcome):
+        self.journal, self.meter, self.outcome = journal, meter, outcome
+        outcome.reference_poses = 0
 
     def measure(self, pose_id: str, measured: dict, frames: list[RawFrame]) -> None:
+        self.outcome.reference_poses += 1
         reading = self.meter(measured, frames)
         if reading is None or reading.brightness <= 0:
             log.info("%s: no lamp measurement (the white reference hidden, shadowed or ill exposed)", pose_id)
             return
+        self.outcome.reference_measured += 1
         output = reading.brightness / self.meter.expected
         self.journal.append({"event": "lamp", "at": reading.at, "output": output, "baseline": WHITE_REFERENCE,
                              "brightness": reading.brightness, "pose": pose_id})  # fmt: skip

@@ -215,6 +215,9 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
         assert e["output"] == pytest.approx(truth[e["at"]], abs=0.003), e["pose"]
     outputs = [e["output"] for e in lamps]
     assert max(outputs) - min(outputs) > 0.005  # the lamp warmed up during the run: the reference saw it
+    run_end = [e for e in events if e["event"] == "run_end"][-1]
+    assert run_end["lamp_on_reference"] == {"poses": 16, "measured": len(lamps)}
+    assert f"{len(lamps)} of 16 poses" in capsys.readouterr().err  # the run's summary (on stderr) says so
 
     # a resumed run measures as the first did: a measured pose's frames lost and taken again give one more
     # line

@@ -190,6 +190,9 @@ def _summary_table(outcome: Outcome, session: Path) -> Table:
         ("duration", f"{outcome.duration_s:.1f} s"),
     ):
         t.add_row(label, str(value))
+    if outcome.reference_poses is not None:  # the lamp watched on the white reference beside the object
+        measured = f"{outcome.reference_measured} of {outcome.reference_poses} poses"
+        t.add_row("lamp measured on the white reference", measured)
     return t
 
 
