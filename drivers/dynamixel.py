@@ -67,7 +67,8 @@ X_SERIES_MODELS = {1020: "XM430-W350", 1030: "XM430-W210", 1060: "XL430-W250", 1
 # control table (X-series e-manual)
 FIRMWARE, RETURN_DELAY, OPERATING_MODE = 6, 9, 11
 TEMPERATURE_LIMIT, MAX_VOLTAGE, MIN_VOLTAGE, MAX_POSITION, MIN_POSITION = 31, 32, 34, 48, 52
-TORQUE_ENABLE, HARDWARE_ERROR = 64, 70
+TORQUE_ENABLE, HARDWARE_ERROR, BUS_WATCHDOG = 64, 70, 98
+BUS_WATCHDOG_FIRMWARE = 38  # the e-manual: Bus Watchdog (98) exists from firmware v38
 PROFILE_ACCELERATION, PROFILE_VELOCITY, GOAL_POSITION = 108, 112, 116
 MOVING, PRESENT_POSITION, PRESENT_VOLTAGE, PRESENT_TEMPERATURE = 122, 132, 144, 146
 POSITION_MODE = 3
@@ -189,6 +190,11 @@ class DynamixelGantry:
             models[axis.servo_id] = X_SERIES_MODELS[model]
             self._clear_alarm(axis)
             self._write(axis, TORQUE_ENABLE, 0, 1)  # the EEPROM is locked while torque is on
+            # a bus watchdog another program left on would stop the axis during a long exposure (no packet
+            # for seconds) and refuse its goals after: off, and an expired one cleared (e-manual, Bus
+            # Watchdog(98)); hlr-lab makes the rig safe itself
+            has_watchdog = self._read(axis, FIRMWARE, 1) >= BUS_WATCHDOG_FIRMWARE
+            watchdog = [(BUS_WATCHDOG, 0, 1)] if has_watchdog else []
             for address, value, size in (
                 (OPERATING_MODE, POSITION_MODE, 1),
                 (RETURN_DELAY, 0, 1),
@@ -196,6 +202,7 @@ class DynamixelGantry:
                 (MIN_POSITION, axis.min_ticks, 4),
                 (PROFILE_ACCELERATION, self.config.profile_acceleration, 4),
                 (PROFILE_VELOCITY, self.config.profile_velocity, 4),
+                *watchdog,
             ):
                 self._write(axis, address, value, size)
                 if self._read(axis, address, size) != value:

@@ -155,3 +155,25 @@ def test_a_servo_left_past_a_turn_is_moved_the_short_way(bus):
     assert g.wait_settled(timeout_s=5)[0] == pytest.approx(2048, abs=2)
     assert abs(servo._profile.goal - servo._profile.start) == pytest.approx(144, abs=2)
     g.close()
+
+
+def test_a_bus_watchdog_left_on_or_expired_is_cleared_at_connect(bus):
+    """Another program left servo 1's bus watchdog expired (−1: goals refused) and servo 2's on at 40 ms
+    (it would stop the axis in the first exposure longer than that): connect turns both off and moves
+    work; firmware older than v38 has no watchdog and is not written."""
+    bus.servo(1).table[98] = 0xFF  # −1
+    bus.servo(2).table[98] = 2
+    g = gantry_on(bus)
+    g.connect()
+    assert [s.get("bus_watchdog") for s in bus.servos] == [0, 0]
+    g.move_to((2500, 1800))
+    assert g.wait_settled(timeout_s=5) == pytest.approx((2500, 1800), abs=2)
+    g.close()
+    with SimBus.with_servos([1, 2], speed_factor=40.0) as old:
+        for servo in old.servos:
+            servo.table[6] = 37  # firmware v37
+            servo.table[98] = 3  # (not a field there: a write would be refused)
+        g = gantry_on(old)
+        g.connect()
+        assert [s.table[98] for s in old.servos] == [3, 3]
+        g.close()
