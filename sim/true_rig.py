@@ -52,20 +52,25 @@ def builtin_true_rigs() -> list[str]:
                   if p.name.endswith(".toml"))  # fmt: skip
 
 
-def load_true_rig(spec: str | Path) -> TrueRig:
-    """A rig file (path) or a built-in true rig (``builtin:NAME``) → the world's geometry."""
+def true_rig_text(spec: str | Path) -> str:
+    """The text of a true rig file (path) or of a built-in one (``builtin:NAME``)."""
     spec = str(spec)
     if spec.startswith(BUILTIN):
         name = spec.removeprefix(BUILTIN)
         ref = resources.files("sim.data") / f"{name}.toml"
         if not ref.is_file():
             raise TrueRigError(f"{spec}: no such built-in true rig; known: {', '.join(builtin_true_rigs())}")
-        text = ref.read_text(encoding="utf-8")
-    else:
-        try:
-            text = Path(spec).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise TrueRigError(f"{spec}: cannot read the true rig file ({exc.strerror})") from exc
+        return ref.read_text(encoding="utf-8")
+    try:
+        return Path(spec).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise TrueRigError(f"{spec}: cannot read the true rig file ({exc.strerror})") from exc
+
+
+def load_true_rig(spec: str | Path) -> TrueRig:
+    """A rig file (path) or a built-in true rig (``builtin:NAME``) → the world's geometry."""
+    spec = str(spec)
+    text = true_rig_text(spec)
     try:
         data = tomllib.loads(text)
         return _world(data, spec)

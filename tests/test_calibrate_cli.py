@@ -172,8 +172,8 @@ def test_bench_calibration_prints_what_calibration_is_worth(tmp_path, capsys):
     """The benchmark at its smallest (16 views, 12 lamp poses, 4-pose runs) on builtin:bench-night: every
     figure printed; the recovery within the issue's targets that a short run still reaches; the
     end-to-end error far smaller with the calibrated file than with the drawing (measured here: worst Rd
-    388 % → 0.43 %, the drawing's sensor 22.6 % off and its black level 64 DN short); camera and gantry
-    within 5 minutes of simulated-rig time."""
+    388 % → 0.43 %, the drawing's sensor 22.6 % off and its black level 64 DN short), and with a white
+    reference beside the object; camera and gantry within 5 minutes of simulated-rig time."""
     command = ["bench", "calibration", "--views", "16", "--poses", "12", "--run-poses", "4", "--out",
                str(tmp_path / "b")]  # fmt: skip
     assert main(command) == 0
@@ -192,7 +192,8 @@ def test_bench_calibration_prints_what_calibration_is_worth(tmp_path, capsys):
     assert float(figures["read noise"]) < 5.0
     assert float(figures["conversion gain"]) < 3.0
     assert float(figures["power"]) < 1.0
-    worst = dict(re.findall(r"(drawing|calibrated)\s*: worst Rd ([\d.]+)", printed))
+    worst = dict(re.findall(r"(drawing|calibrated|white ref\.)\s*: worst Rd ([\d.]+)", printed))
     assert float(worst["drawing"]) > 5.0
     assert float(worst["calibrated"]) < 1.0
+    assert float(worst["white ref."]) < 1.0  # the lamp measured on a white reference beside the object
     assert (tmp_path / "b" / "rig-calibrated.toml").is_file()

@@ -10,8 +10,9 @@ believes the drawing, then measure what the calibration is worth.
    sensor and the warm lamp's power in absolute terms.
 3. End to end: builtin:pebble planned (its poses cycled to ``run_poses``), acquired in the true world and
    fitted, with the drawing, then with the calibrated file (the lamp warmed up and watched, as an
-   overnight run would: ``--warm-up 30 --lamp-every 5``); each region's worst-channel error against the
-   simulated truth.
+   overnight run would: ``--warm-up 30 --lamp-every 5``), then with the calibrated file and a 4 cm white
+   reference lying beside the object in both the world and the file (``--warm-up 30``, the lamp measured
+   on it in every pose); each region's worst-channel error against the simulated truth.
 
 Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
 """
@@ -25,22 +26,24 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import tomlkit
 
 from hlr_lab.acquisition import Instruments
 from hlr_lab.cli.bench_acquire import Stopwatch, TimedCamera, TimedPositioner, repeated_poses
 from hlr_lab.cli.calibrate_cmd import ball_world, board_world, rig_source_path, white_world
 from hlr_lab.cli.sim_world import sim_scene, world_geometry, world_links
+from hlr_lab.formats.io import atomic_write_text
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.lamp_watch import UNWATCHED, LampWatch
 from hlr_lab.pipeline import acquire_plan, fit_into, load_object, plan_object
 from hlr_lab.planning.planner import PlanSettings
-from hlr_lab.rig import Rig, sim_rig
+from hlr_lab.rig import Rig, load_rig, sim_rig
 from hlr_lab.rig_control import open_rig
 from hlr_lab.rig_edit import write_calibrated_rig
 from hlr_lab.segment import segment
 from hlr_lab.sphere import rotation_z
 from sim.rig import SimRig
-from sim.true_rig import TrueRig, load_true_rig
+from sim.true_rig import TrueRig, load_true_rig, true_rig_text
 
 OBJECT = "builtin:pebble"
 
@@ -201,7 +204,29 @@ def calibration_figures(
         progress(f"end to end with the {name} rig file: plan, acquire, fit")
         figures.end_to_end[name] = end_to_end(folder / f"e2e-{name}", believed, true_rig, speed_factor, run_poses,
                                               lamp)  # fmt: skip
+    # the lamp measured on a white reference beside the object instead of a reference pose: in the true
+    # world and in the calibrated file alike (absolute: docs/sessions.md, "The lamp")
+    progress("end to end with the calibrated rig file and a white reference beside the object")
+    beside, true_beside = folder / "rig-white-reference.toml", folder / "true-rig-white-reference.toml"
+    atomic_write_text(beside, with_run_reference(rig_source_path(calibrated).read_text(encoding="utf-8")))
+    atomic_write_text(true_beside, with_run_reference(true_rig_text(true_rig)))
+    figures.end_to_end["white ref."] = end_to_end(folder / "e2e-white-reference", load_rig(beside),
+                                                  str(true_beside), speed_factor, run_poses, warm)  # fmt: skip
     return figures
+
+
+RUN_REFERENCE = {"size_m": 0.04, "run_place_m": [0.1, 0.0]}  # 4 cm, 2 cm clear of builtin:pebble's side
+
+
+def with_run_reference(text: str) -> str:
+    """A rig file's text with its white reference (a 0.99 one when it has none) lying beside the object
+    during runs (:data:`RUN_REFERENCE`)."""
+    doc = tomlkit.parse(text)
+    calibration = doc.setdefault("calibration", tomlkit.table(is_super_table=True))
+    reference = calibration.setdefault("white_reference", tomlkit.table())
+    reference.setdefault("reflectance", [0.99, 0.99, 0.99])
+    reference.update(RUN_REFERENCE)
+    return tomlkit.dumps(doc)
 
 
 def radiometric_recovery(calibrated: Rig, truth: TrueRig, watched: list[dict]) -> RadiometricRecovery:

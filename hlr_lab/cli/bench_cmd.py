@@ -391,8 +391,9 @@ def bench_calibration(true_rig, views, poses, run_poses, out_dir, speed_factor) 
             else f"{rid}: not fitted"
             for rid, e in sorted(regions.items())
         )  # fmt: skip
-        worst = [
-            float(np.nanmax([getattr(e, k) for e in regions.values()])) for k in ("rd_pct", "rs_pct", "n_pct")
+        worst = [  # nan: no region has that figure (no specular fitted anywhere)
+            max((getattr(e, k) for e in regions.values() if np.isfinite(getattr(e, k))), default=float("nan"))
+            for k in ("rd_pct", "rs_pct", "n_pct")
         ]
         lines.append(f"  {name:10}: worst Rd {worst[0]:.2f}, Rs {worst[1]:.2f}, n {worst[2]:.2f} ({cells})")
     for line in lines:
