@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
+from drivers.protocols import RawFrame
 from hlr_lab.camera import Camera
 from hlr_lab.errors import InputError
 from hlr_lab.lamp_watch import WELL_EXPOSED
@@ -52,17 +53,6 @@ class Sight:
     rows_cols: np.ndarray
     points: np.ndarray
     irradiance: np.ndarray
-
-
-@dataclass(frozen=True)
-class Exposure:
-    """One lit frame of a pose: its pixels (H, W[, C]) in DN, exposure (s), analogue gain (dB) and when it
-    arrived (Unix time)."""
-
-    pixels: np.ndarray
-    exposure_s: float
-    gain_db: float
-    captured_at: float
 
 
 @dataclass(frozen=True)
@@ -152,7 +142,7 @@ class RunReference:
 
 
 def brightness(
-    frames: list[Exposure], sight: Sight, reflectance: np.ndarray, black_level_dn: float, bits: int
+    frames: list[RawFrame], sight: Sight, reflectance: np.ndarray, black_level_dn: float
 ) -> Reading | None:
     """k = S · Φ (DN per s at unit gain, reflectance and irradiance factor): Σ (DN − black) / Σ (t · g · R ·
     cos θ / d²) over every value at ``sight`` in the frame of the pose that gathered most light without any
@@ -162,7 +152,7 @@ def brightness(
     mean signal is below :data:`MIN_SIGNAL` of full scale (the black level's error would weigh)."""
     if len(sight.irradiance) < MIN_SAMPLES:
         return None
-    top = (1 << bits) - 1
+    top = (1 << frames[0].bits) - 1  # a pose's bracket: one camera, one bit depth
     ceiling = black_level_dn + WELL_EXPOSED[1] * (top - black_level_dn)
     r, c = sight.rows_cols[:, 0], sight.rows_cols[:, 1]
     best = None
@@ -186,16 +176,16 @@ def brightness(
 class ReferenceMeter:
     """What acquisition measures the lamp with when ``rig`` puts its white reference beside the object
     during runs (``run_place_m``; :func:`reference_meter`). Called with the axes' measured positions
-    (``turntable_steps``, ``gantry_ticks``) and a pose's lit frames (each with ``pixels``, ``exposure_s``,
-    ``gain_db``, ``bits``, ``captured_at``): a :class:`Reading`, or None where the reference cannot be
-    measured. ``expected``: the brightness the rig file predicts (``[sensor] sensitivity`` × ``[light]
-    power``): a reading over it is the lamp's output in the fit's terms, absolute."""
+    (``turntable_steps``, ``gantry_ticks``) and a pose's lit frames: a :class:`Reading`, or None where the
+    reference cannot be measured. ``expected``: the brightness the rig file predicts (``[sensor]
+    sensitivity`` × ``[light] power``): a reading over it is the lamp's output in the fit's terms,
+    absolute."""
 
     def __init__(self, rig: Rig, reference: RunReference):
         self.rig, self.reference = rig, reference
         self.expected = rig.file.sensor.sensitivity * rig.file.light.power
 
-    def __call__(self, measured: dict, frames: list) -> Reading | None:
+    def __call__(self, measured: dict, frames: list[RawFrame]) -> Reading | None:
         rig = self.rig
         sight = self.reference.sight(
             rig.turntable_kinematics.degrees_for(measured["turntable_steps"]),
@@ -203,9 +193,7 @@ class ReferenceMeter:
         )
         if sight is None:
             return None
-        exposures = [Exposure(f.pixels, f.exposure_s, f.gain_db, f.captured_at) for f in frames]
-        black = rig.file.sensor.black_level_dn
-        return brightness(exposures, sight, self.reference.reflectance, black, frames[0].bits)
+        return brightness(frames, sight, self.reference.reflectance, rig.file.sensor.black_level_dn)
 
 
 def reference_meter(rig: Rig, vertices: np.ndarray) -> ReferenceMeter | None:

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from drivers.protocols import RawFrame
 from hlr_lab.rig import sim_rig
 from hlr_lab.sphere import rotation_z
-from hlr_lab.white_reference import MIN_COS, SHADOW_MARGIN_M, Exposure, RunReference, brightness
+from hlr_lab.white_reference import MIN_COS, SHADOW_MARGIN_M, RunReference, brightness
 
 BOX = (np.array([-0.04, -0.04, 0.0]), np.array([0.04, 0.04, 0.10]))  # the object: 8 × 8 × 10 cm on the plate
 
@@ -113,15 +114,15 @@ def test_brightness_is_recovered_from_frames_of_a_known_sensor():
         signal = k * t * sight.irradiance[:, None] * ref.reflectance[None, :]
         pixels[sight.rows_cols[:, 0], sight.rows_cols[:, 1]] += signal
         pixels = np.clip(np.round(pixels + rng.normal(0, 1.5, pixels.shape)), 0, 4095).astype(np.uint16)
-        frames.append(Exposure(pixels, t, 0.0, at))
-    reading = brightness(frames, sight, ref.reflectance, black, 12)
+        frames.append(RawFrame(pixels, 12, t, 0.0, at))
+    reading = brightness(frames, sight, ref.reflectance, black)
     assert reading is not None
     assert reading.at == 2.0  # the middle frame: well exposed
     assert reading.brightness == pytest.approx(k, rel=1e-3)
-    gained = [Exposure(f.pixels, f.exposure_s / 2, 20 * np.log10(2), f.captured_at) for f in frames]
-    assert brightness(gained, sight, ref.reflectance, black, 12).brightness == pytest.approx(k, rel=1e-3)
-    dark = [Exposure(np.full((h, w, 3), 64, np.uint16), 0.04, 0.0, 1.0)]
-    assert brightness(dark, sight, ref.reflectance, black, 12) is None
+    gained = [RawFrame(f.pixels, 12, f.exposure_s / 2, 20 * np.log10(2), f.captured_at) for f in frames]
+    assert brightness(gained, sight, ref.reflectance, black).brightness == pytest.approx(k, rel=1e-3)
+    dark = [RawFrame(np.full((h, w, 3), 64, np.uint16), 12, 0.04, 0.0, 1.0)]
+    assert brightness(dark, sight, ref.reflectance, black) is None
 
 
 def test_a_directional_light_with_a_run_reference_is_refused_naming_the_field(tmp_path):
