@@ -116,7 +116,9 @@ def acquire_plan(
     if rig.file.lamp is None:
         raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
     vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
-    reference = reference_meter(rig, vertices)
+    # where the object may appear at each turntable angle, computed once per angle
+    windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
+    reference = reference_meter(rig, vertices, windows)
     if reference is not None and lamp.every:
         raise InputError(
             "the rig file's white reference lies beside the object during runs: the lamp is measured on it in "
@@ -124,8 +126,6 @@ def acquire_plan(
             path=rig.source,
             field="calibration.white_reference.run_place_m",
         )
-    # where the object may appear at each turntable angle, computed once per angle
-    windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
     return acquire_session(plan, plan_path, targets, rig, session, links=links, bracket=bracket, force=force,
                            progress=progress, object_window=windows, on_start=on_start, lamp=lamp,
                            reference=reference)  # fmt: skip

@@ -20,6 +20,7 @@ interpolates between the poses that do.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -31,7 +32,6 @@ from hlr_lab.camera import Camera
 from hlr_lab.errors import InputError
 from hlr_lab.lamp_watch import WELL_EXPOSED
 from hlr_lab.rig import Rig
-from hlr_lab.silhouette import object_window
 from hlr_lab.sphere import rotation_z
 
 MIDDLE = 0.6  # of the reference's side: what is measured (its edges left out, as calibrate radiometric does)
@@ -66,22 +66,25 @@ class Reading:
 
 class RunReference:
     """The white reference beside the object, seen by ``camera`` (world frame) around ``vertices`` (V, 3),
-    the object in the turntable frame (m). ``place_m``: its centre on the plate at turntable 0°; ``size_m``
-    its side, ``height_m`` its face above the plate, ``reflectance`` (3,) per channel."""
+    the object in the turntable frame (m); ``window``: turntable angle (°) → (H, W) bool, where the object
+    may hide it (:func:`hlr_lab.silhouette.object_window`, as acquisition computes it). ``place_m``: its
+    centre on the plate at turntable 0°; ``size_m`` its side, ``height_m`` its face above the plate,
+    ``reflectance`` (3,) per channel."""
 
     def __init__(
         self,
         camera: Camera,
         vertices: np.ndarray,
         *,
+        window: Callable[[float], np.ndarray],
         place_m: tuple[float, float],
         size_m: float,
         height_m: float,
         reflectance: np.ndarray,
     ):
-        self.camera, self.height = camera, height_m
+        self.camera, self.height, self.window = camera, height_m, window
         self.reflectance = np.asarray(reflectance, np.float64)
-        # the object's convex hull: its shadow and its window hold the object's own (a handful of points)
+        # the object's convex hull: its shadow holds the object's own (a handful of points)
         v = np.asarray(vertices, np.float64)
         try:
             self.hull = v[ConvexHull(v).vertices]
@@ -110,7 +113,7 @@ class RunReference:
         if np.isfinite(uv).all():
             limit = 16 * max(self.camera.width, self.camera.height)  # far-off corners kept inside int32
             cv2.fillConvexPoly(mask, np.round(np.clip(uv, -limit, limit)).astype(np.int32), 1)
-        mask = mask.astype(bool) & ~object_window(self.camera, self.hull, turntable_deg)
+        mask = mask.astype(bool) & ~self.window(turntable_deg)
         rows, cols = np.nonzero(mask)
         if len(rows) == 0:  # hidden, or out of the frame
             return Sight(np.zeros((0, 2), int), np.zeros((0, 3)), np.zeros(0))
@@ -196,9 +199,12 @@ class ReferenceMeter:
         return brightness(frames, sight, self.reference.reflectance, rig.file.sensor.black_level_dn)
 
 
-def reference_meter(rig: Rig, vertices: np.ndarray) -> ReferenceMeter | None:
+def reference_meter(
+    rig: Rig, vertices: np.ndarray, window: Callable[[float], np.ndarray]
+) -> ReferenceMeter | None:
     """The lamp's meter on the white reference beside the object, or None when the rig file does not put
-    one there. ``vertices`` (V, 3): the object in the turntable frame (m)."""
+    one there. ``vertices`` (V, 3): the object in the turntable frame (m); ``window``: as
+    :class:`RunReference` takes it."""
     w = rig.file.calibration.white_reference
     if w is None or w.run_place_m is None:
         return None
@@ -209,6 +215,6 @@ def reference_meter(rig: Rig, vertices: np.ndarray) -> ReferenceMeter | None:
             path=rig.source,
             field="calibration.white_reference.run_place_m",
         )
-    reference = RunReference(rig.camera, vertices, place_m=tuple(w.run_place_m), size_m=w.size_m,
+    reference = RunReference(rig.camera, vertices, window=window, place_m=tuple(w.run_place_m), size_m=w.size_m,
                              height_m=w.thickness_m, reflectance=np.asarray(w.reflectance))  # fmt: skip
     return ReferenceMeter(rig, reference)

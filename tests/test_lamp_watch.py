@@ -200,6 +200,7 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
                "--out", str(tmp_path / "s"), "--speed-factor", "200"]  # fmt: skip
     assert main([*command, "--lamp-every", "4"]) == 1
     assert "calibration.white_reference.run_place_m" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()  # refused before anything was opened or written
     assert main(command) == 0, capsys.readouterr().err
     events = [json.loads(line) for line in (tmp_path / "s" / "journal.jsonl").read_text().splitlines()]
     assert not [e for e in events if e["event"] == "lamp_reference"]

@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from drivers.protocols import RawFrame
 from hlr_lab.rig import sim_rig
+from hlr_lab.silhouette import object_window
 from hlr_lab.sphere import rotation_z
 from hlr_lab.white_reference import MIN_COS, SHADOW_MARGIN_M, RunReference, brightness
 
@@ -35,8 +36,13 @@ def segment_hits_box(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def reference(place=(0.08, 0.0)) -> RunReference:
-    return RunReference(sim_rig().camera, box_vertices(), place_m=place, size_m=0.05, height_m=0.0,
-                        reflectance=np.array([0.99, 0.98, 0.97]))  # fmt: skip
+    camera = sim_rig().camera
+    return RunReference(camera, box_vertices(), window=box_window(camera), place_m=place, size_m=0.05,
+                        height_m=0.0, reflectance=np.array([0.99, 0.98, 0.97]))  # fmt: skip
+
+
+def box_window(camera):
+    return lambda turntable_deg: object_window(camera, box_vertices(), turntable_deg)
 
 
 @pytest.mark.parametrize("turntable_deg", [0.0, 60.0, 120.0, 180.0, -60.0, -120.0])
@@ -140,6 +146,7 @@ def test_a_directional_light_with_a_run_reference_is_refused_naming_the_field(tm
     rig = load_rig(tmp_path / "rig.toml")
     assert rig.file.calibration.white_reference.run_place_m == [0.1, 0.0]
     with pytest.raises(InputError, match="point lamp") as refused:
-        reference_meter(rig, box_vertices())
+        reference_meter(rig, box_vertices(), box_window(rig.camera))
     assert refused.value.field == "calibration.white_reference.run_place_m"
-    assert reference_meter(sim_rig(), box_vertices()) is None  # no run reference: the reference pose's way
+    plain = sim_rig()  # no run reference: the reference pose's way
+    assert reference_meter(plain, box_vertices(), box_window(plain.camera)) is None
