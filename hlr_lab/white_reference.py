@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import ConvexHull, Delaunay, QhullError
+from scipy.spatial import ConvexHull, QhullError
 
 from drivers.protocols import RawFrame
 from hlr_lab.camera import Camera
@@ -39,9 +39,6 @@ MIN_COS = 0.3
 MIN_SAMPLES = 40  # pixels seen and lit, for a measurement
 MIN_SIGNAL = 0.05  # of full scale: the least mean signal measured
 SHADOW_MARGIN_M = 0.002  # ~8 pixels' footprint on the plate at the simulated rig's distance
-# an octagon about the circle of that radius: added to the shadow's outline, it grows it by at least that much
-_OCTAGON = np.arange(8) * np.pi / 4
-_AROUND = SHADOW_MARGIN_M / np.cos(np.pi / 8) * np.column_stack([np.cos(_OCTAGON), np.sin(_OCTAGON)])
 
 
 @dataclass(frozen=True)
@@ -131,17 +128,17 @@ class RunReference:
 
     def _shadowed(self, lamp: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(M,) bool: ``points`` (M, 3) inside the convex hull of the object's shadow on the reference's
-        plane, grown by :data:`SHADOW_MARGIN_M` (a pixel whose centre is lit may still hold some of the
-        shadow's edge)."""
+        plane, each of its edges moved out by :data:`SHADOW_MARGIN_M` (a pixel whose centre is lit may
+        still hold some of the shadow's edge)."""
         if len(points) == 0:
             return np.zeros(0, bool)
         s = (self.height - lamp[2]) / (self.hull[:, 2] - lamp[2])  # > 1: every hull point lies below the lamp
         shadow = lamp[:2] + s[:, None] * (self.hull[:, :2] - lamp[:2])
-        shadow = (shadow[:, None, :] + _AROUND[None, :, :]).reshape(-1, 2)  # (8 H, 2)
         try:
-            return Delaunay(shadow).find_simplex(points[:, :2]) >= 0
+            edges = ConvexHull(shadow).equations  # (E, 3): unit outward normal, offset; inside: n · p + d ≤ 0
         except QhullError:  # a degenerate outline (a flat object seen edge-on): count it all as shadow
             return np.ones(len(points), bool)
+        return np.all(points[:, :2] @ edges[:, :2].T + edges[:, 2] <= SHADOW_MARGIN_M, axis=1)
 
 
 def brightness(
