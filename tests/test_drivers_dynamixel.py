@@ -172,7 +172,7 @@ def test_a_bus_watchdog_left_on_or_expired_is_cleared_at_connect(bus):
     with SimBus.with_servos([1, 2], speed_factor=40.0) as old:
         for servo in old.servos:
             servo.table[6] = 37  # firmware v37
-            servo.table[98] = 3  # (not a field there: a write would be refused)
+            servo.table[98] = 3  # not a field there: a write would be refused, and it never expires
         g = gantry_on(old)
         g.connect()
         assert [s.table[98] for s in old.servos] == [3, 3]

@@ -219,6 +219,22 @@ def test_the_bus_watchdog_stops_a_servo_the_bus_left_alone(sdk):
     assert ph.read4ByteTxRx(port, 1, PRESENT_VELOCITY)[0] == 150
 
 
+def test_firmware_before_v38_has_no_bus_watchdog(sdk):
+    """The e-manual adds Bus Watchdog in firmware v38: an older servo refuses a write to it (Access Error,
+    an address it does not have) and whatever sits at its address never stops the axis."""
+    bus, port, ph = sdk
+    servo = bus.servo(1)
+    servo.table[6] = 37
+    assert ph.write1ByteTxRx(port, 1, BUS_WATCHDOG, 1)[1] == Error.ACCESS
+    servo.table[98] = 1  # 20 ms, were it a field
+    ph.write1ByteTxRx(port, 1, MODE, VELOCITY_MODE)
+    ph.write1ByteTxRx(port, 1, TORQUE, 1)
+    assert ph.write4ByteTxRx(port, 1, GOAL_VELOCITY, 50) == (COMM_SUCCESS, 0)
+    time.sleep(0.2)  # 4 s of the bus's time in silence
+    assert ph.read1ByteTxRx(port, 1, BUS_WATCHDOG)[0] == 1
+    assert ph.read4ByteTxRx(port, 1, PRESENT_VELOCITY)[0] == 50
+
+
 def test_baud_rate_protocol_type_and_secondary_id_take_effect(sdk):
     """After Baud Rate is set to 1 Mbps a servo ignores packets at any other speed (until then it hears
     any: the pty has no speed of its own);

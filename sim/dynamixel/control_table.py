@@ -14,6 +14,7 @@ from dataclasses import dataclass
 EEPROM_END = 64  # addresses below this are EEPROM: writable only with torque off
 TABLE_SIZE = 662  # through Indirect Data 56 (661)
 BUS_WATCHDOG_UNIT_S = 0.020
+BUS_WATCHDOG_FIRMWARE = 38  # the e-manual: Bus Watchdog exists from firmware v38; older servos have none
 # read-only while the bus watchdog has expired (sim.dynamixel.servo)
 GOAL_VALUES = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 RAM_AREA = (64, 661)  # what an Indirect Address may point at (the e-manual: the RAM area, 64–661)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from sim.dynamixel.control_table import (
     ACCELERATION_UNIT_TICKS_PER_S2,
     BAUD_RATES,
+    BUS_WATCHDOG_FIRMWARE,
     BUS_WATCHDOG_UNIT_S,
     BY_ADDRESS,
     BY_NAME,
@@ -151,6 +152,8 @@ class SimServo:
     def _watch(self, now: float) -> None:
         """Expire the bus watchdog if the bus has been silent longer than it allows, with torque on: the
         axis stops where it was at that moment."""
+        if self.get("firmware_version") < BUS_WATCHDOG_FIRMWARE:
+            return
         allowed = self.get("bus_watchdog") * BUS_WATCHDOG_UNIT_S
         if allowed <= 0 or not self.get("torque_enable") or now - self._heard_at <= allowed:
             return
@@ -224,8 +227,8 @@ class SimServo:
             value = int.from_bytes(raw, "little", signed=f.signed)
             if sent and f.name == "goal_position":
                 self.on_goal(self, value)
-            if not f.writable:
-                return Error.ACCESS, []
+            if not f.writable or (f.name == "bus_watchdog" and self.get("firmware_version") < BUS_WATCHDOG_FIRMWARE):
+                return Error.ACCESS, []  # read-only, or a field this firmware does not have
             if f.address < EEPROM_END and self.get("torque_enable"):
                 return Error.ACCESS, []  # EEPROM is locked while torque is on
             if not f.low <= value <= f.high or (f.name == "operating_mode" and value not in OPERATING_MODES):
