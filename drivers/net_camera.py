@@ -30,7 +30,7 @@ class NetworkCamera:
         self._connect()
 
     def _connect(self) -> None:
-        host, _, port = self.address.rpartition(":")
+        host, _, port = self.address.removeprefix("tcp://").rpartition(":")
         try:
             self._conn = socket.create_connection((host, int(port)), timeout=self.reply_timeout_s)
         except (OSError, ValueError) as exc:

@@ -19,14 +19,15 @@ import contextlib
 import json
 import logging
 import os
+import re
 import subprocess
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
 from drivers.errors import DeviceError
 from hlr_lab.acquisition import AxisMoved, Step
@@ -49,20 +50,32 @@ NOTIFY_TIMEOUT_S = 30.0
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+FilePath = Annotated[Path, Field(strict=False)]  # a TOML string (strict mode would want a Path object)
+
+
+def _a_job_name(name: str) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", name):
+        raise ValueError(f"{name!r}: a job's name is 1–64 letters, digits, _ . and - (it names its files)")
+    return name
+
+
+JobName = Annotated[str, AfterValidator(_a_job_name)]
 
 
 class AcquireJob(_Strict):
     """A plan run on a rig into a session, then fitted and reported."""
 
     kind: Literal["acquire"] = "acquire"
-    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
-    plan: Path
-    rig: Path | None = None  # None: the built-in simulated rig (with sim = true)
-    out: Path  # the session folder
+    name: JobName
+    plan: FilePath
+    rig: FilePath | None = None  # None: the built-in simulated rig (with sim = true)
+    out: FilePath  # the session folder
     sim: bool = False
     true_rig: str | None = None  # with sim: the world's rig file
-    scene: Path | None = None  # with sim: the world's scene file
+    scene: FilePath | None = None  # with sim: the world's scene file
     speed_factor: float = Field(default=1.0, gt=0, le=10_000)
     warm_up_min: float = Field(default=0.0, ge=0, le=600)
     warm_up_within: float = Field(default=0.2, ge=0.01, le=10)  # per cent per minute
@@ -73,10 +86,10 @@ class CalibrateJob(_Strict):
     """A calibration procedure writing a calibrated rig file (run by the command line's calibrate)."""
 
     kind: Literal["calibrate"]
-    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+    name: JobName
     procedure: Literal["camera", "gantry", "radiometric", "all"]
-    rig: Path | None = None
-    output: Path
+    rig: FilePath | None = None
+    output: FilePath
     sim: bool = False
     true_rig: str | None = None
     speed_factor: float = Field(default=1.0, gt=0, le=10_000)
@@ -140,6 +153,15 @@ def load_campaign(path: Path) -> Campaign:
         names.add(job.name)
         fields = {k: (base / v if isinstance(v, Path) and not v.is_absolute() else v) for k, v in job}
         job = type(job)(**fields)
+        if isinstance(job, AcquireJob):
+            twin = next((j for j in checked if isinstance(j, AcquireJob) and j.out == job.out), None)
+            if twin is not None:
+                raise InputError(
+                    f"job {job.name!r} would write into the session of job {twin.name!r} ({job.out}); give each "
+                    "acquire job its own out",
+                    path=path,
+                    field=f"job[{i}].out",
+                )
         for key in ("plan", "rig", "scene"):
             p = getattr(job, key, None)
             written = key == "rig" and p in {j.output for j in checked if isinstance(j, CalibrateJob)}
@@ -208,8 +230,10 @@ def forecast(campaign: Campaign) -> Forecast:
         total, free = sum(needed[n] for n in names), free_bytes(where)
         if total > free:
             raise DiskFull(
-                f"{campaign.path}: the night's frames need up to {total / 1e6:,.0f} MB where {', '.join(names)} "
-                f"write, but {free / 1e6:,.0f} MB is free there; free space, or move some jobs' out elsewhere"
+                f"{campaign.path}: the night's frames need up to {total / 1e6:,.0f} MB where "
+                f"{'job' if len(names) == 1 else 'jobs'} {', '.join(map(repr, names))} "
+                f"{'writes' if len(names) == 1 else 'write'}, but {free / 1e6:,.0f} MB is free there; free space, or "
+                "move some jobs' out elsewhere"
             )
     return Forecast(frames, needed, duration)
 

@@ -193,6 +193,10 @@ def load_mesh(
     except Exception as exc:  # trimesh raises many types for malformed files
         if path.suffix.lower() in (".obj", ".gltf"):  # a text format: trimesh guesses a non-UTF-8 file's
             _check_utf8(path)  # encoding with a package it may lack, and says only that
+        if isinstance(exc, IndexError):  # trimesh's words for a face naming a vertex the file lacks
+            raise InputError(
+                f"a face refers to a vertex the file does not have ({exc}); repair the mesh", path=path
+            ) from exc
         raise InputError(
             f"cannot read the mesh ({type(exc).__name__}: {exc}); give an OBJ, PLY, glTF or GLB file",
             path=path,
@@ -206,6 +210,14 @@ def load_mesh(
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices)).any(axis=1).sum())
         raise InputError(f"{bad} vertices have NaN or infinite coordinates; repair the mesh", path=path)
+    outside = (faces < 0) | (faces >= len(vertices))
+    if outside.any():  # trimesh reads a PLY's faces as written, without checking them
+        face, corner = np.argwhere(outside)[0]
+        raise InputError(
+            f"face {face} refers to vertex {faces[face, corner]}, but the file has {len(vertices)} "
+            f"(0…{len(vertices) - 1}); repair the mesh",
+            path=path,
+        )
 
     vertex_colours, corner_uv, image = _colour_of(loaded, faces)
     texture_source = None

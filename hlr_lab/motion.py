@@ -44,6 +44,13 @@ def motion_targets(plan: PlanFile, rig: Rig, plan_path: str | Path = "plan.json"
             path=plan_path,
             field="parameters.sphere_source",
         )
+    if not plan.poses:
+        raise InputError(
+            "the plan has no poses, so there is nothing to acquire; plan the object again (see the plan's "
+            "'uncovered' for why its regions got no light)",
+            path=plan_path,
+            field="poses",
+        )
     problems: list[tuple[str, str]] = []  # (field, message)
     targets = []
     for i, pose in enumerate(plan.poses):

@@ -1,6 +1,7 @@
 """The rig's geometry, as planning needs it: camera, light gantry sphere and limits, turntable limits.
 
-Read from ``rig.toml`` (DESIGN §4); the simulated rig ships as package data (``--sim``).
+Read from ``rig.toml`` (docs/rig.example.toml explains every field); the simulated rig ships as package
+data (``--sim``).
 """
 
 from __future__ import annotations
@@ -25,10 +26,22 @@ Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 _PAIR = Field(min_length=2, max_length=2)
 Limits = Annotated[list[float], _PAIR]
 ServoId = Annotated[int, Field(ge=0, le=252)]  # Protocol 2.0 unicast IDs
+# what an X-series servo's Baud Rate (address 8) can be set to (the ROBOTIS e-manual)
+DYNAMIXEL_BAUD_RATES = (9600, 57600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)
+# OpenCV's predefined ArUco dictionaries and how many markers each has (cv2.aruco.getPredefinedDictionary)
+ARUCO_DICTIONARIES = {
+    **{f"DICT_{n}X{n}_{size}": size for n in (4, 5, 6, 7) for size in (50, 100, 250, 1000)},
+    "DICT_ARUCO_ORIGINAL": 1024,
+    "DICT_APRILTAG_16h5": 30,
+    "DICT_APRILTAG_25h9": 35,
+    "DICT_APRILTAG_36h10": 2320,
+    "DICT_APRILTAG_36h11": 587,
+    "DICT_ARUCO_MIP_36h12": 250,
+}
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class _Header(_Strict):
@@ -89,6 +102,27 @@ class _CameraSection(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _a_pinhole_matrix(self):
+        (fx, skew, cx), (zero, fy, cy), last = self.matrix
+        # OpenCV's camera model, which calibration fits and its functions use: no skew
+        if not (fx > 0 and fy > 0 and skew == 0 and zero == 0 and last == [0.0, 0.0, 1.0]):
+            raise ValueError(
+                "matrix must be a camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with focal lengths fx, fy "
+                "> 0 (pixels); hlr-lab calibrate camera measures it"
+            )
+        if not (0 <= cx <= self.width and 0 <= cy <= self.height):
+            raise ValueError(
+                f"matrix: the principal point ({cx:g}, {cy:g}) lies outside the {self.width} × {self.height} "
+                "image; check width, height and the matrix (cx, cy are in pixels)"
+            )
+        return self
+
+    @field_validator("address")
+    @classmethod
+    def _a_frame_endpoint(cls, address: str | None) -> str | None:
+        return address if address is None else _host_port(address)
+
+    @model_validator(mode="after")
     def _one_way_to_the_camera(self):
         if self.address and self.capture:
             raise ValueError("give either address (a frame endpoint) or [camera.capture] (OpenCV), not both")
@@ -102,7 +136,7 @@ class _GantrySection(_Strict):
     elevation_limits_deg: Limits
     camera_keepout_deg: float = Field(ge=0, lt=90)
     min_light_height_m: float = 0.0
-    # tick ↔ angle mapping (DESIGN §3, §4): servo readings at 0°, and whether ticks grow with the angle
+    # tick ↔ angle mapping (docs/conventions.md): servo readings at 0°, and whether ticks grow with the angle
     servo_ids: Annotated[list[ServoId], _PAIR] = [1, 2]
     zero_ticks: Annotated[list[int], _PAIR] = [2048, 1024]
     directions: Annotated[list[Literal[-1, 1]], _PAIR] = [1, 1]
@@ -111,11 +145,12 @@ class _GantrySection(_Strict):
     # azimuth 0 is world +x projected onto the plane perpendicular to it, elevation is measured from
     # that plane (hlr_lab.kinematics)
     azimuth_axis: Vec3 = [0.0, 0.0, 1.0]
-    # the link (DESIGN §6): a device path or a pyserial URL; the simulated rig supplies its own pty
+    # the link: a device path or a pyserial URL; the simulated rig supplies its own pty
     port: str | None = None
-    baudrate: int = Field(default=1_000_000, gt=0)
-    profile_velocity: int = Field(default=100, gt=0)  # 0.229 rev/min per unit
-    profile_acceleration: int = Field(default=20, gt=0)  # 214.6 rev/min² per unit
+    baudrate: int = 1_000_000
+    # the servo's Profile Velocity and Acceleration (the e-manual's range: 0–32767; 0 would mean "unlimited")
+    profile_velocity: int = Field(default=100, gt=0, le=32767)  # 0.229 rev/min per unit
+    profile_acceleration: int = Field(default=20, gt=0, le=32767)  # 214.6 rev/min² per unit
     tolerance_ticks: int = Field(default=2, ge=0)
     settle_s: float = Field(default=0.05, ge=0)
     reboot_on_alarm: bool = False  # clear a hardware error by reboot only when the operator allows it
@@ -123,12 +158,20 @@ class _GantrySection(_Strict):
     # or "hold" (the servos keep the last position, powered)
     park: Literal["torque_off", "hold"] = "torque_off"
 
+    @field_validator("baudrate")
+    @classmethod
+    def _a_servo_baud_rate(cls, baudrate: int) -> int:
+        if baudrate not in DYNAMIXEL_BAUD_RATES:
+            raise ValueError(
+                f"{baudrate} bps is not a speed an X-series servo can be set to; use one of "
+                f"{', '.join(map(str, DYNAMIXEL_BAUD_RATES))} (the servos' Baud Rate)"
+            )
+        return baudrate
+
     @model_validator(mode="after")
     def _ordered(self):
         for name in ("azimuth_limits_deg", "elevation_limits_deg"):
-            lo, hi = getattr(self, name)
-            if lo >= hi:
-                raise ValueError(f"{name}: the lower limit {lo} must be below the upper {hi}")
+            _ordered_limits(name, getattr(self, name))
         if not -90 <= self.elevation_limits_deg[0] < self.elevation_limits_deg[1] <= 90:
             raise ValueError("elevation_limits_deg must lie within [-90, 90]")
         a = np.asarray(self.azimuth_axis, float)
@@ -176,6 +219,17 @@ class _TurntableSection(_Strict):
     # overrides of the AZ driver's register map (drivers.modbus_stage.StageMap), by field name
     registers: dict[str, int] = {}
 
+    @model_validator(mode="after")
+    def _ordered(self):
+        _ordered_limits("limits_deg", self.limits_deg)
+        return self
+
+    @field_validator("address")
+    @classmethod
+    def _a_modbus_link(cls, address: str | None) -> str | None:
+        serial = address is None or address.startswith(("/", "COM"))  # drivers.modbus_stage reads it so
+        return address if serial else _host_port(address, ", nor a serial device path (/dev/…, COMn)")
+
     @field_validator("registers")
     @classmethod
     def _known_registers(cls, registers: dict[str, int]) -> dict[str, int]:
@@ -186,6 +240,21 @@ class _TurntableSection(_Strict):
         return registers
 
 
+def _host_port(address: str, otherwise: str = "") -> str:
+    """A network endpoint "host:port" (or "tcp://host:port"), checked before a driver tries it;
+    ``otherwise`` names what else the field may be, for the message."""
+    host, _, port = address.removeprefix("tcp://").rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"{address!r} is not host:port (e.g. 192.168.0.30:502, a port 1–65535){otherwise}")
+    return address
+
+
+def _ordered_limits(name: str, limits: list[float]) -> None:
+    lo, hi = limits
+    if lo >= hi:
+        raise ValueError(f"{name}: the lower limit {lo:g} must come first and be below the upper {hi:g}")
+
+
 class _LampSection(_Strict):
     """The lamp relay: a coil of a Modbus module on the turntable's link."""
 
@@ -194,7 +263,7 @@ class _LampSection(_Strict):
 
 
 class _LightSection(_Strict):
-    """The lamp as a light source (DESIGN §3): irradiance Φ/d² at distance d for a point light; a
+    """The lamp as a light source (docs/conventions.md): irradiance Φ/d² at distance d for a point light; a
     directional light (a distant lamp) shines from the lamp's direction seen from the gantry centre with
     irradiance Φ."""
 
@@ -228,13 +297,24 @@ class _BoardSection(_Strict):
     squares: Annotated[list[Annotated[int, Field(ge=3, le=100)]], _PAIR]  # across, down
     square_m: float = Field(gt=0, le=1)
     marker_m: float = Field(gt=0, le=1)
-    dictionary: str = "DICT_4X4_50"  # OpenCV's name of the ArUco dictionary
+    dictionary: str = "DICT_4X4_50"  # OpenCV's name of the ArUco dictionary (ARUCO_DICTIONARIES)
     centre_height_m: float = Field(ge=0, le=2)  # the board's centre above the plate, on its first wedge face
 
     @model_validator(mode="after")
     def _marker_inside(self):
         if self.marker_m >= self.square_m:
             raise ValueError("marker_m must be smaller than square_m (the marker sits inside a square)")
+        if self.dictionary not in ARUCO_DICTIONARIES:
+            raise ValueError(
+                f"dictionary {self.dictionary!r} is not one of OpenCV's ArUco dictionaries "
+                f"({', '.join(ARUCO_DICTIONARIES)}); give the one the board was printed with"
+            )
+        markers = self.squares[0] * self.squares[1] // 2  # a ChArUco board has a marker in every other square
+        if markers > ARUCO_DICTIONARIES[self.dictionary]:
+            raise ValueError(
+                f"a {self.squares[0]} × {self.squares[1]} board has {markers} markers, more than "
+                f"{self.dictionary}'s {ARUCO_DICTIONARIES[self.dictionary]}; give the dictionary it was printed with"
+            )
         return self
 
 
@@ -268,7 +348,7 @@ class _WhiteReferenceSection(_Strict):
 class _Provenance(BaseModel):
     """What a calibration procedure recorded: when, with what, how well (free-form beyond these)."""
 
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
     date: str
     hlr_lab: str
 

@@ -1,6 +1,6 @@
 """Points and angles on the light sphere S.
 
-Directions are unit vectors (…, 3); the gantry convention of DESIGN §3:
+Directions are unit vectors (…, 3); the gantry convention of docs/conventions.md:
 ``d = (cos el cos az, cos el sin az, sin el)``, angles in radians here.
 """
 

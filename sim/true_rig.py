@@ -148,11 +148,14 @@ def _camera(c: dict) -> CameraSpec:
     roll = np.radians(float(c.get("roll_deg", 0.0)))  # the body turned about its optical axis
     right, down = np.cos(roll) * right + np.sin(roll) * down, np.cos(roll) * down - np.sin(roll) * right
     rotation = np.stack([right, down, forward])
+    matrix = np.asarray(c["matrix"], float)
+    if matrix.shape != (3, 3) or not (matrix[0, 0] > 0 and matrix[1, 1] > 0) or matrix[0, 1] != 0:
+        raise ValueError("[camera] matrix: a 3 × 3 [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
     distortion = np.zeros(5)
     given = np.asarray(c.get("distortion", []), float)
     distortion[: len(given)] = given
     return CameraSpec(
-        np.asarray(c["matrix"], float),
+        matrix,
         distortion,
         rotation,
         -rotation @ eye,

@@ -160,6 +160,10 @@ CASES = [
          r"poses\[0\]\.light\.position_m\[0\]"),
     Case("a NaN exposure", _plan_with(_set("poses.0.exposures_s", [float("nan")])),
          r"poses\[0\]\.exposures_s\[0\]: Input should be a finite number"),
+    Case("a plan with no poses", _plan_with(_set("poses", [])), r"plan\.json: poses: the plan has no poses"),
+    Case("a plan nested 100 000 deep", lambda f, p, s: (f / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+         and ["acquire", "--plan", str(f / "deep.json"), "--sim", "--out", str(f / "out")],
+         r"deep\.json: not valid JSON \(nested too deeply"),
     Case("an exposure of a million seconds", _plan_with(_set("poses.0.exposures_s", [1e6])), r"exposures_s\[0\]"),
     Case("the paper's sphere, for no rig", _plan_with(_set("parameters.sphere_source", "scale")),
          r"parameters\.sphere_source: this is an analysis plan"),
@@ -169,6 +173,8 @@ CASES = [
          ["acquire", "--plan", str(f / "t.json"), "--sim", "--out", str(f / "out")], r"t\.json"),
     Case("a camera 1e8 pixels wide", _rig_with(r"^width = .*$", "width = 100000000"), r"camera\.width"),
     Case("a NaN focal length", _rig_with(r"^matrix = \[\[[0-9.]+", "matrix = [[nan"), r"camera\.matrix"),
+    Case("an ArUco dictionary OpenCV does not have", _rig_with(r"^dictionary = .*$", 'dictionary = "DICT_9X9_50"'),
+         r"calibration\.board: dictionary 'DICT_9X9_50'"),
     Case("a camera at the gantry centre", _rig_with(r"^position_m = .*$", "position_m = [0.0, 0.0, 0.08]"),
          r"camera"),
     Case("materials with no region", _materials_with(_set("regions", [])), r"regions"),
@@ -177,6 +183,12 @@ CASES = [
          rs=[0.1] * 3, rs_se=[0.01] * 3, n_se=1.0)), r"regions\[0\]\.n"),
     Case("a mesh of random bytes", _mesh(bytes(range(256)) * 4),
          r"m\.obj: not a text OBJ file \(byte 0x80 at offset 128"),
+    Case("a face naming a vertex the mesh lacks", _mesh(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"),
+         r"m\.obj: a face refers to a vertex the file does not have"),
+    Case("a PLY face naming a vertex the mesh lacks", _mesh(
+         b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+         b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
+         ".ply"), r"m\.ply: face 0 refers to vertex 7, but the file has 3"),
     Case("a mesh without faces", _mesh(b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"), r"m\.obj: the mesh has no faces"),
     Case("an output that is a folder", lambda f, p, s: (f / "out").mkdir() or
          ["segment", "--mesh", "builtin:pebble", "-o", str(f / "out")], r"out.* is a directory", status=2,

@@ -133,6 +133,12 @@ def test_campaign_files_that_are_wrong_are_refused_with_the_field(tmp_path, buil
         (text + '\n[[job]]\nname = "j0"\nplan = "x"\nout = "y"\nsim = true\n', "job[1].name"),
         (text.replace("sim = true\n", 'true_rig = "builtin:bench-night"\nrig = "r.toml"\n'), "job[0]"),
         (text + '\n[[job]]\nkind = "dance"\nname = "x"\n', "job[1]"),
+        (
+            text + f'\n[[job]]\nname = "j1"\nplan = "{builtin_plan}"\nout = "s0"\nsim = true\n',
+            "job[1].out: job 'j1' would write into the session of job 'j0'",
+        ),
+        (text.replace('name = "j0"', 'name = "../j0"'), "job[0].name: '../j0': a job's name is"),
+        (text + 'warm_up_min = "30"\n', "job[0].warm_up_min: Input should be a valid number"),
     ):
         path.write_text(change)
         (tmp_path / "r.toml").write_text("")
@@ -146,7 +152,7 @@ def test_a_night_that_will_not_fit_on_the_disk_is_refused_before_anything_moves(
 ):
     night = load_campaign(campaign_file(tmp_path, builtin_plan))
     monkeypatch.setattr(c, "free_bytes", lambda _path: 100_000_000)  # 100 MB: three jobs need ~280 MB
-    with pytest.raises(DiskFull, match="j0, j1, j2"):
+    with pytest.raises(DiskFull, match="where jobs 'j0', 'j1', 'j2' write"):
         run_campaign(night, links_for=lambda *_: pytest.fail("no job may start"), calibrate=no_calibration)
     assert not (night.folder / "campaign.jsonl").exists()
 

@@ -9,7 +9,7 @@ from hlr_lab.formats.io import atomic_write_bytes, atomic_write_text
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.formats.regions import read_regions, write_regions
 from hlr_lab.procedural import pebble
-from hlr_lab.rig import load_rig
+from hlr_lab.rig import ARUCO_DICTIONARIES, load_rig
 from hlr_lab.segment import segment
 from hlr_lab.sphere import rotation_z
 
@@ -89,6 +89,11 @@ def test_regions_round_trip_and_mesh_check(tmp_path):
     other = pebble(subdivisions=2).mesh
     with pytest.raises(InputError, match="another mesh"):
         read_regions(path, other)
+    data = json.loads(path.read_text())
+    data["regions"] = []
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=r"regions\.json: regions: List should have at least 1 item"):
+        read_regions(path, obj.mesh)
 
 
 def test_atomic_write_keeps_the_old_file_on_failure(tmp_path):
@@ -123,9 +128,47 @@ def test_sim_rig_file_loads():
         ("ticks_per_rev = 4096", "ticks_per_rev = 0", "gantry.ticks_per_rev"),
         ("zero_ticks = [2048, 1024]", "zero_ticks = [100, 1024]", "azimuth_limits_deg map to servo ticks"),
         ("steps_per_degree = 100.0", "steps_per_degree = -1", "turntable.steps_per_degree"),
+        (
+            "limits_deg = [-180.0, 180.0]",
+            "limits_deg = [180.0, -180.0]",
+            "limits_deg: the lower limit 180 must",
+        ),
+        (
+            "arm_radius_m = 0.30",
+            'arm_radius_m = "0.30"',
+            "gantry.arm_radius_m: Input should be a valid number",
+        ),
+        ("ticks_per_rev = 4096", "ticks_per_rev = true", "gantry.ticks_per_rev"),
+        ("matrix = [[2400.0", "matrix = [[0.0", "camera: matrix must be a camera matrix"),
+        ("matrix = [[2400.0, 0.0", "matrix = [[2400.0, 0.5", "camera: matrix must be a camera matrix"),
+        ("[0.0, 2400.0, 476.0]", "[0.0, 2400.0, 4760.0]", "the principal point"),
+        (
+            "baudrate = 1000000",
+            "baudrate = 1234",
+            "gantry.baudrate: 1234 bps is not a speed an X-series servo",
+        ),
+        ("profile_velocity = 100", "profile_velocity = 40000", "gantry.profile_velocity"),
+        (
+            'dictionary = "DICT_4X4_50"',
+            'dictionary = "DICT_9X9_50"',
+            "calibration.board: dictionary 'DICT_9X9_50'",
+        ),
+        (
+            'dictionary = "DICT_4X4_50"',
+            'dictionary = "DICT_APRILTAG_16h5"',
+            "more than DICT_APRILTAG_16h5's 30",
+        ),
+        (
+            "[turntable]",
+            '[turntable]\naddress = "10.0.0.2:99999"',
+            "turntable.address: '10.0.0.2:99999' is not",
+        ),
+        ("[turntable]", '[turntable]\naddress = "tcp://10.0.0.2"', "turntable.address"),
+        ("[camera]", '[camera]\naddress = "10.0.0.2"', "camera.address"),
     ],
 )
 def test_bad_rig_files_name_the_field(tmp_path, old, new, message):
+    """Strict types too: a number in quotes or a boolean where a number belongs is refused, not converted."""
     text = SIM_RIG.read_text()
     assert old in text
     bad = tmp_path / "rig.toml"
@@ -229,3 +272,20 @@ def test_materials_that_are_not_reflectances_are_refused(tmp_path):
         path.write_text(json.dumps({**base, **change}))
         with pytest.raises(InputError, match=field):
             read_materials(path)
+
+
+def test_the_aruco_dictionaries_a_rig_file_may_name_are_opencvs():
+    """The rig file names a board's dictionary without loading OpenCV: its table must match OpenCV's own."""
+    cv2 = pytest.importorskip("cv2")
+    for name, markers in ARUCO_DICTIONARIES.items():
+        assert cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList.shape[0] == markers, name
+
+
+def test_a_plan_with_a_number_in_quotes_is_refused(tmp_path, builtin_plan):
+    """JSON written by hand: "10" where a number belongs is not quietly taken for 10."""
+    data = json.loads(builtin_plan.read_text())
+    data["poses"][0]["turntable_deg"] = "10"
+    bad = tmp_path / "plan.json"
+    bad.write_text(json.dumps(data))
+    with pytest.raises(InputError, match=r"poses\[0\]\.turntable_deg: Input should be a valid number"):
+        read_plan(bad)

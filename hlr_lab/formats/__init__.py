@@ -1,1 +1,1 @@
-"""hlr-lab's file formats (DESIGN §4): versioned, validated on read, written atomically."""
+"""hlr-lab's file formats (docs/formats.md): versioned, validated on read, written atomically."""

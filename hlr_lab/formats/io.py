@@ -132,6 +132,10 @@ def _parse(path: Path, loads, error: type[Exception], kind: str):
         return loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, error) as exc:
         raise InputError(f"not valid {kind} ({exc})", path=path) from exc
+    except RecursionError as exc:  # Python's parsers recurse once per nesting level
+        raise InputError(
+            f"not valid {kind} (nested too deeply to be a file of hlr-lab's)", path=path
+        ) from exc
 
 
 def check_header(data: object, path: Path, fmt: str, versions: set[int], header: str | None = None) -> None:

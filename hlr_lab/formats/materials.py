@@ -1,4 +1,4 @@
-"""``materials.json`` (DESIGN §4): one Blinn-Phong material per region, with uncertainties.
+"""``materials.json`` (docs/formats.md): one Blinn-Phong material per region, with uncertainties.
 
 ```json
 {"format": "hlr-lab.materials", "version": 1, "model": "blinn-phong",
@@ -33,13 +33,13 @@ REFLECTANCE = Annotated[list[Annotated[float, Field(ge=0, le=1.5)]], Field(min_l
 
 
 class PixelCounts(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
     diffuse: int = Field(ge=0)
     highlight: int = Field(ge=0)
 
 
 class MaterialEntry(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -68,7 +68,7 @@ class MaterialEntry(BaseModel):
 
 
 class MaterialsFile(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
     format: Literal["hlr-lab.materials"]
     version: Literal[1]
     model: Literal["blinn-phong"]

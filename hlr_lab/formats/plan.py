@@ -1,4 +1,4 @@
-"""``plan.json`` (DESIGN §4): what ``hlr-lab acquire`` runs. The skeleton is fixed (other tools read it);
+"""``plan.json`` (docs/formats.md): what ``hlr-lab acquire`` runs. The skeleton is fixed (other tools read it);
 hlr-lab adds fields: the mesh → turntable placement, the sphere, the criterion, a summary.
 
 ``position_mesh_m`` and ``camera_position_mesh_m`` are in the mesh file's own frame and units (metres
@@ -33,7 +33,8 @@ Matrix4 = Annotated[
 
 
 class _Open(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)  # hlr-lab and other tools may add fields
+    # hlr-lab and other tools may add fields
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
 
 
 class PlanObject(_Open):

@@ -28,7 +28,7 @@ Colour8 = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=
 
 
 class RegionEntry(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -49,7 +49,7 @@ class RegionEntry(BaseModel):
 
 
 class SegmentParameters(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
     delta_e: float
     min_fragment: float
     split_connected: bool
@@ -57,7 +57,7 @@ class SegmentParameters(BaseModel):
 
 
 class RegionsFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
     format: Literal["hlr-lab.regions"]
     version: Literal[1]
     mesh: str
@@ -65,7 +65,7 @@ class RegionsFile(BaseModel):
     texture: str | None = None
     texture_sha256: str | None = None
     parameters: SegmentParameters
-    regions: list[RegionEntry]
+    regions: Annotated[list[RegionEntry], Field(min_length=1)]
     vertex_labels: list[Label]
     face_labels: list[Label]
 

@@ -1,6 +1,6 @@
 """Plan light positions (and turntable views) that give every region at least M highlight samples.
 
-The paper's algorithm (§3.2) with the additions of DESIGN §1, each on by default and reported:
+The paper's algorithm (§3.2) with these additions, each on by default and reported:
 visibility, shadows and grazing angles decide whether a sample counts; only reachable light positions
 are candidates; a region counts only up to what it still needs (the plain count is reported too);
 extra turntable views open when a region cannot be served from the first; M counts expected pixels.

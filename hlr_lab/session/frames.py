@@ -1,5 +1,5 @@
 """Raw frames in ``frames/``: lossless 16-bit PNG plus a JSON sidecar, each created once and never
-replaced; a frame counts when the journal holds its line with both files' sha256 (DESIGN §4).
+replaced; a frame counts when the journal holds its line with both files' sha256 (docs/sessions.md).
 
 Order matters for a crash: image, then sidecar, then the journal line. Files without a journal line are
 leftovers of an interrupted frame; a resumed run takes the frame again under the next free attempt

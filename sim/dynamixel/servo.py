@@ -227,7 +227,9 @@ class SimServo:
             value = int.from_bytes(raw, "little", signed=f.signed)
             if sent and f.name == "goal_position":
                 self.on_goal(self, value)
-            if not f.writable or (f.name == "bus_watchdog" and self.get("firmware_version") < BUS_WATCHDOG_FIRMWARE):
+            if not f.writable or (
+                f.name == "bus_watchdog" and self.get("firmware_version") < BUS_WATCHDOG_FIRMWARE
+            ):
                 return Error.ACCESS, []  # read-only, or a field this firmware does not have
             if f.address < EEPROM_END and self.get("torque_enable"):
                 return Error.ACCESS, []  # EEPROM is locked while torque is on

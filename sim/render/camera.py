@@ -1,8 +1,9 @@
 """An OpenCV camera (K, distortion, world → camera pose) rendered by Mitsuba.
 
 Mitsuba's perspective sensor is an ideal pinhole with square pixels: the render is made on a slightly
-larger undistorted film, then warped with the distortion by remapping (OpenCV), so that pixel (u, v)
-sees what a real camera with these intrinsics would.
+larger undistorted film with square pixels (focal length fx), then warped with the distortion and the
+pixels' aspect (fy / fx) by remapping (OpenCV), so that pixel (u, v) sees what a real camera with these
+intrinsics would.
 """
 
 from __future__ import annotations
@@ -34,16 +35,17 @@ class PinholeFilm:
 
     def __init__(self, cam: CameraSpec):
         k = np.asarray(cam.matrix, np.float64)
-        if abs(k[0, 0] - k[1, 1]) > 1e-6 * k[0, 0] or abs(k[0, 1]) > 1e-12:
-            raise ValueError("the simulated camera needs square pixels and no skew (fx = fy, K[0,1] = 0)")
+        if abs(k[0, 1]) > 1e-12:
+            raise ValueError("the simulated camera has no skew (K[0,1] = 0), as OpenCV's camera model")
         self.f = k[0, 0]
+        square = np.array([[self.f, 0.0, k[0, 2]], [0.0, self.f, k[1, 2]], [0.0, 0.0, 1.0]])
         dist = np.zeros(5)
         coeffs = np.asarray(cam.distortion, np.float64).ravel()
         dist[: len(coeffs)] = coeffs
         v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float32)
         pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-        if np.any(dist):
-            ideal = cv2.undistortPoints(pixels, k, dist, P=k).reshape(cam.height, cam.width, 2)
+        if np.any(dist) or k[1, 1] != self.f:  # where each camera pixel's ray meets the square-pixel film
+            ideal = cv2.undistortPoints(pixels, k, dist, P=square).reshape(cam.height, cam.width, 2)
         else:
             ideal = pixels.reshape(cam.height, cam.width, 2)
         # a margin so that every distorted pixel finds its ideal source on the film
@@ -54,7 +56,9 @@ class PinholeFilm:
         self.width, self.height = int(size[0]), int(size[1])
         self.cx, self.cy = k[0, 2] - self.offset[0], k[1, 2] - self.offset[1]
         self.map = (ideal - self.offset).astype(np.float32)
-        self.distorted = bool(np.any(dist)) or self.width != cam.width or self.height != cam.height
+        self.distorted = (
+            bool(np.any(dist)) or k[1, 1] != self.f or self.width != cam.width or self.height != cam.height
+        )
         self.cam = cam
 
     def sensor_dict(self, spp: int) -> dict:

@@ -1,7 +1,7 @@
 """hlr-lab's reflection model as a Mitsuba BSDF: BSDF value × cos = (Rd cos α + Rs cosⁿβ) / π.
 
 The 1/π makes a white Lambertian (Rd = 1) under a point light of Mitsuba intensity π·Φ read Φ/d² facing
-it — the project's irradiance convention (DESIGN §3), so rendered values are eq. (1) exactly. Sampling
+it — the project's irradiance convention (docs/conventions.md), so rendered values are eq. (1) exactly. Sampling
 is cosine-weighted (the direct integrator samples the light; the path tracer also samples this).
 ``dr.select`` rather than ``dr.maximum``: LLVM 15 could not compile the latter in a custom BSDF.
 """

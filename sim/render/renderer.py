@@ -41,7 +41,7 @@ class Renderer:
             shapes["object"] = self._mesh(
                 "object", scene.faces, vertices, normals, self._region_map_bsdf(scene), uv=scene.vertex_uv
             )
-        else:  # one shape per region, as DESIGN §7 asks
+        else:  # one shape per region: each region's material is its own BSDF
             for r, material in enumerate(scene.materials):
                 faces = scene.faces[scene.face_region == r]
                 if len(faces):
