@@ -191,6 +191,14 @@ def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
         (tmp_path / "bad.toml").write_text(text.replace(bad, said))
         with pytest.raises(SceneError, match=r"region\[0\]"):
             load_scene(tmp_path / "bad.toml")
+    # a misspelt key would leave its default in place unseen; a lamp of power 0 lights nothing
+    for bad, said, where in (("n = 50", "n = 50\nrss = [0.5, 0.5, 0.5]", r"region\[0\]\.rss: not a key"),
+                             ("power = 2.0", "power = 2.0\npowr = 3", r"light\.powr: not a key"),
+                             ("rotation_deg", "rotation", r"object\.pose\.rotation: not a key"),
+                             ("power = 2.0", "power = 0", r"light\.power")):  # fmt: skip
+        (tmp_path / "bad.toml").write_text(text.replace(bad, said))
+        with pytest.raises(SceneError, match=where):
+            load_scene(tmp_path / "bad.toml")
 
 
 def test_paper_cylinder_under_a_directional_light():

@@ -138,14 +138,18 @@ def load_scene(path: str | Path) -> SceneSpec:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SceneError(f"{path}: cannot read the scene ({exc})") from exc
-    obj = _table(data, "object", path)
-    light = _table(data, "light", path, required=False)
+    _known(data, {"object", "light", "region"}, path, "")
+    obj = _known(_table(data, "object", path), {"mesh", "texture", "pose"}, path, "object")
+    light = _known(_table(data, "light", path, required=False), {"type", "power"}, path, "light")
     regions = data.get("region", [])
     if not isinstance(regions, list) or not regions or not all(isinstance(r, dict) for r in regions):
         raise SceneError(f"{path}: region: at least one [[region]] table is needed")
+    for i, r in enumerate(regions):
+        _known(r, {"color", "rd", "rs", "n"}, path, f"region[{i}]")
     mesh_path = path.parent / _text(obj, "mesh", path, "object.mesh")
     texture = path.parent / _text(obj, "texture", path, "object.texture") if "texture" in obj else None
     pose = _table(obj, "pose", path, required=False, where="object.pose")
+    _known(pose, {"translation", "rotation_deg"}, path, "object.pose")
     placement = pose_matrix(
         _numbers(pose.get("translation", [0, 0, 0]), 3, path, "object.pose.translation", bound=100.0),
         _numbers(pose.get("rotation_deg", [0, 0, 0]), 3, path, "object.pose.rotation_deg", bound=3600.0),
@@ -160,7 +164,9 @@ def load_scene(path: str | Path) -> SceneSpec:
     kind = light.get("type", "point")
     if kind not in ("point", "directional"):
         raise SceneError(f'{path}: light.type: "point" or "directional", not {kind!r}')
-    (power,) = _numbers([light.get("power", 1.0)], 1, path, "light.power", low=0, high=1e9)
+    (power,) = _numbers(
+        [light.get("power", 1.0)], 1, path, "light.power", low=1e-9, high=1e9
+    )  # a lamp that shines
     try:
         mesh = trimesh.load(mesh_path, process=False, force="mesh")
         faces = np.asarray(mesh.faces, np.int64)
@@ -198,6 +204,15 @@ def _table(data: dict, key: str, path: Path, *, required: bool = True, where: st
             f"{path}: {where or key}: a table is needed" + ("" if value is None else f", not {value!r}")
         )
     return value
+
+
+def _known(table: dict, keys: set[str], path: Path, where: str) -> dict:
+    """``table`` if it holds only ``keys``: a misspelt key would otherwise leave its default in place."""
+    unknown = sorted(set(table) - keys)
+    if unknown:
+        at = f"{where}.{unknown[0]}" if where else unknown[0]
+        raise SceneError(f"{path}: {at}: not a key of a scene file here (known: {', '.join(sorted(keys))})")
+    return table
 
 
 def _text(table: dict, key: str, path: Path, where: str) -> str:
