@@ -62,6 +62,27 @@ def _rig_with(pattern: str, replacement: str):
     return make
 
 
+def _true_rig_with(pattern: str, replacement: str):
+    """The simulated world built from a rig file with a mistake: hlr-lab's own checks name it."""
+
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        text = (resources.files("hlr_lab.data") / "sim-rig.toml").read_text()
+        true_rig = folder / "true.toml"
+        true_rig.write_text(re.sub(pattern, replacement, text, count=1, flags=re.M))
+        return [
+            "acquire",
+            "--plan",
+            str(plan),
+            "--sim",
+            "--true-rig",
+            str(true_rig),
+            "--out",
+            str(folder / "out"),
+        ]
+
+    return make
+
+
 def _materials_with(change: Callable[[dict], None]):
     def make(folder: Path, plan: Path, session: Path) -> list[str]:
         good = {"format": "hlr-lab.materials", "version": 1, "model": "blinn-phong",
@@ -177,6 +198,8 @@ CASES = [
          r"calibration\.board: dictionary 'DICT_9X9_50'"),
     Case("a camera at the gantry centre", _rig_with(r"^position_m = .*$", "position_m = [0.0, 0.0, 0.08]"),
          r"camera"),
+    Case("a true rig with a misspelt field", _true_rig_with(r"^profile_acceleration = ", "profile_acceleraton = "),
+         r"true\.toml: gantry\.profile_acceleraton: Extra inputs are not permitted"),
     Case("materials with no region", _materials_with(_set("regions", [])), r"regions"),
     Case("an Rd of 2", _materials_with(_set("regions.0.rd", [2.0, 0.1, 0.1])), r"regions\[0\]\.rd\[0\]"),
     Case("a negative exponent", _materials_with(lambda d: d["regions"][0].update(specular="measured", n=-3.0,

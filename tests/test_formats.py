@@ -289,3 +289,13 @@ def test_a_plan_with_a_number_in_quotes_is_refused(tmp_path, builtin_plan):
     bad.write_text(json.dumps(data))
     with pytest.raises(InputError, match=r"poses\[0\]\.turntable_deg: Input should be a valid number"):
         read_plan(bad)
+
+
+def test_the_builtin_true_rigs_are_rig_files_hlr_lab_would_accept(tmp_path):
+    """A true rig is a rig file: the world it describes must be one hlr-lab could be told to believe."""
+    from sim.true_rig import builtin_true_rigs, true_rig_text
+
+    for name in builtin_true_rigs():
+        path = tmp_path / f"{name.removeprefix('builtin:')}.toml"
+        path.write_text(true_rig_text(name))
+        assert load_rig(path).gantry.arm_radius > 0

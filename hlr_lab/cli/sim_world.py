@@ -28,7 +28,7 @@ from hlr_lab.planned_object import (
     region_ids,
     texel_regions,
 )
-from hlr_lab.rig import SIM_RIG, Rig
+from hlr_lab.rig import SIM_RIG, Rig, load_rig
 from sim.render.scene import Material, SceneError, SceneSpec, load_scene
 
 DEFAULT_RS, DEFAULT_N, RD_SCALE = (0.25, 0.25, 0.25), 40.0, 0.8  # Rd + Rs ≤ 1: energy is not created
@@ -48,6 +48,8 @@ def world_geometry(rig: Rig, true_rig: str | Path | None = None, *, runs: bool =
     reference beside the object when the file puts one there (not in front of calibration targets)."""
     from sim.true_rig import TrueRigError, load_true_rig
 
+    if true_rig is not None and not str(true_rig).startswith("builtin:"):
+        load_rig(true_rig)  # a rig file first: hlr-lab's checks name a wrong or misspelt field in one line
     try:
         if true_rig is not None:
             world = load_true_rig(true_rig)
