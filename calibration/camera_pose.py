@@ -46,6 +46,8 @@ class CameraPose:
     rms_px: float
     per_view_rms_px: np.ndarray  # (U,) over the views used
     residuals_px: dict[int, np.ndarray]  # view index → (N, 2) projected − detected corners, px (views used)
+    # (4,) standard errors of fx, fy, cx, cy, px: from the fit's Jacobian and its residuals' spread
+    intrinsics_se_px: np.ndarray
 
     @property
     def board_azimuth_deg(self) -> float:
@@ -174,7 +176,19 @@ def refine_pose(
     )
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
     by_view = {v: r[a:b] for v, a, b in zip(used, bounds[:-1], bounds[1:], strict=True)}
-    return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view, by_view)
+    return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view, by_view,
+                      _standard_errors(fit.jac, fit.fun)[6:10])  # fmt: skip
+
+
+def _standard_errors(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """(P,) standard errors of a least-squares fit's parameters: the covariance σ² (JᵀJ)⁻¹ with σ² the
+    residuals' variance per degree of freedom (nan where JᵀJ is singular)."""
+    m, n = jacobian.shape
+    variance = float(residuals @ residuals) / max(m - n, 1)
+    try:
+        return np.sqrt(np.diag(np.linalg.inv(jacobian.T @ jacobian)) * variance)
+    except np.linalg.LinAlgError:
+        return np.full(n, np.nan)
 
 
 def _pose(rvec, tvec) -> np.ndarray:

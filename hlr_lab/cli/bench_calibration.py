@@ -266,7 +266,8 @@ def recovery(calibrated: Rig, drawing: Rig, truth: TrueRig, rms_px: float) -> Re
     # the world turned by a: azimuth 0 lies where the true servo read a degrees less
     true_zero = (tg.zero_ticks[0] - g.directions[0] * np.degrees(a) * g.ticks_per_rev / 360, tg.zero_ticks[1])
     return Recovery(
-        focal_pct=100 * abs(k[0, 0] / true_k[0, 0] - 1),
+        focal_pct=100
+        * float(np.max(np.abs(np.diag(k)[:2] / np.diag(true_k)[:2] - 1))),  # the worse of fx, fy
         principal_point_px=float(np.hypot(k[0, 2] - true_k[0, 2], k[1, 2] - true_k[1, 2])),
         rms_px=rms_px,
         camera_position_mm=1e3 * float(np.linalg.norm(cam.centre - turn @ real)),

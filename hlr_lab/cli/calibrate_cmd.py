@@ -160,10 +160,18 @@ def _table(before: Rig, after: Rig, result) -> Table:
     t = Table(title="camera calibration", title_justify="left")
     for column in ("", "rig file before", "calibrated"):
         t.add_column(column, justify="right")
-    kb, ka = before.camera.matrix, after.camera.matrix
+    kb, ka, se = before.camera.matrix, after.camera.matrix, result.pose.intrinsics_se_px
     rows = [
-        ("fx, fy (px)", f"{kb[0, 0]:.1f}, {kb[1, 1]:.1f}", f"{ka[0, 0]:.1f}, {ka[1, 1]:.1f}"),
-        ("cx, cy (px)", f"{kb[0, 2]:.2f}, {kb[1, 2]:.2f}", f"{ka[0, 2]:.2f}, {ka[1, 2]:.2f}"),
+        (
+            "fx, fy (px)",
+            f"{kb[0, 0]:.1f}, {kb[1, 1]:.1f}",
+            f"{ka[0, 0]:.1f} ± {se[0]:.1f}, {ka[1, 1]:.1f} ± {se[1]:.1f}",
+        ),
+        (
+            "cx, cy (px)",
+            f"{kb[0, 2]:.2f}, {kb[1, 2]:.2f}",
+            f"{ka[0, 2]:.2f} ± {se[2]:.2f}, {ka[1, 2]:.2f} ± {se[3]:.2f}",
+        ),
         ("k1, k2", _pair(before.camera.distortion), _pair(after.camera.distortion)),
         ("position (m)", _vec(before.camera.centre), _vec(after.camera.centre)),
         ("moved by", "", f"{1e3 * np.linalg.norm(after.camera.centre - before.camera.centre):.2f} mm"),
