@@ -47,8 +47,8 @@ SETTLE_S = 60.0
 
 @dataclass(frozen=True)
 class BoardFrame:
-    """One view of the board: raw pixels (H, W[, C]; the mean of the view's photographs), the stage's
-    measured steps, which wedge face."""
+    """One view of the board: pixels (H, W[, C]; from a capture, the grey mean of the view's photographs),
+    the stage's measured steps, which wedge face."""
 
     pixels: np.ndarray
     turntable_steps: int
@@ -182,23 +182,25 @@ BRIGHTEST_PAPER = ExposureGoal(lambda pixels: np.percentile(pixels, 99.9), FILL,
 
 def load_board_frames(folder: Path) -> list[BoardFrame]:
     """One frame per view from the photographs a capture left in ``folder`` (checked against their journal
-    lines): the mean (float) of the view's photographs, in the order they were taken."""
-    views: dict[str, list[tuple[dict, np.ndarray]]] = {}
+    lines), in the order they were taken: the mean of the view's photographs, grey (H, W) float32 — what
+    the corner detection looks at, a view's worth of memory whatever the number of photographs."""
+    sums: dict[str, np.ndarray] = {}
+    counts: dict[str, int] = {}
+    where: dict[str, tuple[int, int]] = {}  # per view: the stage's steps and the wedge face
     for s, pixels in journaled_images(folder, "calibrate camera", ("pose", "turntable_steps", "placement")):
-        views.setdefault(s["pose"], []).append((s, pixels))
-    if not views:
-        raise InputError("the folder has no calibration images", path=folder)
-    frames = []
-    for pose, shots in views.items():
-        if len({(s["turntable_steps"], s["placement"]) for s, _ in shots}) > 1:
+        pose, at = s["pose"], (int(s["turntable_steps"]), int(s["placement"]))
+        if where.setdefault(pose, at) != at:
             raise InputError(
                 f"view {pose}'s photographs were taken at different turntable steps or wedge faces; take the "
                 "photographs again",
                 path=folder,
             )
-        mean = np.mean([pixels.astype(np.float64) for _, pixels in shots], axis=0)
-        frames.append(BoardFrame(mean, int(shots[0][0]["turntable_steps"]), int(shots[0][0]["placement"])))
-    return frames
+        grey = pixels.mean(axis=2, dtype=np.float32) if pixels.ndim == 3 else pixels.astype(np.float32)
+        sums[pose] = sums[pose] + grey if pose in sums else grey
+        counts[pose] = counts.get(pose, 0) + 1
+    if not sums:
+        raise InputError("the folder has no calibration images", path=folder)
+    return [BoardFrame(sums[p] / counts[p], *where[p]) for p in sums]
 
 
 def solve_camera(frames: list[BoardFrame], rig: Rig) -> CameraCalibration:

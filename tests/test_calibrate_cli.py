@@ -199,3 +199,26 @@ def test_bench_calibration_prints_what_calibration_is_worth(tmp_path, capsys):
     assert float(worst["calibrated"]) < 1.0
     assert float(worst["white ref."]) < 1.0  # the lamp measured on a white reference beside the object
     assert (tmp_path / "b" / "rig-calibrated.toml").is_file()
+
+
+@pytest.mark.slow
+def test_a_view_whose_photographs_disagree_on_where_it_was_is_refused(calibrated, tmp_path, capsys):
+    """The photographs of one view are averaged: one of them journaled at other turntable steps (a careless
+    hand, checksums made good) is refused naming the view, and nothing is written."""
+    import hashlib
+    import json
+
+    images = tmp_path / "images"
+    shutil.copytree(calibrated / "images", images)
+    journal = images / "journal.jsonl"
+    events = [json.loads(line) for line in journal.read_text().splitlines()]
+    e = next(e for e in events if e["event"] == "frame" and e["pose"] == "v03" and e["exposure_index"] == 2)
+    sidecar = images / e["sidecar"]
+    data = json.loads(sidecar.read_text())
+    data["turntable_steps"] += 500
+    sidecar.write_text(json.dumps(data))
+    e["sidecar_sha256"] = hashlib.sha256(sidecar.read_bytes()).hexdigest()
+    journal.write_text("".join(json.dumps(x) + "\n" for x in events))
+    assert main(["calibrate", "camera", "--sim", "--from", str(images), "-o", str(tmp_path / "c.toml")]) == 1
+    assert "view v03's photographs were taken at different turntable steps" in capsys.readouterr().err
+    assert not (tmp_path / "c.toml").exists()
