@@ -265,9 +265,9 @@ def recovery(calibrated: Rig, drawing: Rig, truth: TrueRig, rms_px: float) -> Re
     true_axis = turn @ (np.asarray(tg.azimuth_axis) / np.linalg.norm(tg.azimuth_axis))
     # the world turned by a: azimuth 0 lies where the true servo read a degrees less
     true_zero = (tg.zero_ticks[0] - g.directions[0] * np.degrees(a) * g.ticks_per_rev / 360, tg.zero_ticks[1])
+    focal, true_focal = np.diag(k)[:2], np.diag(true_k)[:2]
     return Recovery(
-        focal_pct=100
-        * float(np.max(np.abs(np.diag(k)[:2] / np.diag(true_k)[:2] - 1))),  # the worse of fx, fy
+        focal_pct=100 * float(np.max(np.abs(focal / true_focal - 1))),  # the worse of fx and fy
         principal_point_px=float(np.hypot(k[0, 2] - true_k[0, 2], k[1, 2] - true_k[1, 2])),
         rms_px=rms_px,
         camera_position_mm=1e3 * float(np.linalg.norm(cam.centre - turn @ real)),

@@ -130,9 +130,10 @@ def _scene_file(plan: PlanFile, scene_path: Path) -> SceneSpec:
     try:
         spec = load_scene(scene_path)
     except SceneError as exc:
-        raise InputError(
-            str(exc).removeprefix(f"{scene_path}: "), path=scene_path
-        ) from exc  # (it names the file)
+        message = str(exc).removeprefix(
+            f"{scene_path}: "
+        )  # the simulator's message names the file: once will do
+        raise InputError(message, path=scene_path) from exc
     if file_sha256(mesh) != plan.object.sha256:
         raise InputError(
             f"its mesh {mesh.name} is not the plan's (sha256 differs); give the scene of the planned object",
