@@ -14,7 +14,6 @@ from dataclasses import dataclass
 EEPROM_END = 64  # addresses below this are EEPROM: writable only with torque off
 TABLE_SIZE = 662  # through Indirect Data 56 (661)
 BUS_WATCHDOG_UNIT_S = 0.020
-BUS_WATCHDOG_FIRMWARE = 38  # the e-manual: Bus Watchdog exists from firmware v38; older servos have none
 # read-only while the bus watchdog has expired (sim.dynamixel.servo)
 GOAL_VALUES = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 RAM_AREA = (64, 661)  # what an Indirect Address may point at (the e-manual: the RAM area, 64–661)
@@ -30,6 +29,7 @@ class Field:
     low: int = 0
     high: int = 0
     signed: bool = False
+    since_firmware: int = 0  # a servo with older firmware has no such field (a write is an Access Error)
 
     @property
     def end(self) -> int:
@@ -70,7 +70,8 @@ FIELDS = [
     Field("position_p_gain", 84, 2, True, 800, 0, 16383),
     Field("feedforward_2nd_gain", 88, 2, True, 0, 0, 16383),
     Field("feedforward_1st_gain", 90, 2, True, 0, 0, 16383),
-    Field("bus_watchdog", 98, 1, True, 0, 0, 127, True),  # 20 ms per unit; 0 off; the servo sets −1 on expiry
+    # 20 ms per unit; 0 off; the servo sets −1 on expiry; the e-manual adds it in firmware v38
+    Field("bus_watchdog", 98, 1, True, 0, 0, 127, True, since_firmware=38),
     Field("goal_pwm", 100, 2, True, 0, -885, 885, True),
     Field("goal_current", 102, 2, True, 0, -1193, 1193, True),
     Field("goal_velocity", 104, 4, True, 0, -1023, 1023, True),

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from sim.dynamixel.control_table import (
     ACCELERATION_UNIT_TICKS_PER_S2,
     BAUD_RATES,
-    BUS_WATCHDOG_FIRMWARE,
     BUS_WATCHDOG_UNIT_S,
     BY_ADDRESS,
     BY_NAME,
@@ -152,7 +151,7 @@ class SimServo:
     def _watch(self, now: float) -> None:
         """Expire the bus watchdog if the bus has been silent longer than it allows, with torque on: the
         axis stops where it was at that moment."""
-        if self.get("firmware_version") < BUS_WATCHDOG_FIRMWARE:
+        if not self.has(BY_NAME["bus_watchdog"]):
             return
         allowed = self.get("bus_watchdog") * BUS_WATCHDOG_UNIT_S
         if allowed <= 0 or not self.get("torque_enable") or now - self._heard_at <= allowed:
@@ -165,6 +164,10 @@ class SimServo:
     @property
     def id(self) -> int:
         return self.get("id")
+
+    def has(self, f: Field) -> bool:
+        """Whether this servo's firmware has ``f`` (the e-manual adds some fields in later versions)."""
+        return self.get("firmware_version") >= f.since_firmware
 
     def get(self, name: str) -> int:
         f = BY_NAME[name]
@@ -227,9 +230,7 @@ class SimServo:
             value = int.from_bytes(raw, "little", signed=f.signed)
             if sent and f.name == "goal_position":
                 self.on_goal(self, value)
-            if not f.writable or (
-                f.name == "bus_watchdog" and self.get("firmware_version") < BUS_WATCHDOG_FIRMWARE
-            ):
+            if not f.writable or not self.has(f):
                 return Error.ACCESS, []  # read-only, or a field this firmware does not have
             if f.address < EEPROM_END and self.get("torque_enable"):
                 return Error.ACCESS, []  # EEPROM is locked while torque is on

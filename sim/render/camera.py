@@ -44,7 +44,8 @@ class PinholeFilm:
         dist[: len(coeffs)] = coeffs
         v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float32)
         pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-        if np.any(dist) or k[1, 1] != self.f:  # where each camera pixel's ray meets the square-pixel film
+        remapped = bool(np.any(dist)) or k[1, 1] != self.f  # the camera's pixels are not the film's
+        if remapped:  # where each camera pixel's ray meets the square-pixel film
             ideal = cv2.undistortPoints(pixels, k, dist, P=square).reshape(cam.height, cam.width, 2)
         else:
             ideal = pixels.reshape(cam.height, cam.width, 2)
@@ -56,9 +57,7 @@ class PinholeFilm:
         self.width, self.height = int(size[0]), int(size[1])
         self.cx, self.cy = k[0, 2] - self.offset[0], k[1, 2] - self.offset[1]
         self.map = (ideal - self.offset).astype(np.float32)
-        self.distorted = (
-            bool(np.any(dist)) or k[1, 1] != self.f or self.width != cam.width or self.height != cam.height
-        )
+        self.distorted = remapped or self.width != cam.width or self.height != cam.height
         self.cam = cam
 
     def sensor_dict(self, spp: int) -> dict:
