@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calibration.charuco import BoardSpec, CalibrationError, Detection, Intrinsics
-from hlr_lab.sphere import rotation_z
+from hlr_lab.geometry.sphere import rotation_z
 
 
 @dataclass(frozen=True)

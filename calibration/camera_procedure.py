@@ -26,9 +26,9 @@ from calibration.camera_pose import CameraPose, refine_pose
 from calibration.charuco import BoardSpec, CalibrationError, Detection, calibrate_intrinsics, detect
 from calibration.exposure import ExposureGoal, exposed
 from calibration.images import journaled_images
-from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
-from hlr_lab.rig import Rig
+from hlr_lab.instrument.instruments import Instruments
+from hlr_lab.rig.file import Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 

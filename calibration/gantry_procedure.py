@@ -30,12 +30,12 @@ from calibration.mirror_ball import (
     highlight_px,
     lamp_ray,
 )
-from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
-from hlr_lab.rig import Rig
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.instrument.instruments import Instruments
+from hlr_lab.rig.file import Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
-from hlr_lab.sphere import rotation_z
 
 DEFAULT_POSES = 30
 TURNS_DEG = (-10.0, 170.0)  # half a turn apart, the ball to either side, inside any turntable limits

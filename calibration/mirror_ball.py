@@ -25,8 +25,8 @@ from scipy.ndimage import map_coordinates
 from scipy.optimize import least_squares
 
 from calibration.charuco import CalibrationError
-from hlr_lab.camera import Camera
-from hlr_lab.kinematics import GantryKinematics
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.rig.kinematics import GantryKinematics
 
 OUTLINE_ARC_DEG = 70.0  # either side of straight up: the part of the outline against the plate
 

@@ -40,12 +40,12 @@ from calibration.radiometry import (
     lamp_sensitivity,
     photon_transfer,
 )
-from hlr_lab.acquisition import Instruments
 from hlr_lab.errors import InputError
-from hlr_lab.lamp_watch import UNWATCHED, LampWatch, WarmUp, warm_up
-from hlr_lab.rig import Rig
+from hlr_lab.instrument.instruments import Instruments
+from hlr_lab.rig.file import Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
+from hlr_lab.session.lamp import UNWATCHED, LampWatch, WarmUp, warm_up
 
 PROCEDURE = "calibrate radiometric"
 DEFAULT_POSITIONS, DEFAULT_LEVELS = 6, 8
@@ -132,7 +132,7 @@ def capture_radiometric_frames(
     progress: Callable[[int, int, str], None] = lambda i, n, what: None,
 ) -> WarmUp | None:
     """Take the three kinds of frames (module docstring) into ``out``; after the dark frames, with
-    ``warm.warm_up_s``, keep the lamp on until it is stable (:func:`hlr_lab.lamp_watch.warm_up`: S · Φ is
+    ``warm.warm_up_s``, keep the lamp on until it is stable (:func:`hlr_lab.session.lamp.warm_up`: S · Φ is
     then the warm lamp's, as a run that warms up the same way will see it). Returns how the warm-up
     ended (None: no warm-up)."""
     white = white_spec(rig)

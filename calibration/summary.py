@@ -17,9 +17,9 @@ import numpy as np
 from calibration.camera_procedure import CameraCalibration
 from calibration.gantry_procedure import BallFrame, GantryCalibration
 from calibration.mirror_ball import ball_centres
-from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.files import atomic_write_text
 from hlr_lab.report.html import STYLE, escape, figure, table
-from hlr_lab.rig import Rig
+from hlr_lab.rig.file import Rig
 
 SUMMARY = "summary.html"
 THUMB_WIDTH = 480  # px of a board view in the page

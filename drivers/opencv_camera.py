@@ -48,12 +48,17 @@ class OpenCVCameraConfig:
     stale_frames: int = 2
 
 
+QUIET_LOG_LEVEL = cv2.utils.logging.LOG_LEVEL_ERROR
+
+
 class OpenCVCamera:
     def __init__(self, config: OpenCVCameraConfig):
         if config.bits not in (8, 10, 12, 16):
             raise ValueError(f"bits must be 8, 10, 12 or 16, not {config.bits}")
         self.config = config
         source = int(config.device) if config.device.isdigit() else config.device
+        # OpenCV prints its own warnings on stderr when a device does not open; this driver's error says it
+        cv2.utils.logging.setLogLevel(QUIET_LOG_LEVEL)
         self._cap = cv2.VideoCapture(source, BACKENDS[config.backend])
         if not self._cap.isOpened():
             raise DeviceError(

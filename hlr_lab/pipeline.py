@@ -4,8 +4,8 @@ benchmarks and the tests all call these; the commands only parse options and pri
 
 Each step reads and writes files (plan.json, a session folder: docs/sessions.md, materials.json), so
 any step can be run again alone. Opening the rig (devices, camera, the safe state on every exit) is
-:func:`hlr_lab.rig_control.open_rig`, which :func:`acquire_plan` uses through
-:func:`hlr_lab.acquire_session.acquire_session`. The layers: docs/architecture.md.
+:func:`hlr_lab.instrument.control.open_rig`, which :func:`acquire_plan` uses through
+:func:`hlr_lab.acquisition.run.acquire_session`. The layers: docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -16,21 +16,25 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from hlr_lab.acquire_session import PLANNED_ONLY, acquire_session
-from hlr_lab.acquisition import Bracketing, Outcome, Step
-from hlr_lab.devices import Links
+from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
+from hlr_lab.acquisition.run import PLANNED_ONLY, acquire_session
+from hlr_lab.acquisition.white_reference import reference_meter
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.files import atomic_write_text
+from hlr_lab.fitting import DEFAULT_ESTIMATOR, EstimatorName
 from hlr_lab.formats.materials import read_materials, write_materials
 from hlr_lab.formats.plan import PlanFile, build_plan, read_plan
+from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.formats.regions import mesh_reference, read_regions
-from hlr_lab.lamp_watch import UNWATCHED, LampWatch
-from hlr_lab.mesh import ColouredMesh, load_mesh
-from hlr_lab.motion import motion_targets
-from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.geometry.silhouette import object_window
+from hlr_lab.instrument.control import NO_OVERRIDES
+from hlr_lab.instrument.devices import Links
+from hlr_lab.instrument.motion import motion_targets
+from hlr_lab.object.mesh import ColouredMesh, load_mesh
+from hlr_lab.object.procedural import BUILTIN_PREFIX, builtin_object
+from hlr_lab.object.segment import Segmentation, segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanResult, PlanSettings, plan_lights
-from hlr_lab.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
     MATERIALS,
@@ -39,11 +43,8 @@ from hlr_lab.reflectance.session_fit import (
     fit_session,
     open_session,
 )
-from hlr_lab.rig import Rig
-from hlr_lab.rig_control import NO_OVERRIDES
-from hlr_lab.segment import Segmentation, segment
-from hlr_lab.silhouette import object_window
-from hlr_lab.white_reference import reference_meter
+from hlr_lab.rig.file import Rig
+from hlr_lab.session.lamp import UNWATCHED, LampWatch
 
 if TYPE_CHECKING:
     from hlr_lab.report.build import ReportFigures
@@ -107,9 +108,9 @@ def acquire_plan(
 ) -> Outcome:
     """Run the plan at ``plan_path`` on ``rig`` into ``session`` (created, or resumed): the motions are
     checked against the rig's limits before anything moves; adaptive bracketing watches the object's
-    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.lamp_watch`), and a white reference
+    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.session.lamp`), and a white reference
     beside the object (the rig file's ``run_place_m``) measures it in every pose instead of a reference
-    pose (:mod:`hlr_lab.white_reference`). ``links`` replace the rig file's device addresses (the
+    pose (:mod:`hlr_lab.acquisition.white_reference`). ``links`` replace the rig file's device addresses (the
     simulated rig's endpoints)."""
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
@@ -136,7 +137,7 @@ def fit_into(
     output: Path | None = None,
     *,
     theta_c_deg: float | str = "auto",
-    method: str = "robust",
+    method: EstimatorName = DEFAULT_ESTIMATOR,
     allow_incomplete: bool = False,
     correct_lamp: bool = True,
     progress: Callable[[FitStep], None] = lambda _: None,

@@ -14,12 +14,12 @@ import pytest
 from hypothesis import settings
 
 from hlr_lab.formats.plan import build_plan, write_plan
-from hlr_lab.mesh import ColouredMesh
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.procedural import ProceduralObject, pebble
+from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
-from hlr_lab.procedural import ProceduralObject, pebble
-from hlr_lab.rig import Rig, sim_rig
-from hlr_lab.segment import segment
+from hlr_lab.rig.file import Rig, sim_rig
 
 # generated broken files (tests/test_readers_property.py): a CI-sized run, or the nightly one
 settings.register_profile("ci", max_examples=150, database=None)

@@ -18,13 +18,14 @@ import pytest
 
 from drivers.errors import DeviceFault, DeviceTimeout, HardwareAlarm, SettleTimeout
 from drivers.net_camera import NetworkCamera
-from hlr_lab.acquisition import Bracketing, Instruments, acquire
+from hlr_lab.acquisition.poses import Bracketing, acquire
 from hlr_lab.cli.main import main
-from hlr_lab.devices import open_devices
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan, write_plan
-from hlr_lab.motion import motion_targets
-from hlr_lab.segment import segment
+from hlr_lab.instrument.devices import open_devices
+from hlr_lab.instrument.instruments import Instruments
+from hlr_lab.instrument.motion import motion_targets
+from hlr_lab.object.segment import segment
 from hlr_lab.session.frames import load_frame
 from hlr_lab.session.journal import JOURNAL, read_journal
 from sim.camera import GantryGeometry
@@ -162,6 +163,11 @@ def test_cli_acquire_dry_run_resume_and_changed_plan(builtin_plan, tmp_path, cap
     summary = capsys.readouterr().err
     assert re.search(rf"frames taken\s+│\s+{frames} ", summary)
     assert re.search(rf"poses moved to\s+│\s+{len(plan.poses)} ", summary)
+    # the last line: what the devices confirmed, as the journal's safe_state line has it
+    last = summary.strip().splitlines()[-1]
+    assert last.startswith("the rig is safe: "), last
+    assert "lamp" in last
+    assert "turntable" in last
     assert main([*common, "--speed-factor", "40"]) == 0
     summary = capsys.readouterr().err
     assert re.search(r"frames taken\s+│\s+0 ", summary)
@@ -547,7 +553,7 @@ def test_the_simulated_world_can_be_a_rig_other_than_the_one_believed(builtin_pl
     """--true-rig builds the world from another rig file: hlr-lab, believing the drawing, puts the lamp
     millimetres from where it really was (zero ticks 14/17 off, arm +3 mm, axis tilted); without it, and
     with --rig naming the true file beside --sim, belief and world agree."""
-    from hlr_lab.rig import load_rig
+    from hlr_lab.rig.file import load_rig
 
     common = ["acquire", "--plan", str(builtin_plan), "--sim", "--speed-factor", "40"]
     assert main([*common, "--true-rig", "builtin:bench-offsets", "--out", str(tmp_path / "off")]) == 0
@@ -575,8 +581,8 @@ def test_bracketing_and_the_hdr_merge_call_the_same_values_clipped():
     exposure for it); top − 2 for neither."""
     import numpy as np
 
-    from hlr_lab.acquisition import _clipped
-    from hlr_lab.clipping import clipped
+    from hlr_lab.acquisition.poses import _clipped
+    from hlr_lab.geometry.clipping import clipped
 
     pixels = np.zeros((2, 2, 3), np.uint16)
     pixels[0, 0, 1] = 4094  # 12-bit: top − 1

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from calibration.camera_procedure import FRAMES_PER_VIEW
+from calibration.procedures import default_folder
 from hlr_lab.cli.main import main
-from hlr_lab.rig import load_rig
+from hlr_lab.rig.file import load_rig
 from sim.true_rig import load_true_rig
 from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
 
@@ -109,6 +110,7 @@ def test_a_rig_file_without_a_board_or_a_used_folder_is_refused(tmp_path, capsys
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # 394 s measured beside another worker
 def test_calibrate_gantry_on_the_camera_calibrated_rig(calibrated, tmp_path, capsys):
     """`calibrate gantry` on the rig file `calibrate camera` wrote (12 lamp poses, to keep it short): the
     arm and zero ticks move to the true ones (in the camera-defined world the azimuth zero is the true
@@ -137,7 +139,32 @@ def test_calibrate_gantry_on_the_camera_calibrated_rig(calibrated, tmp_path, cap
     assert "no [calibration.mirror_ball]" in capsys.readouterr().err
 
 
+def test_photographs_go_to_the_current_folder_and_a_failed_run_leaves_no_folder(
+    tmp_path, monkeypatch, capsys
+):
+    """Without --out the photographs' folder is calibration/DATE-PROCEDURE in the current folder (never
+    beside the rig file, which may be the installed package's); a run that fails before its first
+    photograph (here: no device answers on the example rig file's links) leaves no folder behind."""
+    import io
+
+    rig = tmp_path / "rig.toml"
+    example = Path(__file__).resolve().parents[1] / "docs" / "rig.example.toml"
+    port = "/dev/serial/by-id/usb-FTDI_USB__-__Serial_Converter_FT4TFSV1-if00-port0"
+    rig.write_text(example.read_text().replace(port, str(tmp_path / "no-such-port")))
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    for procedure in ("camera", "all"):
+        monkeypatch.setattr("sys.stdin", io.StringIO("y\n" * 4))  # the operator says the target is in place
+        assert main(["calibrate", procedure, "--rig", str(rig), "-o", str(tmp_path / "c.toml")]) == 1
+        assert "no-such-port" in capsys.readouterr().err
+        assert list(work.iterdir()) == [], f"calibrate {procedure} left {list(work.rglob('*'))}"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.toml", "work"]
+    assert default_folder("camera", "2026-12-01-093000") == Path("calibration/2026-12-01-093000-camera")
+
+
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # three calibrations: 570 s measured beside another worker
 def test_calibrate_all_writes_one_file_with_all_three_records(tmp_path):
     """Camera, gantry, then radiometry on the simulated bench whose sensor and lamp are off too
     (builtin:bench-night), short runs: one rig file carrying all three calibrations, the intermediate
@@ -169,7 +196,7 @@ def test_calibrate_all_writes_one_file_with_all_three_records(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(300)
+@pytest.mark.timeout(2700)  # the whole bench: three calibrations and three runs (> 300 s here)
 def test_bench_calibration_prints_what_calibration_is_worth(tmp_path, capsys):
     """The benchmark at its smallest (16 views, 12 lamp poses, 4-pose runs) on builtin:bench-night: every
     figure printed; the recovery within the issue's targets that a short run still reaches; the

@@ -136,7 +136,7 @@ def test_the_camera_pose_against_the_turntable_axis_is_recovered(truth, views, r
     assert abs(pose.matrix[0, 0] / truth.camera.matrix[0, 0] - 1) < 0.002
     assert abs(pose.matrix[1, 1] / truth.camera.matrix[1, 1] - 1) < 0.002
     # what the rig file will say reproduces the fitted rotation
-    from hlr_lab.camera import Camera
+    from hlr_lab.geometry.camera import Camera
 
     again = Camera.look_at(pose.position_m, pose.look_at_m, matrix=pose.matrix, width=size[0],
                            height=size[1], roll_deg=pose.roll_deg)  # fmt: skip

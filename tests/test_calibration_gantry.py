@@ -11,7 +11,7 @@ import pytest
 
 from calibration.charuco import CalibrationError
 from calibration.mirror_ball import Highlights, ball_centre, fit_gantry, highlight_px, lamp_ray
-from hlr_lab.camera import Camera
+from hlr_lab.geometry.camera import Camera
 from sim.render.sensor import SensorModel
 from sim.targets import mirror_ball_scene
 from sim.true_rig import load_true_rig

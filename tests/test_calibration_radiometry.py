@@ -155,7 +155,7 @@ def test_calibrate_radiometric_on_the_simulated_bench(tmp_path, capsys):
 
     require_renderer()
     from hlr_lab.cli.main import main
-    from hlr_lab.rig import load_rig
+    from hlr_lab.rig.file import load_rig
 
     drawing = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
     steady = tmp_path / "steady.toml"

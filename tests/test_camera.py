@@ -2,8 +2,8 @@ import cv2
 import numpy as np
 import pytest
 
-from hlr_lab.camera import Camera
-from hlr_lab.sphere import rotation_z
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.sphere import rotation_z
 
 K = np.array([[1500.0, 0.0, 330.5], [0.0, 1480.0, 236.0], [0.0, 0.0, 1.0]])
 DIST = np.array([-0.12, 0.05, 0.001, -0.002, 0.01])

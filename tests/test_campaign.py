@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from hlr_lab import campaign as c
-from hlr_lab.campaign import AcquireJob, CampaignStopped, campaign_status, load_campaign, run_campaign
+from hlr_lab.campaign import runner as c
+from hlr_lab.campaign.runner import AcquireJob, CampaignStopped, campaign_status, load_campaign, run_campaign
 from hlr_lab.errors import DiskFull, InputError
 from tests.renderer_guard import require_renderer
 
@@ -31,17 +31,18 @@ def campaign_file(tmp_path: Path, plan: Path, jobs: int = 3, extra: str = "") ->
 def links_with(fault: dict[str, callable]):
     """``links_for`` as the command line's (a simulated world per job), with ``fault[job name](world)``
     applied to that job's world."""
-    from hlr_lab.cli.campaign_cmd import _links
 
     def links_for(job: AcquireJob, stack: contextlib.ExitStack):
-        from hlr_lab.cli.sim_world import sim_scene, world_geometry
-        from hlr_lab.devices import Links
         from hlr_lab.formats.plan import read_plan
+        from hlr_lab.instrument.devices import Links
         from sim.rig import SimRig
+        from worlds.plan_world import sim_links, sim_scene, world_geometry
 
-        if job.name not in fault:
-            return _links(job, stack)
         rig = c.job_rig(job)
+        if job.name not in fault:
+            return sim_links(
+                stack, rig, read_plan(job.plan), job.plan, job.scene, job.true_rig, job.speed_factor
+            )
         world = stack.enter_context(SimRig(scene=sim_scene(read_plan(job.plan), job.plan, None),
                                            speed_factor=job.speed_factor, **world_geometry(rig)))  # fmt: skip
         fault[job.name](world)
@@ -171,7 +172,7 @@ def test_campaign_run_and_status_from_the_command_line_with_a_calibration_job(tm
     """`hlr-lab campaign run`: a radiometric calibration, then a run on the rig file it writes (which
     does not exist when the night starts); `status` afterwards."""
     from hlr_lab.cli.main import main
-    from hlr_lab.rig import load_rig
+    from hlr_lab.rig.file import load_rig
 
     path = tmp_path / "night.toml"
     path.write_text(f"""
@@ -202,3 +203,36 @@ speed_factor = 40
     assert load_rig(tmp_path / "rig-radiometric.toml").file.calibration.radiometric is not None
     assert main(["campaign", "status", str(path)]) == 0
     assert "campaign ended" in capsys.readouterr().err
+
+
+def test_a_night_with_a_failed_job_says_so_in_its_exit_status(tmp_path, capsys):
+    """A calibrate job on a rig file without a board fails before anything moves; the night goes on to
+    its end, prints the failed job in its table, and exits 1 naming it (a cron job or a notification
+    script reads the exit status, not the table)."""
+    from importlib import resources
+
+    from hlr_lab.cli.main import main
+
+    text = (resources.files("hlr_lab.data") / "sim-rig.toml").read_text(encoding="utf-8")
+    start = text.index("[calibration.board]")
+    end = text.index("[calibration.mirror_ball]")
+    (tmp_path / "no-board.toml").write_text(text[:start] + text[end:])
+    night = tmp_path / "night.toml"
+    night.write_text("""
+[campaign]
+name = "night"
+
+[[job]]
+kind = "calibrate"
+name = "camera"
+procedure = "camera"
+rig = "no-board.toml"
+sim = true
+output = "rig-camera.toml"
+""")
+    assert main(["campaign", "run", str(night)]) == 1
+    err = capsys.readouterr().err
+    assert re.search(r"camera\s*│\s*failed", err)
+    assert "1 of 1 jobs did not complete: camera (failed)" in err
+    assert not (tmp_path / "rig-camera.toml").exists()
+    assert not (tmp_path / "calibration").exists()  # no empty photographs folder left behind

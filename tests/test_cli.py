@@ -12,7 +12,7 @@ import trimesh
 
 from hlr_lab.cli.main import main
 from hlr_lab.formats.plan import read_plan
-from hlr_lab.procedural import pebble
+from hlr_lab.object.procedural import pebble
 from tests.renderer_guard import require_renderer
 
 

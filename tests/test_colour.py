@@ -1,6 +1,6 @@
 import numpy as np
 
-from hlr_lab.colour import delta_e, linear_to_srgb8, srgb8_to_lab, srgb8_to_linear
+from hlr_lab.geometry.colour import delta_e, linear_to_srgb8, srgb8_to_lab, srgb8_to_linear
 
 
 def test_srgb8_round_trips_every_code():

@@ -5,6 +5,7 @@ import re
 import cv2
 
 from hlr_lab.cli.main import main
+from hlr_lab.formats.plan import read_plan
 from tests.browser import dom_after_load, screenshot
 from tests.renderer_guard import require_renderer
 
@@ -58,16 +59,19 @@ def test_the_report_opens_offline_with_its_images_and_tables(tmp_path):
 
 
 def test_the_demo_on_a_scene_file_compares_with_its_materials(tmp_path, capsys):
-    """--scene: the scene's mesh is planned and measured, and the truth is the scene's own materials."""
+    """--scene: the scene's mesh is planned and measured, and the truth is the scene's own materials. The
+    mesh is stored as a scan often is, y up and in millimetres: --up y --scale 0.001 stand it as the
+    plan's pebble stands (lying down, it would be measured from below)."""
     import numpy as np
     import trimesh
 
-    from hlr_lab.procedural import pebble
+    from hlr_lab.object.procedural import pebble
 
     body = pebble().mesh
     alpha = np.full((len(body.vertices), 1), 255, np.uint8)
+    y_up_mm = 1000 * body.vertices[:, [0, 2, 1]] * [1, 1, -1]  # (x, y, z) → (x, z, −y): its up is +y
     trimesh.Trimesh(
-        body.vertices, body.faces, vertex_colors=np.hstack([body.vertex_colours, alpha]), process=False
+        y_up_mm, body.faces, vertex_colors=np.hstack([body.vertex_colours, alpha]), process=False
     ).export(tmp_path / "pebble.ply")
     colours = np.unique(body.vertex_colours, axis=0)
     regions = "".join(
@@ -77,7 +81,22 @@ def test_the_demo_on_a_scene_file_compares_with_its_materials(tmp_path, capsys):
     scene = tmp_path / "scene.toml"
     scene.write_text(f'[object]\nmesh = "pebble.ply"\n\n[light]\ntype = "point"\npower = 1.0\n{regions}')
     out = tmp_path / "demo"
-    assert main(["demo", "--scene", str(scene), "--out", str(out), "--speed-factor", "40"]) == 0
+    command = [
+        "demo",
+        "--scene",
+        str(scene),
+        "--up",
+        "y",
+        "--scale",
+        "0.001",
+        "--out",
+        str(out),
+        "--speed-factor",
+        "40",
+    ]
+    assert main(command) == 0
+    placed = read_plan(out / "plan.json").object
+    assert (placed.up, placed.scale) == ("y", 0.001)
     printed = capsys.readouterr().err
     table = printed[printed.index("fitted against the simulated truth") :]
     rows = re.findall(r"│\s+(\d+) │[^│]+│[^│]+│\s+([\d.]+) │\s+([\d.]+) │[^│]+│\s+([\d.]+) │", table)

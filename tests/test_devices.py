@@ -9,11 +9,16 @@ import numpy as np
 import pytest
 
 from drivers.opencv_camera import OpenCVCamera
-from hlr_lab.devices import gantry_config, open_camera, open_devices, stage_config
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan
-from hlr_lab.motion import ACCELERATION_UNIT_REV_S2, VELOCITY_UNIT_REV_S, motion_targets, trapezoid_s
-from hlr_lab.rig import load_rig
+from hlr_lab.instrument.devices import gantry_config, open_camera, open_devices, stage_config
+from hlr_lab.instrument.motion import (
+    ACCELERATION_UNIT_REV_S2,
+    VELOCITY_UNIT_REV_S,
+    motion_targets,
+    trapezoid_s,
+)
+from hlr_lab.rig.file import load_rig
 from sim.camera import GantryGeometry, StageGeometry
 from sim.rig import SimRig
 from sim.turntable import register_map as rm

@@ -1,6 +1,7 @@
 """``hlr-lab doctor`` on the simulated rig: healthy, with injected faults, and with devices missing."""
 
 import os
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -9,9 +10,9 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.dynamixel import Axis, ServoReport
 from hlr_lab.cli.main import main
-from hlr_lab.doctor import diagnose_servo, examine_rig
-from hlr_lab.locks import hold_devices
-from hlr_lab.rig import rig_of_snapshot
+from hlr_lab.instrument.doctor import diagnose_servo, examine_rig
+from hlr_lab.instrument.locks import hold_devices
+from hlr_lab.rig.file import load_rig, rig_of_snapshot
 from sim.dynamixel.servo import OVERLOAD
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
@@ -112,7 +113,9 @@ def test_servo_diagnoses(change, level, words):
 
 def test_cli_exit_status(tmp_path, capsys):
     assert main(["doctor", "--sim"]) == 0
-    assert "the rig is ready" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "the rig is ready" in err
+    assert re.search(r"camera\s*│\s*ok\s*│\s*opens and takes the frame format", err)
     # a rig file whose links lead nowhere: three problems, one line saying so, exit status 1
     text = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
     text = text.replace("[gantry]", 'address = "127.0.0.1:1"\n\n[gantry]')
@@ -158,7 +161,7 @@ def test_the_age_of_each_calibration_is_reported(rig):
     once older than 90 days."""
     from datetime import datetime
 
-    from hlr_lab.doctor import calibration_findings
+    from hlr_lab.instrument.doctor import calibration_findings
 
     never = {f.device: f for f in calibration_findings(rig, 0.0)}
     assert never["calibration: camera"].level == "warning"
@@ -171,3 +174,52 @@ def test_the_age_of_each_calibration_is_reported(rig):
     assert (found.level, found.message[:16]) == ("ok", "done 2026-11-01 ")
     late = {f.device: f for f in calibration_findings(done, soon + 100 * 86400)}["calibration: camera"]
     assert late.level == "warning"
+
+
+def test_the_example_rig_file_on_a_bench_with_nothing_plugged_in(tmp_path, capfd):
+    """docs/rig.example.toml where a Modbus server accepts and drops every connection, no serial port and
+    no camera: one row per device in hlr-lab's words with what to do (no OpenCV log line, no pymodbus
+    text), the lamp relay not asked again over the turntable's dead link, every calibration's command."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def drop_every_connection() -> None:
+        server.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                server.accept()[0].close()
+            except TimeoutError:
+                continue
+
+    dropper = threading.Thread(target=drop_every_connection)
+    dropper.start()
+    try:
+        text = (Path(__file__).resolve().parents[1] / "docs" / "rig.example.toml").read_text()
+        text = text.replace('"192.168.0.30:502"', f'"127.0.0.1:{server.getsockname()[1]}"')
+        text = text.replace("/dev/serial/by-id/usb-FTDI_USB__-__Serial_Converter_FT4TFSV1-if00-port0",
+                            str(tmp_path / "no-such-port"))  # fmt: skip
+        text = text.replace('"/dev/video0"', f'"{tmp_path / "no-such-camera"}"')
+        rig_file = tmp_path / "rig.toml"
+        rig_file.write_text(text)
+        assert main(["doctor", "--rig", str(rig_file)]) == 1
+        found = by_device(examine_rig(load_rig(rig_file)))
+    finally:
+        stop.set()
+        dropper.join()
+        server.close()
+    out = capfd.readouterr()
+    printed = out.out + out.err
+    assert "[ WARN" not in printed  # OpenCV's own log line
+    assert "unbounded" not in printed  # pymodbus's own words
+    assert found["turntable"].message.startswith("no answer on 127.0.0.1")
+    assert "device_id in the rig file" in found["turntable"].message
+    assert (
+        found["lamp relay (device 2, coil 0)"].message
+        == "not asked: the turntable's Modbus link does not answer"
+    )
+    assert found["calibration: radiometric"].message == "never calibrated: run hlr-lab calibrate radiometric"
+    assert "cannot open the port" in found["gantry"].message
+    assert "cannot open; check the device path" in found["camera"].message

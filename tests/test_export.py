@@ -25,8 +25,8 @@ from hlr_lab.formats.materials import (
     write_materials,
 )
 from hlr_lab.formats.regions import RegionEntry
-from hlr_lab.procedural import pebble
-from hlr_lab.segment import segment
+from hlr_lab.object.procedural import pebble
+from hlr_lab.object.segment import segment
 
 TRUTHS = [
     Truth(np.array([0.7, 0.2, 0.15]), np.array([0.3, 0.3, 0.3]), 40.0),

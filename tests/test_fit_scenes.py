@@ -17,26 +17,27 @@ import pytest
 import trimesh
 
 from drivers.net_camera import NetworkCamera
-from hlr_lab.acquisition import Instruments, acquire
+from hlr_lab.acquisition.poses import acquire
 from hlr_lab.cli.main import main
-from hlr_lab.cli.sim_world import sim_scene, world_geometry
-from hlr_lab.devices import open_devices
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import build_plan, write_plan
-from hlr_lab.mesh import file_sha256, load_mesh
-from hlr_lab.motion import motion_targets
+from hlr_lab.geometry.silhouette import object_window
+from hlr_lab.instrument.devices import open_devices
+from hlr_lab.instrument.instruments import Instruments
+from hlr_lab.instrument.motion import motion_targets
+from hlr_lab.object.mesh import file_sha256, load_mesh
+from hlr_lab.object.procedural import pebble
+from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
-from hlr_lab.procedural import pebble
 from hlr_lab.reflectance.session_fit import open_session
 from hlr_lab.report.build import build_report
-from hlr_lab.rig import load_rig
-from hlr_lab.segment import segment
+from hlr_lab.rig.file import load_rig
 from hlr_lab.session.metadata import start_or_resume
-from hlr_lab.silhouette import object_window
 from sim.render.sensor import SensorModel
 from sim.rig import SimRig
 from tests.renderer_guard import require_renderer
+from worlds.plan_world import sim_scene, world_geometry
 
 require_renderer(module_level=True)
 SIM_RIG_TOML = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
@@ -251,7 +252,7 @@ ASSET_MATERIALS = [  # (Rd scale of the region's own colour, Rs grey, n): varied
 
 def truths_for(colours: list[tuple[int, int, int]]) -> list[Truth]:
     """A material per region colour: Rd the colour itself (linear, scaled, at least 0.08), a grey lobe."""
-    from hlr_lab.colour import srgb8_to_linear
+    from hlr_lab.geometry.colour import srgb8_to_linear
 
     out = []
     for i, c in enumerate(colours):
@@ -308,7 +309,7 @@ def test_a_textured_mesh_without_a_scene_file_gets_the_default_world(tmp_path, s
 
 def test_the_bunny_painted_in_four_patches(tmp_path, bunny_path):
     """The Stanford bunny (../shared/assets) painted in four compact patches of distinct colours."""
-    from hlr_lab.procedural import paint_patches
+    from hlr_lab.object.procedural import paint_patches
 
     painted = paint_patches(load_mesh(bunny_path), 4, seed=1).mesh
     mesh_path = tmp_path / "bunny4.ply"

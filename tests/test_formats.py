@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_write_bytes, atomic_write_text
+from hlr_lab.files import atomic_write_bytes, atomic_write_text
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.formats.regions import read_regions, write_regions
-from hlr_lab.procedural import pebble
-from hlr_lab.rig import ARUCO_DICTIONARIES, load_rig
-from hlr_lab.segment import segment
-from hlr_lab.sphere import rotation_z
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.object.procedural import pebble
+from hlr_lab.object.segment import segment
+from hlr_lab.rig.file import ARUCO_DICTIONARIES, load_rig
 
 SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
 
@@ -197,7 +197,7 @@ def test_nan_and_infinity_in_a_file_are_refused_naming_the_field(tmp_path, built
 
     from hlr_lab.errors import InputError
     from hlr_lab.formats.plan import read_plan
-    from hlr_lab.rig import load_rig
+    from hlr_lab.rig.file import load_rig
 
     plan = json.loads(builtin_plan.read_text())
     plan["poses"][0]["exposures_s"][0] = float("nan")

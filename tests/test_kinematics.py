@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hlr_lab.kinematics import GantryKinematics, TurntableKinematics
+from hlr_lab.rig.kinematics import GantryKinematics, TurntableKinematics
 from sim.camera import GantryGeometry, StageGeometry
 
 HALF_TICK_DEG = 360.0 / 4096 / 2  # rounding to the nearest tick moves an angle by at most this
@@ -88,7 +88,7 @@ def test_a_true_rig_file_is_read_alike_by_hlr_lab_and_by_the_simulator(tmp_path)
     both readings put the lamp, the camera and the turntable in the same place."""
     from importlib import resources
 
-    from hlr_lab.rig import load_rig
+    from hlr_lab.rig.file import load_rig
     from sim.true_rig import load_true_rig
 
     with resources.as_file(resources.files("sim.data") / "bench-offsets.toml") as path:
@@ -111,7 +111,7 @@ def test_camera_roll_turns_the_image_about_the_optical_axis():
     rotation is Rᵀ(θ)·R₀ with R(θ) OpenCV's Rodrigues rotation of θ about z."""
     import cv2
 
-    from hlr_lab.camera import Camera
+    from hlr_lab.geometry.camera import Camera
 
     common = {"matrix": np.diag([1000.0, 1000.0, 1.0]), "width": 640, "height": 480}
     plain = Camera.look_at((0.0, -0.6, 0.3), (0.0, 0.0, 0.07), **common)

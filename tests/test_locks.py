@@ -11,13 +11,13 @@ import textwrap
 
 import pytest
 
-from hlr_lab.locks import Busy, hold_devices, hold_session, link_key
+from hlr_lab.instrument.locks import Busy, hold_devices, hold_session, link_key
 
 HOLDER = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from hlr_lab.locks import hold_devices, hold_session
+    from hlr_lab.instrument.locks import hold_devices, hold_session
     with hold_session(Path(sys.argv[1])), hold_devices([("the gantry's servo bus", sys.argv[2])]):
         print("holding", flush=True)
         time.sleep(60)

@@ -6,8 +6,8 @@ import trimesh
 from PIL import Image
 
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import ColouredMesh, load_mesh, sample_texture
-from hlr_lab.procedural import pebble
+from hlr_lab.object.mesh import ColouredMesh, load_mesh, sample_texture
+from hlr_lab.object.procedural import pebble
 
 
 def write_coloured_ply(path: Path) -> None:

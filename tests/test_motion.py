@@ -7,7 +7,7 @@ import pytest
 
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan
-from hlr_lab.motion import motion_targets
+from hlr_lab.instrument.motion import motion_targets
 from sim.camera import GantryGeometry, StageGeometry
 
 # The servo rounds each angle to the nearest of 4096 ticks: at most half a tick (0.044°) per axis, an arc

@@ -8,17 +8,17 @@ import json
 import numpy as np
 import pytest
 
-from hlr_lab.cli.sim_world import sim_scene, world_geometry
-from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.formats.regions import write_regions
+from hlr_lab.instrument.devices import Links
+from hlr_lab.object.segment import segment
 from hlr_lab.pipeline import acquire_plan, export_materials, fit_into, load_object, plan_object, report_into
 from hlr_lab.planning.planner import PlanSettings
-from hlr_lab.rig import rig_of_snapshot
-from hlr_lab.segment import segment
+from hlr_lab.rig.file import rig_of_snapshot
 from sim.rig import SimRig
 from tests.renderer_guard import require_renderer
+from worlds.plan_world import sim_scene, world_geometry
 
 require_renderer(module_level=True)
 

@@ -5,17 +5,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hlr_lab.bench import PAPER_SETTINGS, paper_41_object
-from hlr_lab.camera import Camera
+from benchmarks.numerical import PAPER_SETTINGS, paper_41_object
 from hlr_lab.errors import InputError, PlanningError
-from hlr_lab.mesh import load_mesh
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.sphere import azimuth_elevation, rotation_z
+from hlr_lab.object.mesh import load_mesh
+from hlr_lab.object.raycast import RayCaster
+from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import light_sphere, mirror_highlights, placement
 from hlr_lab.planning.greedy import select_lights
 from hlr_lab.planning.planner import PlanResult, PlanSettings, auto_views, plan_lights
 from hlr_lab.planning.samples import sub_triangle_centroids
-from hlr_lab.raycast import RayCaster
-from hlr_lab.segment import segment
-from hlr_lab.sphere import azimuth_elevation, rotation_z
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +123,7 @@ def test_unreachable_highlights_are_reported_and_really_unreachable(placed_pebbl
     assert unreachable
     # brute force over every reachable candidate: no light puts a counted highlight on those regions
     sphere = light_sphere(high.gantry, placed_pebble.vertices, None)
-    from hlr_lab.sphere import directions_with_spacing
+    from hlr_lab.geometry.sphere import directions_with_spacing
 
     d = directions_with_spacing(1.0)
     pos = sphere.centre + sphere.radius * d
@@ -250,3 +250,12 @@ def test_camera_model_used_by_the_plan_is_the_rig_camera(rig):
     assert isinstance(rig.camera, Camera)
     assert rig.camera.width == 1280
     assert rig.camera.height == 960
+
+
+def test_a_y_up_mesh_is_stood_up_by_the_least_rotation():
+    """--up y turns the mesh about x only (y → z, z → −y): the object keeps its x on the plate. (trimesh's
+    align_vectors would add a quarter turn about z, and move every y-up plan's object on the plate.)"""
+    from hlr_lab.planning.geometry import _rotation_taking
+
+    rot = _rotation_taking(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(rot, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)

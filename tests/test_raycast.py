@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from hlr_lab.camera import Camera
-from hlr_lab.mesh import ColouredMesh
-from hlr_lab.raycast import RayCaster, visible_vertices
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.raycast import RayCaster, visible_vertices
 
 K = np.array([[700.0, 0.0, 161.0], [0.0, 700.0, 118.5], [0.0, 0.0, 1.0]])
 

@@ -25,17 +25,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hlr_lab.campaign import load_campaign
+from hlr_lab.campaign.runner import load_campaign
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.formats.regions import read_regions, write_regions
-from hlr_lab.mesh import load_mesh, write_vertex_coloured_ply
-from hlr_lab.motion import motion_targets
-from hlr_lab.procedural import pebble
+from hlr_lab.instrument.motion import motion_targets
+from hlr_lab.object.mesh import load_mesh, write_vertex_coloured_ply
+from hlr_lab.object.procedural import pebble
+from hlr_lab.object.segment import segment
 from hlr_lab.reflectance.session_fit import _views
-from hlr_lab.rig import load_rig
-from hlr_lab.segment import segment
+from hlr_lab.rig.file import load_rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import load_journal
 from hlr_lab.session.metadata import SESSION, read_record, session_plan, start_or_resume

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from hlr_lab.cli.main import main
-from hlr_lab.cli.sim_world import sim_scene
 from hlr_lab.fitting.synthetic import Truth, synthetic_region
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import read_plan
@@ -16,6 +15,7 @@ from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.reflectance.hdr import BracketFrame, merge_bracket
 from hlr_lab.reflectance.session_fit import _fit_one, _Pooled
 from hlr_lab.reflectance.views import PoseSamples
+from worlds.plan_world import sim_scene
 
 SENSITIVITY, READ_NOISE, BITS = 4095.0, 1.5, 12
 

@@ -22,13 +22,13 @@ import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from pymodbus.client import ModbusTcpClient
 
-from hlr_lab.cli.bench_acquire import repeated_poses
-from hlr_lab.cli.sim_world import rig_file_text, sim_scene, world_geometry
+from benchmarks.acquire import repeated_poses
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.session.journal import JOURNAL, read_journal
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
 from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
+from worlds.plan_world import rig_file_text, sim_scene, world_geometry
 
 TRIALS = int(os.environ.get("HLR_LAB_STOP_TRIALS", "2"))
 SEED = os.environ.get("HLR_LAB_STOP_SEED", "0")  # other moments in another nightly run

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from hlr_lab.colour import delta_e, srgb8_to_lab
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import ColouredMesh, load_mesh
-from hlr_lab.procedural import PALETTE, paint_patches
-from hlr_lab.segment import merge_fragments, segment, weighted_mode
+from hlr_lab.geometry.colour import delta_e, srgb8_to_lab
+from hlr_lab.object.mesh import ColouredMesh, load_mesh
+from hlr_lab.object.procedural import PALETTE, paint_patches
+from hlr_lab.object.segment import merge_fragments, segment, weighted_mode
 from tests.conftest import same_partition
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import FILE_MODE
+from hlr_lab.files import FILE_MODE
 from hlr_lab.session.frames import frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import DAMAGED, Journal, load_journal, read_journal
 from hlr_lab.session.metadata import SESSION, start_or_resume
@@ -200,8 +200,8 @@ def test_a_session_keeps_its_plan_and_the_objects_files_so_it_can_move(plan_file
     import cv2
 
     from hlr_lab.formats.plan import read_plan, write_plan
-    from hlr_lab.mesh import file_sha256
-    from hlr_lab.planned_object import load_planned_mesh
+    from hlr_lab.formats.planned_object import load_planned_mesh
+    from hlr_lab.object.mesh import file_sha256
     from hlr_lab.session.metadata import read_record, session_plan
 
     meshes = tmp_path / "work" / "meshes"

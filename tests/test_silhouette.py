@@ -4,10 +4,10 @@ it, and it leaves most of the frame out."""
 import numpy as np
 import pytest
 
+from hlr_lab.geometry.silhouette import object_window
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.object.raycast import RayCaster
 from hlr_lab.planning.geometry import placement
-from hlr_lab.raycast import RayCaster
-from hlr_lab.silhouette import object_window
-from hlr_lab.sphere import rotation_z
 from tests.test_sim_render import half_size_camera
 
 

@@ -9,10 +9,10 @@ import pytest
 import scipy.ndimage as ndi
 import trimesh
 
-from hlr_lab.camera import Camera
-from hlr_lab.mesh import ColouredMesh
-from hlr_lab.raycast import RayCaster
-from hlr_lab.rig import sim_rig
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.raycast import RayCaster
+from hlr_lab.rig.file import sim_rig
 from sim.render.llvm import RendererUnavailable
 from sim.render.sensor import SensorModel
 from tests.renderer_guard import require_renderer

@@ -1,8 +1,13 @@
 import numpy as np
 import pytest
 
-from hlr_lab.bench import nearest_neighbour_spacing_deg
-from hlr_lab.sphere import azimuth_elevation, direction, directions_with_spacing, fibonacci_directions
+from benchmarks.numerical import nearest_neighbour_spacing_deg
+from hlr_lab.geometry.sphere import (
+    azimuth_elevation,
+    direction,
+    directions_with_spacing,
+    fibonacci_directions,
+)
 
 
 @pytest.mark.parametrize("spacing", [0.5, 1.0, 2.0])

@@ -1,4 +1,4 @@
-"""The lamp measured on a white reference beside the object (hlr_lab.white_reference): which of its points
+"""The lamp measured on a white reference beside the object (hlr_lab.acquisition.white_reference): which of its points
 count in a pose (seen, lit, not grazing: never one the object hides or shadows, checked against a
 brute-force ray test on a box), and the brightness recovered from synthetic frames of a known sensor."""
 
@@ -11,10 +11,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from drivers.protocols import RawFrame
-from hlr_lab.rig import sim_rig
-from hlr_lab.silhouette import object_window
-from hlr_lab.sphere import rotation_z
-from hlr_lab.white_reference import MIN_COS, SHADOW_MARGIN_M, RunReference, brightness
+from hlr_lab.acquisition.white_reference import MIN_COS, SHADOW_MARGIN_M, RunReference, brightness
+from hlr_lab.geometry.silhouette import object_window
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.rig.file import sim_rig
 
 BOX = (np.array([-0.04, -0.04, 0.0]), np.array([0.04, 0.04, 0.10]))  # the object: 8 × 8 × 10 cm on the plate
 
@@ -134,9 +134,9 @@ def test_brightness_is_recovered_from_frames_of_a_known_sensor():
 def test_a_directional_light_with_a_run_reference_is_refused_naming_the_field(tmp_path):
     """The reference's brightness is modelled for a point lamp (1/d²): a rig with a directional light and
     run_place_m is one clear error."""
+    from hlr_lab.acquisition.white_reference import reference_meter
     from hlr_lab.errors import InputError
-    from hlr_lab.rig import load_rig
-    from hlr_lab.white_reference import reference_meter
+    from hlr_lab.rig.file import load_rig
 
     drawing = (Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml").read_text()
     text = drawing.replace('type = "point"', 'type = "directional"').replace(

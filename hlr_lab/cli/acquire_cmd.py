@@ -11,16 +11,15 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from hlr_lab.acquisition import Bracketing, Outcome, Step
+from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.cli.common import Finite, believed_rig, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
-from hlr_lab.devices import Links
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
-from hlr_lab.lamp_watch import LampWatch
-from hlr_lab.motion import PoseTarget, estimate_duration_s, motion_targets
+from hlr_lab.instrument.devices import Links
+from hlr_lab.instrument.motion import PoseTarget, estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
-from hlr_lab.rig import Rig
+from hlr_lab.session.lamp import LampWatch
 
 
 @click.command("acquire")
@@ -136,7 +135,11 @@ def acquire_cmd(
         return
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
     with contextlib.ExitStack() as stack:  # the simulated world, when there is one, outlives the run
-        links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor) if sim else Links()
+        links = Links()
+        if sim:  # the simulator is reached only from the command line (the composition root)
+            from worlds.plan_world import sim_links
+
+            links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor)
         with _progress_bar(len(targets)) as show:
             outcome = acquire_plan(
                 plan_path,
@@ -156,6 +159,10 @@ def acquire_cmd(
                 ),
             )
     console.print(_summary_table(outcome, session))
+    if (
+        outcome.safe is not None
+    ):  # the last line: what the devices confirmed (a run that stops says it in its error)
+        console.print(f"the rig is safe: {escape(outcome.safe.sentence())}", soft_wrap=True)
 
 
 @contextlib.contextmanager
@@ -194,23 +201,6 @@ def _summary_table(outcome: Outcome, session: Path) -> Table:
         measured = f"{outcome.reference_measured} of {outcome.reference_poses} poses"
         t.add_row("lamp measured on the white reference", measured)
     return t
-
-
-def sim_links(
-    stack: contextlib.ExitStack, rig: Rig, plan: PlanFile, plan_path: Path, scene_path, true_rig, speed_factor
-) -> Links:
-    """Start the simulated world for ``plan`` (kept open by ``stack``) and return its endpoints: the
-    scene file's world, or the plan's mesh with a default material per region; its rig as ``true_rig``
-    says, else as ``rig``."""
-    # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import sim_scene, world_geometry, world_links
-    from sim.rig import SimRig
-
-    scene = sim_scene(plan, plan_path, scene_path)
-    world = stack.enter_context(
-        SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig, true_rig))
-    )
-    return world_links(world)
 
 
 def _motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from hlr_lab.bench import (
+from benchmarks.numerical import (
     FIT_PIXELS,
     PAPER_SETTINGS,
     fit_error_grid,
@@ -19,7 +19,8 @@ from hlr_lab.bench import (
 )
 from hlr_lab.cli.common import Finite, speed_factor_option
 from hlr_lab.cli.console import console, out
-from hlr_lab.sphere import directions_with_spacing
+from hlr_lab.fitting import ESTIMATORS
+from hlr_lab.geometry.sphere import directions_with_spacing
 
 
 @click.group()
@@ -122,7 +123,7 @@ def bench_fit(sizes, no_grid) -> None:
                 f"{100 * r.n_err:7.2f}% {r.theta_c_deg:6.1f} {r.seconds:7.3f}",
                 markup=False,
             )
-        for method in ("robust", "paper"):
+        for method in ESTIMATORS:
             mine = [r for r in rows if r.method == method and not r.failure]
             if mine:
                 out.print(
@@ -168,7 +169,11 @@ def bench_sim(transactions, frames) -> None:
     Example:
       hlr-lab bench sim -n 2000
     """
-    from sim.bench import modbus_round_trips, render_figures, servo_round_trips  # the simulator: CLI only
+    from benchmarks.sim import (  # the simulator: CLI only
+        modbus_round_trips,
+        render_figures,
+        servo_round_trips,
+    )
 
     with console.status("timing servo transactions…"):
         servo = servo_round_trips(transactions)
@@ -207,7 +212,7 @@ def bench_acquire(poses, speed_factor) -> None:
     Example:
       hlr-lab bench acquire --poses 50
     """
-    from hlr_lab.cli.bench_acquire import acquire_figures  # builds the simulated rig: CLI only
+    from benchmarks.acquire import acquire_figures  # builds the simulated rig: CLI only
 
     with console.status(f"acquiring {poses} poses on the simulated rig…"):
         f = acquire_figures(poses=poses, speed_factor=speed_factor)
@@ -244,8 +249,8 @@ def bench_session_fit(poses) -> None:
     """
     import tempfile
 
-    from hlr_lab.bench import run_session_fit_case
-    from hlr_lab.cli.bench_acquire import acquire_figures  # builds the simulated rig: CLI only
+    from benchmarks.acquire import acquire_figures  # builds the simulated rig: CLI only
+    from benchmarks.numerical import run_session_fit_case
 
     with tempfile.TemporaryDirectory(prefix="hlr-bench-fit-") as scratch:
         with console.status(f"acquiring {poses} poses on the simulated rig…"):
@@ -287,7 +292,7 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
     Example:
       hlr-lab bench soak --poses 500 --kills 10
     """
-    from hlr_lab.cli.bench_soak import leak_window, soak  # builds the simulated rig: CLI only
+    from benchmarks.soak import leak_window, soak  # builds the simulated rig: CLI only
 
     with console.status(f"soaking {poses} poses on the simulated rig…"):
         f = soak(
@@ -351,7 +356,7 @@ def bench_calibration(true_rig, views, poses, run_poses, out_dir, speed_factor) 
     """
     import tempfile
 
-    from hlr_lab.cli.bench_calibration import calibration_figures  # builds the simulated rig: CLI only
+    from benchmarks.calibration import calibration_figures  # builds the simulated rig: CLI only
     from hlr_lab.errors import InputError
 
     with contextlib.ExitStack() as stack:

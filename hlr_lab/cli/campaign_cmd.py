@@ -10,7 +10,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.campaign import (
+from hlr_lab.campaign.runner import (
     AcquireJob,
     CalibrateJob,
     CampaignStep,
@@ -19,7 +19,8 @@ from hlr_lab.campaign import (
     run_campaign,
 )
 from hlr_lab.cli.console import console
-from hlr_lab.devices import Links
+from hlr_lab.errors import HlrLabError
+from hlr_lab.instrument.devices import Links
 
 
 @click.group()
@@ -29,9 +30,13 @@ def campaign() -> None:
 
 @campaign.command("run")
 @click.argument("campaign_file", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--notify", "notify", metavar="CMD",
-              help="A shell command run with a JSON summary on its stdin after every job and at the end or stop "
-              "(e.g. a mail or chat command); at most 30 s, and a failing one does not stop the night.")  # fmt: skip
+@click.option(
+    "--notify",
+    "notify",
+    metavar="CMD",
+    help="A shell command run with a JSON summary on its stdin after every job and at the end or stop "
+    "(e.g. a mail or chat command); at most 30 s, and a failing one does not stop the night.",
+)
 def run(campaign_file: Path, notify: str | None) -> None:
     """Run every job of CAMPAIGN_FILE in order: acquire jobs are run (resumable as acquire is), fitted and
     reported; calibrate jobs write their calibrated rig file. Before anything moves, the whole night's
@@ -51,8 +56,12 @@ def run(campaign_file: Path, notify: str | None) -> None:
     with console.status("starting the campaign…") as status:
 
         def show(step: CampaignStep) -> None:
-            status.update(escape(f"job {step.index + 1}/{step.total} {step.job}: {step.what} — about "
-                                 f"{step.eta_s / 60:.0f} min of rig time left"))  # fmt: skip
+            status.update(
+                escape(
+                    f"job {step.index + 1}/{step.total} {step.job}: {step.what} — about "
+                    f"{step.eta_s / 60:.0f} min of rig time left"
+                )
+            )
 
         results = run_campaign(c, links_for=_links, calibrate=_calibrate, notify=notify, progress=show)
     t = Table(title=f"campaign {escape(c.file.campaign.name)}", title_justify="left")
@@ -62,6 +71,12 @@ def run(campaign_file: Path, notify: str | None) -> None:
         t.add_row(escape(r.name), r.status, str(r.attempts), escape(r.detail))
     console.print(t)
     console.print(f"{time.monotonic() - started:.0f} s; index: {escape(str(c.folder / 'index.html'))}")
+    unfinished = [r for r in results if r.status != "done"]
+    if unfinished:  # a night with a failed job says so in its exit status
+        names = ", ".join(f"{r.name} ({r.status})" for r in unfinished)
+        raise HlrLabError(
+            f"{len(unfinished)} of {len(results)} jobs did not complete: {names}; see the table above"
+        )
 
 
 @campaign.command("status")
@@ -82,9 +97,9 @@ def _links(job: AcquireJob, stack: contextlib.ExitStack) -> Links:
     """The rig file's links, or a simulated world for the job (kept open for its attempts)."""
     if not job.sim:
         return Links()
-    from hlr_lab.campaign import job_rig
-    from hlr_lab.cli.acquire_cmd import sim_links
+    from hlr_lab.campaign.runner import job_rig
     from hlr_lab.formats.plan import read_plan
+    from worlds.plan_world import sim_links
 
     return sim_links(
         stack, job_rig(job), read_plan(job.plan), job.plan, job.scene, job.true_rig, job.speed_factor
@@ -93,28 +108,15 @@ def _links(job: AcquireJob, stack: contextlib.ExitStack) -> Links:
 
 def _calibrate(job: CalibrateJob) -> None:
     """A calibrate job as ``hlr-lab calibrate PROCEDURE`` runs it (photographs beside the output)."""
-    from hlr_lab.cli import calibrate_cmd as c
+    from calibration.procedures import Settings, calibrate_all, run_procedure
+    from hlr_lab.cli.calibrate_cmd import show, targets_for
     from hlr_lab.cli.common import believed_rig
 
     rig = believed_rig(job.rig, job.sim, job.true_rig)
-    folder = c._new_folder(
-        job.output.parent / "calibration" / f"{time.strftime('%Y-%m-%d-%H%M%S')}-{job.name}"
-    )
-    args = (job.sim, job.true_rig)
-    if job.procedure == "camera":
-        c._run_camera(rig, *args, 24, folder, False, False, job.output, job.speed_factor)
-    elif job.procedure == "gantry":
-        c._run_gantry(rig, *args, 30, folder, False, job.output, job.speed_factor)
-    elif job.procedure == "radiometric":
-        c._run_radiometric(rig, *args, 6, 8, folder, False, job.output, job.speed_factor, job.warm_up_min,
-                           job.warm_up_within)  # fmt: skip
+    folder = job.output.parent / "calibration" / f"{time.strftime('%Y-%m-%d-%H%M%S')}-{job.name}"
+    targets = targets_for(job.sim, job.true_rig, job.speed_factor)
+    settings = Settings(warm_up_min=job.warm_up_min, warm_up_within=job.warm_up_within)
+    if job.procedure == "all":
+        calibrate_all(rig, folder, job.output, targets, settings, done=show)
     else:
-        c.run_all(
-            rig,
-            *args,
-            folder,
-            job.output,
-            job.speed_factor,
-            warm_up_min=job.warm_up_min,
-            warm_up_within=job.warm_up_within,
-        )
+        show(run_procedure(job.procedure, rig, folder, job.output, targets, settings))

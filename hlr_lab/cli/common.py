@@ -9,8 +9,8 @@ import click
 from rich.table import Table
 
 from hlr_lab.errors import InputError
-from hlr_lab.rig import Rig, load_rig, sim_rig
-from hlr_lab.segment import Region
+from hlr_lab.object.segment import Region
+from hlr_lab.rig.file import Rig, load_rig, sim_rig
 
 
 def mesh_options(f):
@@ -27,6 +27,14 @@ def mesh_options(f):
         help="Mesh (OBJ, PLY, glTF/GLB) with vertex colours or a texture, or builtin:pebble.",
     )(f)
     return f
+
+
+def placement_options(f):
+    """``--up`` and ``--scale``: how the mesh stands on the turntable (its up axis; its units)."""
+    f = click.option("--scale", type=Finite(min=0, min_open=True), default=1.0, show_default=True,
+                     help="Mesh units → metres.")(f)  # fmt: skip
+    return click.option("--up", default="z", show_default=True,
+                        help="Mesh axis that points up on the turntable (y for most scans).")(f)  # fmt: skip
 
 
 def output_option(what: str):
@@ -83,7 +91,7 @@ def true_rig_option(f):
         "true_rig",
         metavar="FILE|builtin:NAME",
         help="Build the simulated world from this rig file (the rig as it really is, e.g. "
-        "builtin:bench-offsets), while hlr-lab keeps believing its own (--rig, or the built-in simulated rig).",
+        "builtin:bench-offsets), while hlr-lab keeps believing its own rig file.",
     )(f)
 
 

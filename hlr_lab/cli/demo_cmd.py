@@ -15,21 +15,20 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from hlr_lab.cli.acquire_cmd import sim_links
-from hlr_lab.cli.common import region_table, speed_factor_option, true_rig_option
+from hlr_lab.cli.common import placement_options, region_table, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 from hlr_lab.cli.fit_cmd import materials_table
 from hlr_lab.cli.plan_cmd import coverage_table
-from hlr_lab.cli.sim_world import scene_file_object, sim_scene
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import PlanFile, write_plan
 from hlr_lab.formats.regions import write_regions
+from hlr_lab.object.segment import segment
 from hlr_lab.pipeline import acquire_plan, export_materials, fit_into, load_object, plan_object, report_into
 from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.reflectance.session_fit import MATERIALS
-from hlr_lab.rig import sim_rig
-from hlr_lab.segment import segment
+from hlr_lab.rig.file import sim_rig
+from worlds.plan_world import scene_file_object, sim_links, sim_scene
 
 DEFAULT_OBJECT = "builtin:pebble"
 
@@ -50,9 +49,12 @@ DEFAULT_OBJECT = "builtin:pebble"
     show_default=True,
     help="Folder for everything the demo writes (a new one: the demo never overwrites).",
 )
+@placement_options
 @true_rig_option
 @speed_factor_option("Simulated", default=20.0)
-def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor: float) -> None:
+def demo(
+    scene_path: Path | None, out: Path, up: str, scale: float, true_rig: str | None, speed_factor: float
+) -> None:
     """Run the whole measurement on the simulated rig and compare the result with the truth.
 
     \b
@@ -63,6 +65,7 @@ def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor:
     Examples:
       hlr-lab demo
       hlr-lab demo --scene my-object/scene.toml --out demo-2
+      hlr-lab demo --scene scan/scene.toml --up y --scale 0.001 --out demo-scan   # a y-up scan in mm
       hlr-lab demo --true-rig builtin:bench-offsets --out demo-3   # the rig is not its drawing
     """
     if out.exists() and any(out.iterdir()):
@@ -80,7 +83,8 @@ def demo(scene_path: Path | None, out: Path, true_rig: str | None, speed_factor:
 
     _step("plan", f"→ {plan_path}")
     with console.status("planning…"):
-        plan, planned = plan_object(mesh, seg, rig, PlanSettings(), mesh_spec=mesh_spec, plan_folder=out)
+        plan, planned = plan_object(mesh, seg, rig, PlanSettings(), mesh_spec=mesh_spec, plan_folder=out, up=up,
+                                     scale=scale)  # fmt: skip
     write_plan(plan_path, plan)
     console.print(coverage_table(planned, seg))
     if planned.uncovered:

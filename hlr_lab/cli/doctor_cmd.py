@@ -10,8 +10,8 @@ from rich.table import Table
 
 from hlr_lab.cli.common import resolve_rig
 from hlr_lab.cli.console import console
-from hlr_lab.doctor import Finding, examine_rig
 from hlr_lab.errors import RigNotReady
+from hlr_lab.instrument.doctor import Finding, examine_rig
 
 MARKS = {"ok": "[green]ok[/]", "warning": "[yellow]warning[/]", "problem": "[bold red]problem[/]"}
 
@@ -36,11 +36,16 @@ def doctor(rig_path: Path | None, sim: bool) -> None:
         if sim:
             # the simulator is reached only from the command line (the composition root)
             from sim.rig import SimRig
+            from sim.targets import mirror_ball_scene
+            from worlds.plan_world import world_geometry
 
-            with SimRig() as world:
+            # any scene gives the world its camera (opening it takes no photograph)
+            scene = mirror_ball_scene(0.02, (0.0, 0.0))
+            with SimRig(scene=scene, **world_geometry(rig, runs=False)) as world:
                 e = world.endpoints
-                # no scene, so no camera: the simulated camera is exercised by acquire --sim
-                findings = examine_rig(rig, gantry_port=e.dynamixel, stage_address=e.modbus, camera=False)
+                findings = examine_rig(
+                    rig, gantry_port=e.dynamixel, stage_address=e.modbus, camera_endpoint=e.camera
+                )
         else:
             findings = examine_rig(rig)
     console.print(_table(rig.name, findings))

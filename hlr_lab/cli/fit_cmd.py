@@ -10,6 +10,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from hlr_lab.cli.console import console
+from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS
 from hlr_lab.formats.materials import MaterialsFile
 from hlr_lab.pipeline import fit_into
 from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, FitStep
@@ -37,7 +38,13 @@ def _theta_c(value: str) -> float | str:
     callback=lambda _c, _p, v: _theta_c(v),
     help="Highlight cone half-angle θc in degrees, or 'auto' (chosen per region from the data).",
 )
-@click.option("--method", type=click.Choice(["robust", "paper"]), default="robust", show_default=True)
+@click.option(
+    "--method",
+    type=click.Choice(list(ESTIMATORS)),
+    default=DEFAULT_ESTIMATOR,
+    show_default=True,
+    help="The estimator: " + "; ".join(f"{k}: {e.summary}" for k, e in ESTIMATORS.items()) + ".",
+)
 @click.option(
     "-o",
     "--output",

@@ -13,7 +13,7 @@ from rich.markup import escape
 from hlr_lab import __version__
 from hlr_lab.cli.console import console
 from hlr_lab.errors import HlrLabError
-from hlr_lab.signals import stop_once_on_signals
+from hlr_lab.instrument.signals import stop_once_on_signals
 
 EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
 EXIT_INTERRUPTED = 130  # Ctrl-C or a signal, and nothing left unsafe
@@ -45,7 +45,7 @@ COMMANDS = {
     "sim": ("hlr_lab.cli.sim_cmd:sim",
             "The simulated rig (servo bus on a pseudo-terminal, Modbus turntable and lamp relay, camera)."),
     "calibrate": ("hlr_lab.cli.calibrate_cmd:calibrate",
-                  "Measure the rig (camera, gantry, or all) and write a calibrated copy of its rig file."),
+                  "Measure the rig (camera, gantry, radiometric, or all) and write a calibrated copy of its rig file."),
     "campaign": ("hlr_lab.cli.campaign_cmd:campaign",
                  "Unattended campaigns: a night of jobs (acquire, calibrate) run one after another."),
     "doctor": ("hlr_lab.cli.doctor_cmd:doctor",
@@ -94,15 +94,15 @@ def cli(ctx: click.Context, debug: bool) -> None:
     regions as possible at once, and export fitted Phong materials for other tools.
 
     \b
-    Example, on the built-in simulated rig and procedural object:
-      hlr-lab plan --mesh builtin:pebble --sim -o plan.json
+    Example: the whole measurement on the built-in simulated rig and procedural object:
+      hlr-lab demo --out demo
     """
     ctx.obj = {"debug": debug}
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command; the first SIGINT/SIGTERM stops it (exit status 130), later ones cannot cut its
-    safe stop short (:mod:`hlr_lab.signals`)."""
+    safe stop short (:mod:`hlr_lab.instrument.signals`)."""
     for name in QUIET_LOGGERS:
         logger = logging.getLogger(name)
         if not any(isinstance(h, logging.NullHandler) for h in logger.handlers):
@@ -131,7 +131,7 @@ def _run(argv: list[str] | None) -> int:
     except HlrLabError as exc:
         if debug:
             console.print_exception()
-        # a stopped run (hlr_lab.rig_control.RunStopped) carries its own status: 130 when it was
+        # a stopped run (hlr_lab.instrument.control.RunStopped) carries its own status: 130 when it was
         # stopped by a signal and the rig is confirmed safe
         status = getattr(exc, "exit_status", EXIT_ERROR)
         label = "[yellow]interrupted:[/]" if status == EXIT_INTERRUPTED else "[bold red]error:[/]"

@@ -9,8 +9,8 @@ import click
 from hlr_lab.cli.common import output_option
 from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
-from hlr_lab.mesh import load_mesh, write_vertex_coloured_ply
-from hlr_lab.procedural import PALETTE, paint_patches
+from hlr_lab.object.mesh import load_mesh, write_vertex_coloured_ply
+from hlr_lab.object.procedural import PALETTE, paint_patches
 
 
 @click.command()

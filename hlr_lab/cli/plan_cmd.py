@@ -9,16 +9,16 @@ import click
 import numpy as np
 from rich.table import Table
 
-from hlr_lab.cli.common import Finite, mesh_options, output_option, resolve_rig, swatch
+from hlr_lab.cli.common import Finite, mesh_options, output_option, placement_options, resolve_rig, swatch
 from hlr_lab.cli.console import console
 from hlr_lab.cli.segment_cmd import segmentation_options
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import write_plan
 from hlr_lab.formats.regions import read_regions
+from hlr_lab.object.segment import Segmentation
+from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object, plan_object
 from hlr_lab.planning.planner import PlanResult, PlanSettings
-from hlr_lab.segment import Segmentation
-from hlr_lab.segment import segment as segment_mesh
 
 EXIT_UNCOVERED = 3  # the plan was written but some regions cannot get their M samples
 _MAX_POSE_COLUMNS = 10
@@ -110,7 +110,13 @@ def parse_views(text: str) -> list[float] | None:
     show_default=True,
     help="Spacing of the candidate light positions on the sphere, degrees.",
 )
-@click.option("--max-lights", type=click.IntRange(1, 1000), default=64, show_default=True)
+@click.option(
+    "--max-lights",
+    type=click.IntRange(1, 1000),
+    default=64,
+    show_default=True,
+    help="At most this many light positions per view (the plan stops there, covered or not).",
+)
 @click.option(
     "--max-view-angle",
     type=Finite(10, 89),
@@ -119,15 +125,7 @@ def parse_views(text: str) -> list[float] | None:
     help="Grazing limit: surfaces seen or lit beyond this angle from their normal do not count.",
 )
 @click.option("--no-shadows", is_flag=True, help="Do not ray-cast shadows (the paper did not).")
-@click.option(
-    "--up",
-    default="z",
-    show_default=True,
-    help="Mesh axis that points up on the turntable (y for most scans).",
-)
-@click.option(
-    "--scale", type=Finite(min=0, min_open=True), default=1.0, show_default=True, help="Mesh units → metres."
-)
+@placement_options
 @output_option("plan.json")
 def plan(
     mesh_spec,

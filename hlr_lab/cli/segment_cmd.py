@@ -7,9 +7,9 @@ import click
 from hlr_lab.cli.common import Finite, mesh_options, output_option, region_table
 from hlr_lab.cli.console import console
 from hlr_lab.formats.regions import write_regions
+from hlr_lab.object.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
+from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object
-from hlr_lab.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
-from hlr_lab.segment import segment as segment_mesh
 
 
 def segmentation_options(f):

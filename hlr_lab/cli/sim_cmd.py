@@ -11,7 +11,7 @@ import click
 from hlr_lab.cli.common import speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
-from hlr_lab.rig import sim_rig
+from hlr_lab.rig.file import sim_rig
 
 
 @click.group()
@@ -24,7 +24,7 @@ def sim() -> None:
     "--scene",
     "scene_spec",
     metavar="FILE|builtin:NAME",
-    help="Also serve a camera photographing this scene: a scene file (format in sim/render/scene.py), "
+    help="Also serve a camera photographing this scene: a scene file (format: docs/formats.md, Scene files), "
     "builtin:cylinder (the paper's 4.2) or builtin:lumpy (four materials).",
 )
 @true_rig_option
@@ -43,9 +43,9 @@ def serve(scene_spec, true_rig, speed_factor) -> int:
       hlr-lab sim serve --scene builtin:lumpy --true-rig builtin:bench-offsets
     """
     # the simulator is reached only from the command line (the composition root)
-    from hlr_lab.cli.sim_world import world_geometry
     from sim.render.scene import SceneError, builtin_scene, load_scene
     from sim.rig import SimRig
+    from worlds.plan_world import world_geometry
 
     scene = None
     if scene_spec:

@@ -15,7 +15,7 @@ import numpy as np
 
 from hlr_lab.export.conversion import GLTF_DIELECTRIC_F0, gltf_roughness, specular_f0
 from hlr_lab.export.regions import RegionPart
-from hlr_lab.formats.io import atomic_write_bytes
+from hlr_lab.files import atomic_write_bytes
 
 _FLOAT, _UINT = 5126, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963

@@ -14,7 +14,7 @@ import trimesh
 
 from hlr_lab.export.conversion import MITSUBA_PLASTIC_IOR, beckmann_alpha, ior_for_f0, specular_f0
 from hlr_lab.export.regions import RegionPart
-from hlr_lab.formats.io import atomic_write_bytes, atomic_write_text
+from hlr_lab.files import atomic_write_bytes, atomic_write_text
 
 
 def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from hlr_lab.export.regions import RegionPart
-from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.files import atomic_write_text
 
 MTL_HEADER = """\
 # hlr-lab materials, one per colour region.

@@ -6,11 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hlr_lab.colour import delta_e, srgb8_to_lab, srgb8_to_linear
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import MaterialsFile
-from hlr_lab.mesh import ColouredMesh
-from hlr_lab.segment import Segmentation
+from hlr_lab.geometry.colour import delta_e, srgb8_to_lab, srgb8_to_linear
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.segment import Segmentation
 
 MATCH_DELTA_E = 10.0  # a materials region and a segmentation region of the same id must look alike
 

@@ -6,13 +6,15 @@ fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=20.0, m
 fit.rd, fit.rs, fit.n, fit.theta_c_deg, fit.n_diffuse, fit.n_highlight, fit.rd_se, fit.rs_se, fit.n_se
 ```
 intensity (N, 3) linear pixel values; irradiance (N,) or (N, 3), L at each pixel (Φ/d² for a point
-light); cos_alpha, cos_beta (N,). ``theta_c_deg`` is a float or "auto"; ``method`` "paper" or "robust".
+light); cos_alpha, cos_beta (N,). ``theta_c_deg`` is a float or "auto"; ``method`` a name of
+:data:`ESTIMATORS` (the one table of estimators: every command, file format and benchmark reads it).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -30,7 +32,36 @@ from hlr_lab.fitting.model import lobe_angle
 from hlr_lab.fitting.paper import Estimate, fit_paper
 from hlr_lab.fitting.robust import fit_robust
 
-__all__ = ["DegenerateSamples", "InsufficientSamples", "RegionFit", "fit_region"]
+__all__ = [
+    "DEFAULT_ESTIMATOR",
+    "ESTIMATORS",
+    "DegenerateSamples",
+    "EstimatorName",
+    "InsufficientSamples",
+    "RegionFit",
+    "fit_region",
+]
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """One way of fitting a region: ``fit(samples, highlight mask (N,), n range) -> Estimate``;
+    ``per_theta_c``: its estimate depends on θc (refitted as automatic θc moves), else one fit serves."""
+
+    fit: Callable[..., Estimate]
+    per_theta_c: bool
+    summary: str
+
+
+EstimatorName = Literal["robust", "paper"]
+ESTIMATORS: dict[str, Estimator] = {
+    "robust": Estimator(fit_robust, per_theta_c=False,
+                        summary="robust weighted least squares on the full model, all pixels at once (the default)"),
+    "paper": Estimator(fit_paper, per_theta_c=True,
+                       summary="the paper's §3.3: Rd from the diffuse-only pixels, n by the ratio criterion, then Rs"),
+}  # fmt: skip
+assert set(ESTIMATORS) == set(get_args(EstimatorName)), "EstimatorName names the table's rows"
+DEFAULT_ESTIMATOR: EstimatorName = "robust"
 
 N_RANGE = (1.0, 2000.0)  # plausible Blinn-Phong exponents
 AUTO_START_DEG = 45.0  # "start wide"
@@ -65,7 +96,7 @@ def fit_region(
     cos_alpha,
     cos_beta,
     theta_c_deg: float | Literal["auto"] = 20.0,
-    method: Literal["paper", "robust"] = "robust",
+    method: EstimatorName = DEFAULT_ESTIMATOR,
 ) -> RegionFit:
     """Fit (Rd, Rs, n) of eq. (1) to one region's pixels; see the module docstring for the arguments.
 
@@ -73,12 +104,12 @@ def fit_region(
     or MIN_HIGHLIGHT highlight pixels remain, DegenerateSamples when the highlight pixels span too little
     of β to tell n; never returns NaN parameters.
     """
-    if method not in ("paper", "robust"):
-        raise InputError(f"unknown method {method!r}; use 'paper' or 'robust'", field="method")
+    if method not in ESTIMATORS:
+        raise InputError(f"unknown method {method!r}; use one of {', '.join(ESTIMATORS)}", field="method")
     s = check_samples(intensity, irradiance, cos_alpha, cos_beta)
-    estimator = fit_paper if method == "paper" else fit_robust
+    estimator = ESTIMATORS[method].fit
     if theta_c_deg == "auto":
-        theta, est = _auto_theta_c(s, estimator, refit=method == "paper")
+        theta, est = _auto_theta_c(s, estimator, refit=ESTIMATORS[method].per_theta_c)
     else:
         try:
             theta = float(theta_c_deg)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import minimize_scalar, nnls
+from scipy.stats import median_abs_deviation
 
 from hlr_lab.fitting.inputs import Samples
 from hlr_lab.fitting.paper import Estimate
@@ -109,12 +110,17 @@ def _linear_given_n(s: Samples, w: np.ndarray, n: float) -> tuple[np.ndarray, np
     return rd, rs, s.intensity - a * rd - b * rs
 
 
+def _about_zero(x: np.ndarray, axis: int | None = None) -> float:
+    """The centre of residuals that are already about zero (MAD's centre, for a scale of residuals)."""
+    return 0.0
+
+
 def _profile_n(s: Samples, w: np.ndarray, n0: float, n_range) -> tuple[float, np.ndarray, np.ndarray]:
     """n minimising the Huber-weighted residuals with (Rd, Rs) solved for each n (variable projection)."""
     lo, hi = np.log(n_range[0]), np.log(n_range[1])
     # scale for the Huber weights from a first fit at n0
     _, _, r0 = _linear_given_n(s, w, n0)
-    sigma = 1.4826 * np.median(np.abs(r0)) + 1e-12
+    sigma = float(median_abs_deviation(r0, axis=None, center=_about_zero, scale="normal")) + 1e-12
 
     def cost(log_n: float) -> float:
         _, _, r = _linear_given_n(s, w, float(np.exp(log_n)))
@@ -148,7 +154,7 @@ def _noise_model(s: Samples, rd, rs, n) -> np.ndarray:
         rk = r[which == k]
         if len(rk) >= 20:
             rows.append([1.0, float(np.median(mu[which == k]))])
-            var.append((1.4826 * np.median(np.abs(rk - np.median(rk)))) ** 2)
+            var.append(float(median_abs_deviation(rk, axis=None, scale="normal")) ** 2)
     if len(rows) < 2:
         return np.array([max(float(np.var(r)), 1e-12), 0.0])
     coef, _ = nnls(np.array(rows), np.array(var))

@@ -18,11 +18,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from hlr_lab.errors import InputError
-from hlr_lab.fitting import RegionFit
-from hlr_lab.formats.io import read_format, write_json
+from hlr_lab.files import OpenModel, StrictModel, read_format, write_json
+from hlr_lab.fitting import EstimatorName, RegionFit
 from hlr_lab.formats.regions import Colour8, RegionEntry
 
 MATERIALS_FORMAT = "hlr-lab.materials"
@@ -32,14 +32,12 @@ RGB = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_len
 REFLECTANCE = Annotated[list[Annotated[float, Field(ge=0, le=1.5)]], Field(min_length=3, max_length=3)]
 
 
-class PixelCounts(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+class PixelCounts(StrictModel):
     diffuse: int = Field(ge=0)
     highlight: int = Field(ge=0)
 
 
-class MaterialEntry(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
+class MaterialEntry(OpenModel):
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -54,7 +52,7 @@ class MaterialEntry(BaseModel):
     theta_c_deg: float = Field(gt=0, lt=90)
     pixels: PixelCounts
     residual_rms: float = Field(ge=0)
-    estimator: Literal["robust", "paper"]
+    estimator: EstimatorName
 
     @model_validator(mode="after")
     def _specular_consistent(self):
@@ -67,8 +65,7 @@ class MaterialEntry(BaseModel):
         return self
 
 
-class MaterialsFile(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
+class MaterialsFile(OpenModel):
     format: Literal["hlr-lab.materials"]
     version: Literal[1]
     model: Literal["blinn-phong"]

@@ -13,13 +13,13 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
 from hlr_lab import __version__
-from hlr_lab.formats.io import read_format, write_json
+from hlr_lab.files import OpenModel, read_format, write_json
 from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.object.segment import Segmentation
 from hlr_lab.planning.planner import PlanResult
-from hlr_lab.segment import Segmentation
 
 PLAN_FORMAT = "hlr-lab.plan"
 # bounds far beyond any rig, so that a typo (1e300) is refused here rather than overflowing in the geometry
@@ -32,12 +32,7 @@ Matrix4 = Annotated[
 ]
 
 
-class _Open(BaseModel):
-    # hlr-lab and other tools may add fields
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
-
-
-class PlanObject(_Open):
+class PlanObject(OpenModel):
     mesh: str
     sha256: str
     regions: list[RegionEntry]
@@ -47,7 +42,7 @@ class PlanObject(_Open):
     scale: float = 1.0
 
 
-class PlanParameters(_Open):
+class PlanParameters(OpenModel):
     theta_c_deg: float = Field(gt=0, lt=90)
     min_samples: float = Field(gt=0)
     sphere_radius_m: float = Field(gt=0)
@@ -56,7 +51,7 @@ class PlanParameters(_Open):
     sphere_source: Literal["rig", "scale"] = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
 
 
-class PlanLight(_Open):
+class PlanLight(OpenModel):
     azimuth_deg: Degrees
     elevation_deg: Degrees
     position_m: Vec3
@@ -64,10 +59,10 @@ class PlanLight(_Open):
 
 
 POSE_ID = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$"  # a pose id names its frames' files: nothing else gets in
-RESERVED_POSE_IDS = {"lamp-reference"}  # the lamp watch's frames (hlr_lab.acquisition)
+RESERVED_POSE_IDS = {"lamp-reference"}  # the lamp watch's frames (hlr_lab.acquisition.poses)
 
 
-class PlanPose(_Open):
+class PlanPose(OpenModel):
     id: str
     turntable_deg: Degrees
     light: PlanLight
@@ -78,17 +73,17 @@ class PlanPose(_Open):
     expected: dict[str, float]
 
 
-class RegionCoverage(_Open):
+class RegionCoverage(OpenModel):
     samples: float = Field(ge=0)
     satisfied: bool
 
 
-class Uncovered(_Open):
+class Uncovered(OpenModel):
     region: int
     reason: str
 
 
-class PlanFile(_Open):
+class PlanFile(OpenModel):
     format: Literal["hlr-lab.plan"]
     version: Literal[1]
     object: PlanObject

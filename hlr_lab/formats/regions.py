@@ -15,20 +15,19 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import read_format, write_json
-from hlr_lab.mesh import ColouredMesh, file_sha256
-from hlr_lab.segment import Region, Segmentation
+from hlr_lab.files import OpenModel, StrictModel, read_format, write_json
+from hlr_lab.object.mesh import ColouredMesh, file_sha256
+from hlr_lab.object.segment import Region, Segmentation
 
 REGIONS_FORMAT = "hlr-lab.regions"
 Label = Annotated[int, Field(ge=0, le=2**31 - 1)]  # a region id (the range check against the regions follows)
 Colour8 = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)]
 
 
-class RegionEntry(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
+class RegionEntry(OpenModel):
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -48,16 +47,14 @@ class RegionEntry(BaseModel):
         )
 
 
-class SegmentParameters(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+class SegmentParameters(StrictModel):
     delta_e: float
     min_fragment: float
     split_connected: bool
     regions_requested: int | None = None
 
 
-class RegionsFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+class RegionsFile(StrictModel):
     format: Literal["hlr-lab.regions"]
     version: Literal[1]
     mesh: str

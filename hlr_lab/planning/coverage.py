@@ -20,8 +20,8 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial import cKDTree
 
+from hlr_lab.object.raycast import RayCaster
 from hlr_lab.planning.geometry import Highlights
-from hlr_lab.raycast import RayCaster
 
 # First-order footprint radius (distance·tanθc/cos incidence) times this covers the exact footprint's
 # second-order growth for θc up to 30° (tests compare the exact counts against brute force).

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hlr_lab.camera import Camera
 from hlr_lab.errors import InputError, PlanningError
-from hlr_lab.mesh import ColouredMesh
-from hlr_lab.rig import Gantry
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.rig.file import Gantry
 
 _UP_AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -35,6 +35,8 @@ def placement(mesh: ColouredMesh, *, up: str = "z", scale: float = 1.0) -> np.nd
 
 def _rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Proper rotation taking unit vector a onto unit vector b (a half-turn about x when opposite)."""
+    # Not trimesh.geometry.align_vectors: that aligns a with b but adds a turn about b (y-up → z-up comes
+    # out turned 90° about z), which would move every planned object on the plate. This is the least one.
     v, c = np.cross(a, b), float(a @ b)
     if c < -0.999999:
         return np.diag([1.0, -1.0, -1.0])

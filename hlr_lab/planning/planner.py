@@ -21,15 +21,15 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hlr_lab.mesh import ColouredMesh
+from hlr_lab.geometry.sphere import directions_with_spacing, rotation_z
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.raycast import RayCaster, facing
+from hlr_lab.object.segment import Segmentation
 from hlr_lab.planning.coverage import ViewSamples, best_light, count_estimates, exact_counts
 from hlr_lab.planning.geometry import LightSphere, light_sphere, mirror_highlights
 from hlr_lab.planning.greedy import Selection, score, select_lights
 from hlr_lab.planning.samples import SurfaceSamples, surface_samples, vertex_samples
-from hlr_lab.raycast import RayCaster, facing
-from hlr_lab.rig import Rig
-from hlr_lab.segment import Segmentation
-from hlr_lab.sphere import directions_with_spacing, rotation_z
+from hlr_lab.rig.file import Rig
 
 CountUnit = Literal["pixels", "vertices"]
 Criterion = Literal["capped", "plain"]

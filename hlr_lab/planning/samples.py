@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hlr_lab.camera import Camera
-from hlr_lab.mesh import ColouredMesh
-from hlr_lab.segment import Segmentation
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.segment import Segmentation
 
 TARGET_PX = 2.0
 MAX_LEVEL = 16

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hlr_lab.clipping import clipped
+from hlr_lab.geometry.clipping import clipped
 
 NOISE_FLOOR = 5.0  # read-noise σ below which a value is dark-noise dominated
 

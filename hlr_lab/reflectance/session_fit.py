@@ -19,7 +19,14 @@ from typing import Literal
 import numpy as np
 
 from hlr_lab.errors import InputError
-from hlr_lab.fitting import DegenerateSamples, InsufficientSamples, RegionFit, fit_region
+from hlr_lab.fitting import (
+    DEFAULT_ESTIMATOR,
+    DegenerateSamples,
+    EstimatorName,
+    InsufficientSamples,
+    RegionFit,
+    fit_region,
+)
 from hlr_lab.fitting.inputs import MIN_DIFFUSE
 from hlr_lab.formats.materials import (
     MaterialEntry,
@@ -30,11 +37,11 @@ from hlr_lab.formats.materials import (
     unmeasured_entry,
 )
 from hlr_lab.formats.plan import PlanFile
+from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.formats.regions import RegionEntry
-from hlr_lab.lamp_watch import WHITE_REFERENCE, lamp_at
-from hlr_lab.mesh import ColouredMesh
-from hlr_lab.planned_object import load_planned_mesh, mesh_to_turntable
-from hlr_lab.raycast import RayCaster
+from hlr_lab.geometry.silhouette import object_window
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, merge_bracket
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
@@ -44,11 +51,11 @@ from hlr_lab.reflectance.views import (
     StageTimes,
     pose_samples,
 )
-from hlr_lab.rig import Rig, rig_of_snapshot
+from hlr_lab.rig.file import Rig, rig_of_snapshot
 from hlr_lab.session.frames import checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, load_journal
+from hlr_lab.session.lamp import WHITE_REFERENCE, lamp_at
 from hlr_lab.session.metadata import SESSION, read_record, session_plan
-from hlr_lab.silhouette import object_window
 
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
@@ -98,7 +105,7 @@ class Session:
 @dataclass(frozen=True, eq=False)
 class LampRecord:
     """The lamp's output through the run, relative to the session's baseline reference frame
-    (:mod:`hlr_lab.lamp_watch`): Unix times (K,) and outputs (K,); empty when the run did not watch it."""
+    (:mod:`hlr_lab.session.lamp`): Unix times (K,) and outputs (K,); empty when the run did not watch it."""
 
     times: np.ndarray
     outputs: np.ndarray
@@ -281,7 +288,7 @@ def fit_session(
     session: Session,
     *,
     theta_c_deg: float | Literal["auto"] = "auto",
-    method: Literal["robust", "paper"] = "robust",
+    method: EstimatorName = DEFAULT_ESTIMATOR,
     selection: Selection = DEFAULT_SELECTION,
     progress: Callable[[FitStep], None] = lambda _: None,
 ) -> FitResult:

@@ -18,13 +18,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from hlr_lab.camera import Camera
 from hlr_lab.formats.plan import PlanFile
-from hlr_lab.mesh import CREASE_DEG, ColouredMesh
-from hlr_lab.planned_object import surface_regions
-from hlr_lab.raycast import SURFACE_OFFSET, RayCaster
+from hlr_lab.formats.planned_object import surface_regions
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.object.mesh import CREASE_DEG, ColouredMesh
+from hlr_lab.object.raycast import SURFACE_OFFSET, RayCaster
 from hlr_lab.reflectance.hdr import Radiance
-from hlr_lab.sphere import rotation_z
 
 
 class StageTimes(dict):

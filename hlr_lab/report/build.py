@@ -14,9 +14,9 @@ import numpy as np
 
 from hlr_lab import __version__
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_write_text
+from hlr_lab.files import atomic_write_text
 from hlr_lab.formats.materials import MaterialsFile, read_materials
-from hlr_lab.raycast import RayCaster
+from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
     MATERIALS,

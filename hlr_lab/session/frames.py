@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_create_bytes
+from hlr_lab.files import atomic_create_bytes
 
 FRAMES = "frames"
 # zlib level 1, no row filter, run-length matching: 30 ms and 1.9 MB for a 1280×960×3 16-bit frame here,

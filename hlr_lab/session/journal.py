@@ -9,7 +9,7 @@ Opening the journal to write (a resumed run) sets such lines aside in ``journal.
 problem, the line as it was) and rewrites the journal without them, so the run can go on and retake
 those frames; nothing is thrown away.
 
-At most one process writes a session (:mod:`hlr_lab.locks`).
+At most one process writes a session (:mod:`hlr_lab.instrument.locks`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hlr_lab.errors import DiskFull
-from hlr_lab.formats.io import atomic_write_bytes, disk_full, fsync_directory
+from hlr_lab.files import atomic_write_bytes, disk_full, fsync_directory
 
 JOURNAL = "journal.jsonl"  # the session directory's journal (docs/sessions.md)
 DAMAGED = "journal.damaged"  # damaged lines set aside by a resumed run, one JSON object per line

@@ -17,10 +17,10 @@ import re
 from pathlib import Path, PurePosixPath
 
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_write_bytes
+from hlr_lab.files import atomic_write_bytes
 from hlr_lab.formats.plan import PlanFile, read_plan, write_plan
-from hlr_lab.mesh import file_sha256
-from hlr_lab.procedural import BUILTIN_PREFIX
+from hlr_lab.object.mesh import file_sha256
+from hlr_lab.object.procedural import BUILTIN_PREFIX
 
 log = logging.getLogger(__name__)
 OBJECT = "object"  # the folder in the session

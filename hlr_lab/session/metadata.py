@@ -11,10 +11,10 @@ from pathlib import Path
 
 from hlr_lab import __version__
 from hlr_lab.errors import InputError
-from hlr_lab.formats.io import atomic_create_bytes, check_header, dumps, non_finite, read_json
+from hlr_lab.files import atomic_create_bytes, check_header, dumps, non_finite, read_json
 from hlr_lab.formats.plan import PlanFile, read_plan
-from hlr_lab.mesh import file_sha256
-from hlr_lab.rig import Rig
+from hlr_lab.object.mesh import file_sha256
+from hlr_lab.rig.file import Rig
 from hlr_lab.session.kept_object import keep_object, kept_plan
 
 SESSION = "session.json"

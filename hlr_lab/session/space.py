@@ -3,7 +3,7 @@
 A night's frames are hundreds of megabytes to gigabytes; a run that finds out at 3 a.m. that they do not
 fit has wasted the night. So before anything moves, the space the missing frames need is compared with
 what the session's filesystem has free. Writing a file (or a journal line) that does not fit is a
-:class:`hlr_lab.errors.DiskFull` naming it (:func:`hlr_lab.formats.io.disk_full`).
+:class:`hlr_lab.errors.DiskFull` naming it (:func:`hlr_lab.files.disk_full`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from hlr_lab.errors import DiskFull
-from hlr_lab.formats.io import free_bytes
+from hlr_lab.files import free_bytes
 
 MARGIN_BYTES = 64 * 1024 * 1024  # for the journal, the log, sidecars and the fit's outputs
 PNG_OVERHEAD = 1.01  # a raw frame's noise barely compresses: a PNG is at most its raw size and headers

@@ -1,0 +1,283 @@
+"""Benchmarks that print figures (not timed unit tests): ``hlr-lab bench plan`` and ``hlr-lab bench fit``.
+
+Cases that measure memory run in a fresh process so that their peak is their own.
+"""
+
+from __future__ import annotations
+
+import gc
+import multiprocessing
+import os
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from hlr_lab.errors import HlrLabError
+from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName, fit_region
+from hlr_lab.fitting.synthetic import PAPER_42, Truth, synthetic_region
+from hlr_lab.object.mesh import ColouredMesh, load_mesh
+from hlr_lab.object.procedural import paint_patches, pebble
+from hlr_lab.object.raycast import RayCaster, visible_vertices
+from hlr_lab.object.segment import segment
+from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.planner import PlanSettings, plan_lights
+from hlr_lab.rig.file import Rig, sim_rig
+
+PAPER_REGIONS = 8
+PAPER_SETTINGS = PlanSettings(
+    theta_c_deg=5.0, min_samples=50, sphere_scale=2.0, views_deg=[0.0], spacing_deg=0.5
+)
+
+
+def paper_41_object(
+    mesh: ColouredMesh, rig: Rig, *, up: str = "z", scale: float = 1.0, k: int = PAPER_REGIONS
+) -> ColouredMesh:
+    """The paper's 4.1 set-up: the placed mesh painted in ``k`` patches that all face the camera at
+    turntable 0° (clustered among the visible vertices), like the paper's 8 regions in view."""
+    placed = mesh.transformed(placement(mesh, up=up, scale=scale))
+    bare = ColouredMesh(placed.vertices, placed.faces)
+    seen = visible_vertices(RayCaster(bare), rig.camera, max_view_angle_deg=PAPER_SETTINGS.max_view_angle_deg)
+    return paint_patches(bare, k, among=seen).mesh
+
+
+def subdivided(mesh: ColouredMesh, min_vertices: int) -> ColouredMesh:
+    v, f = mesh.vertices, mesh.faces
+    while len(v) < min_vertices:
+        v, f = trimesh.remesh.subdivide(v, f)
+    return ColouredMesh(v, f)
+
+
+@dataclass
+class PlanFigures:
+    case: str
+    vertices: int
+    regions: int
+    lights: int
+    lights_plain: int
+    uncovered: int
+    plan_s: float
+    stages: dict[str, float]
+    rss_before_mb: float
+    rss_peak_plan_mb: float
+
+
+class _PeakRss:
+    """Samples this process's resident memory every few ms while active (the kernel's high-water mark
+    cannot be reset, and the set-up before planning may be larger than planning itself)."""
+
+    def __init__(self, period_s: float = 0.005):
+        self.period, self.peak, self._stop = period_s, 0, threading.Event()
+        self._page = os.sysconf("SC_PAGE_SIZE")
+
+    def _rss(self) -> int:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * self._page
+
+    def __enter__(self):
+        self.peak = self._rss()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self):
+        while not self._stop.wait(self.period):
+            self.peak = max(self.peak, self._rss())
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        self.peak = max(self.peak, self._rss())
+
+
+def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vertices: int) -> PlanFigures:
+    rig = sim_rig()
+    base = load_mesh(mesh_path) if mesh_path else pebble().mesh
+    if min_vertices:
+        base = subdivided(base, min_vertices)
+    painted = paper_41_object(base, rig, up=up, scale=scale)
+    seg = segment(painted)
+    rss = _PeakRss()
+    before = rss._rss()
+    with rss:
+        t = time.perf_counter()
+        result = plan_lights(painted, seg, rig, PAPER_SETTINGS)
+        elapsed = time.perf_counter() - t
+    return PlanFigures(
+        case,
+        len(painted.vertices),
+        seg.n_regions,
+        len(result.lights),
+        result.lights_by_criterion.get("plain", -1),
+        len(result.uncovered),
+        elapsed,
+        result.seconds,
+        before / 2**20,
+        rss.peak / 2**20,
+    )
+
+
+def in_fresh_process(fn, *args):
+    """Run ``fn(*args)`` in a fresh process (spawned: no memory inherited from this one)."""
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(1) as pool:
+        return pool.apply(fn, args)
+
+
+def run_plan_case(*args) -> PlanFigures:
+    return in_fresh_process(_plan_case, *args)
+
+
+FIT_NOISE_DN = (0.5, 1.0, 2.0, 4.0)
+FIT_EXPONENTS = (5.0, 20.0, 59.0, 200.0, 500.0)
+FIT_PIXELS = 40_000
+
+
+@dataclass
+class FitErrors:
+    noise_dn: float
+    n: float
+    method: str
+    rd_err: float  # max relative error over the channels
+    rs_err: float
+    n_err: float
+    theta_c_deg: float
+    seconds: float
+    failure: str = ""
+
+
+def fit_error_grid(
+    noise_levels=FIT_NOISE_DN, exponents=FIT_EXPONENTS, pixels: int = FIT_PIXELS
+) -> list[FitErrors]:
+    """Both estimators, θc chosen automatically, on the paper's 4.2 set-up (cylinder, directional light,
+    8-bit) with the paper's Rd and Rs and each exponent n, at each read-noise level."""
+    rows = []
+    for noise in noise_levels:
+        for n in exponents:
+            truth = Truth(PAPER_42.rd, PAPER_42.rs, n)
+            region = synthetic_region(
+                truth, pixels=pixels, bits=8, read_noise_dn=noise, seed=int(n * 10 + noise * 100)
+            )
+            for method in ESTIMATORS:
+                t = time.perf_counter()
+                try:
+                    f = fit_region(
+                        region.intensity,
+                        region.irradiance,
+                        region.cos_alpha,
+                        region.cos_beta,
+                        theta_c_deg="auto",
+                        method=method,
+                    )
+                except HlrLabError as exc:
+                    rows.append(FitErrors(noise, n, method, np.nan, np.nan, np.nan, np.nan, 0.0, str(exc)))
+                    continue
+                rows.append(
+                    FitErrors(
+                        noise,
+                        n,
+                        method,
+                        _rel(f.rd, truth.rd),
+                        _rel(f.rs, truth.rs),
+                        _rel(f.n, n),
+                        f.theta_c_deg,
+                        time.perf_counter() - t,
+                    )
+                )
+    return rows
+
+
+def _rel(a, b) -> float:
+    return float(np.max(np.abs(np.asarray(a) / np.asarray(b) - 1)))
+
+
+@dataclass
+class Throughput:
+    samples: int
+    seconds: float
+    inputs_bytes: int
+    peak_extra_bytes: int  # resident memory the fit added on top of its inputs, at its peak
+
+    @property
+    def per_second(self) -> float:
+        return self.samples / self.seconds
+
+    @property
+    def bytes_per_sample(self) -> float:
+        return (self.inputs_bytes + self.peak_extra_bytes) / self.samples
+
+
+def _throughput_case(samples: int, method: str) -> Throughput:
+    truth = Truth(np.array([0.6, 0.3, 0.2]), np.array([0.3, 0.3, 0.35]), 80.0)
+    r = synthetic_region(
+        truth,
+        shape="sphere",
+        light="point",
+        pixels=samples,
+        bits=12,
+        read_noise_dn=2.0,
+        electrons_per_dn=4.0,
+        full_scale=1.6,
+        seed=3,
+    )
+    inputs = sum(a.nbytes for a in (r.intensity, r.irradiance, r.cos_alpha, r.cos_beta))
+    gc.collect()
+    rss = _PeakRss()
+    before = rss._rss()
+    with rss:
+        t = time.perf_counter()
+        fit_region(r.intensity, r.irradiance, r.cos_alpha, r.cos_beta, theta_c_deg=20.0, method=method)
+        elapsed = time.perf_counter() - t
+    return Throughput(samples, elapsed, inputs, rss.peak - before)
+
+
+def run_throughput_case(samples: int, method: EstimatorName = DEFAULT_ESTIMATOR) -> Throughput:
+    return in_fresh_process(_throughput_case, samples, method)
+
+
+def mesh_label(mesh_path: str | None) -> str:
+    return Path(mesh_path).stem if mesh_path else "builtin:pebble"
+
+
+def nearest_neighbour_spacing_deg(directions: np.ndarray) -> float:
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(directions).query(directions, k=2)
+    return float(np.degrees(2 * np.arcsin(d[:, 1].max() / 2)))
+
+
+@dataclass
+class SessionFitFigures:
+    views: int
+    pixels_per_frame: int
+    regions_measured: int
+    seconds: float
+    stages: dict[str, float]
+    peak_rss_mb: float
+
+
+def _session_fit_case(session: str) -> SessionFitFigures:
+    from hlr_lab.reflectance.session_fit import fit_session, open_session
+
+    s = open_session(Path(session))
+    rss = _PeakRss()
+    with rss:
+        t = time.perf_counter()
+        result = fit_session(s)
+        elapsed = time.perf_counter() - t
+    return SessionFitFigures(
+        len(s.views),
+        s.rig.camera.width * s.rig.camera.height,
+        len(result.fits),
+        elapsed,
+        result.seconds,
+        rss.peak / 2**20,
+    )
+
+
+def run_session_fit_case(session: Path) -> SessionFitFigures:
+    """``hlr-lab fit``'s work on ``session`` in a fresh process: time, per-stage time, peak memory."""
+    return in_fresh_process(_session_fit_case, str(session))

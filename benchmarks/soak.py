@@ -1,0 +1,225 @@
+"""``hlr-lab bench soak``: a long acquisition under abuse, as a night on a bad bench would be.
+
+The simulated rig runs in this process; ``hlr-lab acquire --rig`` runs as a child process against its
+endpoints, exactly as against a real rig. While it runs, a fault thread injects faults of every kind
+the simulator has: dropped and corrupted servo replies, unanswered and disconnected Modbus exchanges,
+frames cut short, an axis knocked off during an exposure (each of these is retried or retaken and the
+run goes on), Modbus device failures and servo overloads (these stop the run; the overload is cleared
+as an operator would, by rebooting the servo). At random moments the child is killed with SIGKILL. After
+every end the same command is run again, until the plan is complete.
+
+Then the session is checked: every planned frame journaled exactly once and intact, no goal outside
+the rig's limits ever reached the simulated devices, and the memory and descriptors of the longest
+child and of this process did not grow.
+
+Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from benchmarks.acquire import builtin_plan, repeated_poses
+from hlr_lab.errors import HlrLabError
+from hlr_lab.formats.plan import write_plan
+from hlr_lab.rig.file import Rig, sim_rig
+from hlr_lab.session.frames import frame_problem
+from hlr_lab.session.journal import JOURNAL, read_journal
+from sim.dynamixel.servo import OVERLOAD
+from sim.rig import SimRig
+from worlds.plan_world import rig_file_text, sim_scene, world_geometry
+
+# fault → relative frequency; the last two stop the run
+FAULTS = {
+    "servo reply dropped": 5,
+    "servo reply corrupted": 5,
+    "Modbus reply dropped": 5,
+    "Modbus link dropped": 3,
+    "camera frame cut short": 3,
+    "axis knocked off during an exposure": 2,
+    "Modbus device failure": 0.2,  # rarer: each ends a run, and long runs are what show a leak
+    "servo overload": 0.1,
+}
+
+
+@dataclass
+class Sample:
+    """One reading of a process: seconds since it started, resident memory (MB), open descriptors."""
+
+    t: float
+    rss_mb: float
+    fds: int
+
+
+@dataclass
+class SoakFigures:
+    poses: int
+    frames_planned: int
+    frames_journaled: int
+    duplicates: int
+    damaged: int
+    goals_outside: int
+    faults: Counter = field(default_factory=Counter)
+    ends: Counter = field(default_factory=Counter)  # how each child ended: complete, killed, stopped
+    retries_journaled: int = 0
+    seconds: float = 0.0
+    longest_child: list[Sample] = field(default_factory=list)
+    world: list[Sample] = field(default_factory=list)
+
+
+def soak(*, poses: int, kills: int, fault_interval_s: float, speed_factor: float, seed: int) -> SoakFigures:
+    """Run the soak (see the module's docstring) in a scratch directory; returns its figures."""
+    rng = random.Random(seed)
+    rig = sim_rig()
+    with tempfile.TemporaryDirectory(prefix="hlr-soak-") as scratch:
+        plan = repeated_poses(builtin_plan(rig), poses)
+        plan_path = Path(scratch) / "plan.json"
+        write_plan(plan_path, plan)
+        scene = sim_scene(plan, plan_path, None)
+        started = time.monotonic()
+        with SimRig(scene=scene, speed_factor=speed_factor, spp=1, **world_geometry(rig)) as world:
+            e = world.endpoints
+            rig_path = Path(scratch) / "rig.toml"
+            rig_path.write_text(rig_file_text(e.dynamixel, e.modbus, e.camera))
+            session = Path(scratch) / "session"
+            command = [sys.executable, "-m", "hlr_lab.cli.main", "acquire", "--plan", str(plan_path),
+                       "--rig", str(rig_path), "--out", str(session)]  # fmt: skip
+            frames_planned = sum(len(p.exposures_s) for p in plan.poses)
+            kill_at = sorted(rng.sample(range(3, frames_planned - 3), kills))
+            figures = SoakFigures(poses, frames_planned, 0, 0, 0, 0)
+            figures.world.append(_sample(os.getpid(), started))
+            while True:
+                world.bus.servo(1).reboot() if world.bus.servo(1).get("hardware_error_status") else None
+                world.bus.servo(2).reboot() if world.bus.servo(2).get("hardware_error_status") else None
+                end, samples = _run_child(command, session, world, rng, kill_at, fault_interval_s, figures)
+                figures.ends[end] += 1
+                if len(samples) > len(figures.longest_child):
+                    figures.longest_child = samples
+                figures.world.append(_sample(os.getpid(), started))
+                if end == "complete":
+                    break
+                if sum(figures.ends.values()) > kills + 20 * poses:
+                    raise HlrLabError(f"soak: the runs do not complete the plan: {dict(figures.ends)}")
+            figures.seconds = time.monotonic() - started
+            _check(figures, session, plan, rig, world)
+    return figures
+
+
+def _run_child(command, session, world, rng, kill_at, interval_s, figures) -> tuple[str, list[Sample]]:
+    """One ``hlr-lab acquire`` until it ends (complete, stopped by a fault) or is killed; faults are
+    injected meanwhile. Returns how it ended and the samples of its memory and descriptors."""
+    # stderr to a file: a pipe read only at the end fills up (the motion table alone is large) and blocks
+    with tempfile.TemporaryFile("w+") as err_file:
+        child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err_file, text=True)
+        started, samples, stop = time.monotonic(), [], threading.Event()
+        injector = threading.Thread(
+            target=_inject, args=(world, rng, interval_s, figures.faults, stop), daemon=True
+        )
+        injector.start()
+        killed = False
+        try:
+            while child.poll() is None:
+                with contextlib.suppress(OSError):  # it may end between the poll and the reading
+                    samples.append(_sample(child.pid, started))
+                frames = sum(e["event"] == "frame" for e in read_journal(session / JOURNAL))
+                if kill_at and frames >= kill_at[0]:
+                    kill_at.pop(0)
+                    child.send_signal(signal.SIGKILL)
+                    killed = True
+                    break
+                time.sleep(0.25)
+            status = child.wait(timeout=300)
+        finally:
+            stop.set()
+            injector.join()
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+        err_file.seek(0)
+        err = err_file.read()
+    if killed:
+        return "killed", samples
+    last = err.strip().splitlines()[-1] if err.strip() else "(nothing on stderr)"
+    unsafe = _unsafe(world)
+    if unsafe:  # what the devices themselves say, whatever the run said
+        raise HlrLabError(f"soak: after acquire ended ({status}: {last}) the rig is not safe: {unsafe}")
+    if status == 0:
+        return "complete", samples
+    if status != 1 or "the rig is safe" not in last:
+        raise HlrLabError(f"soak: acquire ended with status {status} and the rig not confirmed safe: {last}")
+    return "stopped by a fault", samples
+
+
+def _unsafe(world: SimRig) -> str:
+    """What of the simulated rig is not in the safe state (lamp off, torque off, turntable still)."""
+    found = ["the lamp is on"] if world.turntable.stage.lamp else []
+    found += [f"servo {s.id} has torque on" for s in world.bus.servos if s.get("torque_enable")]
+    found += ["the turntable moves"] if world.turntable.stage.moving() else []
+    return ", ".join(found)
+
+
+def _inject(world: SimRig, rng: random.Random, interval_s: float, counts: Counter, stop: threading.Event):
+    names, weights = list(FAULTS), list(FAULTS.values())
+    while not stop.wait(rng.uniform(0.5, 1.5) * interval_s):
+        fault = rng.choices(names, weights)[0]
+        servo = rng.choice(world.endpoints.servo_ids)
+        if fault == "servo reply dropped":
+            world.bus.fault(servo).drop_replies += 1
+        elif fault == "servo reply corrupted":
+            world.bus.fault(servo).corrupt_replies += 1
+        elif fault == "Modbus reply dropped":
+            world.turntable.faults.no_reply += 1
+        elif fault == "Modbus link dropped":
+            world.turntable.disconnect_clients()
+        elif fault == "camera frame cut short":
+            world.camera_server.cut_replies += 1
+        elif fault == "axis knocked off during an exposure":
+            world.bus.servo(servo).slip(rng.choice((-40, 40)), hold_s=0.1 * world.bus.speed_factor)
+        elif fault == "Modbus device failure":
+            world.turntable.faults.exception += 1
+        elif fault == "servo overload":
+            world.bus.servo(servo).hardware_fault(OVERLOAD)
+        counts[fault] += 1
+
+
+def _check(figures: SoakFigures, session: Path, plan, rig: Rig, world: SimRig) -> None:
+    events = read_journal(session / JOURNAL)
+    frames = [e for e in events if e["event"] == "frame" and not e["dark"]]
+    keys = Counter((e["pose"], e["exposure_index"]) for e in frames)
+    planned = {(p.id, k) for p in plan.poses for k in range(len(p.exposures_s))}
+    figures.frames_journaled = sum(keys[k] > 0 for k in planned)
+    figures.duplicates = sum(n - 1 for n in keys.values() if n > 1)
+    figures.damaged = sum(frame_problem(session, e) is not None for e in frames)
+    figures.retries_journaled = sum(e["event"] == "retry" for e in events)
+    limits = dict(zip(rig.gantry.servo_ids, rig.gantry.servo_limits, strict=True))
+    steps = sorted(rig.turntable_kinematics.steps_for(d) for d in rig.turntable_limits_deg)
+    figures.goals_outside = sum(
+        not limits[g.servo_id][0] <= g.goal <= limits[g.servo_id][1] for g in world.bus.goals
+    )
+    figures.goals_outside += sum(not steps[0] <= m <= steps[1] for m in world.turntable.stage.moves)
+
+
+def leak_window(samples: list[Sample]) -> tuple[Sample, Sample]:
+    """Two readings of a run to compare for a leak: at 20 % of its life (past start-up: imports,
+    connecting, the first frames) and at 90 % (before it closes its files on the way out)."""
+    return samples[len(samples) // 5], samples[(9 * len(samples)) // 10]
+
+
+def _sample(pid: int, since: float) -> Sample:
+    """Raises OSError when the process has gone (a zombie has no memory left to report)."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    rss_kb = [int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:")]
+    if not rss_kb:
+        raise ProcessLookupError(pid)
+    return Sample(time.monotonic() - since, rss_kb[0] / 1024, len(os.listdir(f"/proc/{pid}/fd")))

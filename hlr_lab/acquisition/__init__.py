@@ -1,0 +1,1 @@
+"""Acquisition: the pose loop, a run with its session, the white reference beside the object."""

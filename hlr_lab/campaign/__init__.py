@@ -1,0 +1,1 @@
+"""Unattended campaigns: a night of acquire and calibrate jobs (docs/campaigns.md)."""

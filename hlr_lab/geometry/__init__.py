@@ -1,0 +1,1 @@
+"""Numerical geometry: the camera model, the light sphere, silhouettes, colour spaces, clipping."""

@@ -1,0 +1,47 @@
+"""Points and angles on the light sphere S.
+
+Directions are unit vectors (…, 3); the gantry convention of docs/conventions.md:
+``d = (cos el cos az, cos el sin az, sin el)``, angles in radians here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+# A Fibonacci lattice is close to hexagonal: N points have nearest-neighbour spacing ≈ sqrt(4π/N · 2/√3)
+# at most; 8 % headroom keeps the measured maximum spacing under the request (tests check it).
+_HEX_AREA = np.sqrt(3.0) / 2.0
+_SPACING_MARGIN = 1.08
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread uniformly over the sphere (equal area per point)."""
+    i = np.arange(n, dtype=np.float64) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(1.0 - z * z)
+    phi = _GOLDEN_ANGLE * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def directions_with_spacing(spacing_deg: float) -> np.ndarray:
+    """Uniform unit vectors whose nearest-neighbour spacing is at most ``spacing_deg``."""
+    s = np.radians(spacing_deg) / _SPACING_MARGIN
+    return fibonacci_directions(int(np.ceil(4.0 * np.pi / (_HEX_AREA * s * s))))
+
+
+def direction(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    """Radians → (…, 3) unit vectors."""
+    ce = np.cos(elevation)
+    return np.stack([ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)], axis=-1)
+
+
+def azimuth_elevation(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(…, 3) unit vectors → azimuth in (−π, π] and elevation in [−π/2, π/2], radians."""
+    return np.arctan2(d[..., 1], d[..., 0]), np.arcsin(np.clip(d[..., 2], -1.0, 1.0))
+
+
+def rotation_z(angle: float) -> np.ndarray:
+    """4×4 rotation about +z by ``angle`` radians (the turntable)."""
+    return trimesh.transformations.rotation_matrix(angle, [0.0, 0.0, 1.0])

@@ -1,0 +1,354 @@
+"""Meshes with surface colour: loading (OBJ, PLY, glTF), validation and derived geometry.
+
+A :class:`ColouredMesh` is welded (one vertex per position), so adjacency and normals run across
+UV seams; texture coordinates are kept per face corner. Colour is either per vertex (8-bit sRGB)
+or a texture sampled at the corner UVs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+from PIL import Image
+
+from hlr_lab.errors import InputError
+from hlr_lab.files import atomic_write_bytes
+
+CREASE_DEG = 60.0  # faces meeting at a sharper angle than this do not share a shading normal
+
+# trimesh gives an OBJ that has UVs but no material a 2×2 grey placeholder image; anything this
+# small is not a real texture.
+_PLACEHOLDER_TEXELS = 4
+
+
+@dataclass(frozen=True, eq=False)
+class ColouredMesh:
+    """A triangle mesh in its own frame (metres) with surface colour.
+
+    vertices       (V, 3) float64
+    faces          (F, 3) int64, indices into ``vertices``
+    vertex_colours (V, 3) uint8 sRGB, or None
+    corner_uv      (F, 3, 2) float64 texture coordinates per face corner, or None
+    texture        (H, W, 3) uint8 sRGB (row 0 is the top of the image), or None
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    vertex_colours: np.ndarray | None = None
+    corner_uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
+    source: Path | None = None
+    sha256: str | None = None
+    texture_source: Path | None = field(default=None)
+
+    @property
+    def has_colour(self) -> bool:
+        return self.vertex_colours is not None or (self.corner_uv is not None and self.texture is not None)
+
+    @cached_property
+    def trimesh(self) -> trimesh.Trimesh:
+        return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) unit normals (counter-clockwise winding faces outward)."""
+        return np.asarray(self.trimesh.face_normals)
+
+    @cached_property
+    def vertex_normals(self) -> np.ndarray:
+        """(V, 3) unit normals, area-weighted mean of the adjacent faces' normals."""
+        cross = np.cross(
+            self.vertices[self.faces[:, 1]] - self.vertices[self.faces[:, 0]],
+            self.vertices[self.faces[:, 2]] - self.vertices[self.faces[:, 0]],
+        )  # |cross| = 2 × area, so summing it weights by area
+        acc = np.zeros_like(self.vertices)
+        for corner in range(3):
+            np.add.at(acc, self.faces[:, corner], cross)
+        norm = np.linalg.norm(acc, axis=1, keepdims=True)
+        return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
+
+    @cached_property
+    def corner_normals(self) -> np.ndarray:
+        """(F, 3, 3) the shading normal at each face corner: the area-weighted mean over the faces around
+        the vertex that meet this face at less than ``CREASE_DEG``. Smooth across gentle bends, sharp
+        across creases (a cylinder's rim, a box's edge), where one welded vertex normal would tilt the
+        whole of the adjoining faces. Only vertices with a face more than half the crease angle off their
+        smooth normal are worked out pair by pair; everywhere else this is ``vertex_normals``.
+        """
+        out = self.vertex_normals[self.faces].copy()
+        fn = self.face_normals
+        cos_off = np.einsum("fk,fck->fc", fn, out)  # (F, 3) each face against its corners' smooth normals
+        worst = np.ones(len(self.vertices))
+        np.minimum.at(worst, self.faces.ravel(), cos_off.ravel())
+        crease_vertex = worst < np.cos(np.radians(CREASE_DEG / 2))
+        corner_f, corner_c = np.nonzero(crease_vertex[self.faces])  # the corners to work out
+        if len(corner_f) == 0:
+            return out
+        # pairs (corner, face around the corner's vertex) through the vertex → face incidence
+        incidence = sp.csr_matrix(
+            (np.ones(self.faces.size, bool), (self.faces.ravel(), np.repeat(np.arange(len(self.faces)), 3))),
+            shape=(len(self.vertices), len(self.faces)),
+        )
+        v = self.faces[corner_f, corner_c]
+        counts = np.diff(incidence.indptr)[v]  # faces around each corner's vertex
+        pair_corner = np.repeat(np.arange(len(v)), counts)
+        rank = np.arange(len(pair_corner)) - np.repeat(
+            np.cumsum(counts) - counts, counts
+        )  # 0, 1, … per corner
+        pair_face = incidence.indices[np.repeat(incidence.indptr[v], counts) + rank]
+        near = np.einsum("pk,pk->p", fn[corner_f[pair_corner]], fn[pair_face]) >= np.cos(
+            np.radians(CREASE_DEG)
+        )
+        weighted = fn[pair_face] * (2 * self.face_areas[pair_face] * near)[:, None]
+        acc = np.zeros((len(v), 3))
+        np.add.at(acc, pair_corner, weighted)
+        norm = np.linalg.norm(acc, axis=1, keepdims=True)
+        out[corner_f, corner_c] = np.divide(acc, norm, out=fn[corner_f].copy(), where=norm > 0)
+        return out
+
+    @cached_property
+    def face_areas(self) -> np.ndarray:
+        """(F,) triangle areas, m²."""
+        return np.asarray(self.trimesh.area_faces)
+
+    @cached_property
+    def vertex_areas(self) -> np.ndarray:
+        """(V,) a third of the adjacent faces' area: the surface each vertex stands for."""
+        return np.bincount(
+            self.faces.ravel(), weights=np.repeat(self.face_areas / 3.0, 3), minlength=len(self.vertices)
+        )
+
+    @cached_property
+    def vertex_adjacency(self) -> sp.csr_matrix:
+        """(V, V) symmetric boolean adjacency along mesh edges."""
+        e = self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        n = len(self.vertices)
+        a = sp.coo_matrix((np.ones(len(e), bool), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+        return (a + a.T).astype(bool).tocsr()
+
+    @cached_property
+    def face_adjacency(self) -> sp.csr_matrix:
+        """(F, F) symmetric boolean adjacency of faces sharing an edge."""
+        pairs = np.asarray(self.trimesh.face_adjacency)
+        n = len(self.faces)
+        a = sp.coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+        return (a + a.T).astype(bool).tocsr()
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """Centre (3,) and radius of the sphere about the bounding-box centre enclosing every vertex."""
+        centre = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
+        return centre, float(np.linalg.norm(self.vertices - centre, axis=1).max())
+
+    def transformed(self, matrix: np.ndarray) -> ColouredMesh:
+        """The same mesh with a rigid/similarity 4×4 ``matrix`` applied to its vertices."""
+        v = self.vertices @ matrix[:3, :3].T + matrix[:3, 3]
+        faces = self.faces if np.linalg.det(matrix[:3, :3]) > 0 else self.faces[:, ::-1]
+        uv = (
+            None
+            if self.corner_uv is None
+            else (self.corner_uv if faces is self.faces else self.corner_uv[:, ::-1])
+        )
+        return ColouredMesh(
+            v, faces, self.vertex_colours, uv, self.texture, self.source, self.sha256, self.texture_source
+        )
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def arrays_sha256(*arrays: np.ndarray | None) -> str:
+    """Identity of a mesh that has no file (built-in objects): sha256 over its arrays' bytes."""
+    h = hashlib.sha256()
+    for a in arrays:
+        if a is not None:
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def load_mesh(
+    path: str | Path, texture: str | Path | None = None, *, need_colour: bool = False
+) -> ColouredMesh:
+    """Read an OBJ, PLY or glTF/GLB mesh with vertex colours or a UV texture.
+
+    ``texture`` supplies the image for an OBJ that has UVs but does not reference one.
+    Raises :class:`InputError` naming the file for a missing/unreadable file, no faces, non-finite
+    vertices, or (with ``need_colour``) no colour.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such mesh file; check the path", path=path)
+    try:
+        loaded = trimesh.load(path, process=False, force="mesh")
+    except Exception as exc:  # trimesh raises many types for malformed files
+        if path.suffix.lower() in (".obj", ".gltf"):  # a text format: trimesh guesses a non-UTF-8 file's
+            _check_utf8(path)  # encoding with a package it may lack, and says only that
+        if isinstance(exc, IndexError):  # trimesh's words for a face naming a vertex the file lacks
+            raise InputError(
+                f"a face refers to a vertex the file does not have ({exc}); repair the mesh", path=path
+            ) from exc
+        raise InputError(
+            f"cannot read the mesh ({type(exc).__name__}: {exc}); give an OBJ, PLY, glTF or GLB file",
+            path=path,
+        ) from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise InputError(
+            "the mesh has no faces; hlr-lab needs a triangle mesh (a point cloud will not do)", path=path
+        )
+    vertices = np.asarray(loaded.vertices, dtype=np.float64)
+    faces = np.asarray(loaded.faces, dtype=np.int64)
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
+        raise InputError(f"{bad} vertices have NaN or infinite coordinates; repair the mesh", path=path)
+    outside = (faces < 0) | (faces >= len(vertices))
+    if outside.any():  # trimesh reads a PLY's faces as written, without checking them
+        face, corner = np.argwhere(outside)[0]
+        raise InputError(
+            f"face {face} refers to vertex {faces[face, corner]}, but the file has {len(vertices)} "
+            f"(0…{len(vertices) - 1}); repair the mesh",
+            path=path,
+        )
+
+    vertex_colours, corner_uv, image = _colour_of(loaded, faces)
+    texture_source = None
+    if texture is not None:
+        texture_source = Path(texture)
+        image = _read_texture(texture_source)
+        if corner_uv is None:
+            raise InputError("a texture was given but the mesh has no texture coordinates (UVs)", path=path)
+    if image is None:
+        corner_uv = None
+
+    first, inverse = _weld(vertices)
+    vertices, faces = vertices[first], inverse[faces]
+    if vertex_colours is not None:
+        vertex_colours = vertex_colours[first]
+    degenerate = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    faces, corner_uv = faces[~degenerate], None if corner_uv is None else corner_uv[~degenerate]
+    if len(faces) == 0:
+        raise InputError("every face of the mesh is degenerate (zero area)", path=path)
+    mesh = ColouredMesh(
+        vertices, faces, vertex_colours, corner_uv, image, path, file_sha256(path), texture_source
+    )
+    if need_colour and not mesh.has_colour:
+        raise InputError(
+            "the mesh has no colour (neither vertex colours nor a texture); give a coloured "
+            "mesh or --texture PNG for an OBJ with UVs",
+            path=path,
+        )
+    return mesh
+
+
+def write_vertex_coloured_ply(path: str | Path, mesh: ColouredMesh) -> None:
+    """Write ``mesh`` with its vertex colours as a binary PLY (in one piece: a crash leaves no half file)."""
+    if mesh.vertex_colours is None:
+        raise ValueError("the mesh has no vertex colours to write")
+    rgba = np.hstack([mesh.vertex_colours[:, :3], np.full((len(mesh.vertices), 1), 255, np.uint8)])
+    data = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=rgba, process=False).export(
+        file_type="ply"
+    )
+    atomic_write_bytes(path, data)
+
+
+def _check_utf8(path: Path) -> None:
+    """Refuse a text mesh file that is not UTF-8 text, saying where it stops being text (called once
+    trimesh has failed on it: the good path reads the file once)."""
+    try:
+        path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(
+            f"not a text {path.suffix[1:].upper()} file (byte {exc.object[exc.start]:#04x} at offset {exc.start} "
+            "is not UTF-8 text): give an OBJ, PLY, glTF or GLB file",
+            path=path,
+        ) from exc
+
+
+def _colour_of(loaded: trimesh.Trimesh, faces: np.ndarray):
+    visual = loaded.visual
+    kind = getattr(visual, "kind", None)
+    if kind == "vertex":
+        return np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8), None, None
+    if kind == "face":
+        # per-face colour becomes per-vertex colour, the largest adjacent face winning a shared vertex
+        fc = np.asarray(visual.face_colors)[:, :3].astype(np.uint8)
+        vc = np.zeros((len(loaded.vertices), 3), np.uint8)
+        order = np.argsort(np.asarray(loaded.area_faces))
+        for corner in range(3):
+            vc[faces[order, corner]] = fc[order]
+        return vc, None, None
+    if kind == "texture" and getattr(visual, "uv", None) is not None:
+        uv = np.asarray(visual.uv, dtype=np.float64)
+        image = _material_image(visual.material)
+        return None, uv[faces], image
+    return None, None, None
+
+
+def _material_image(material) -> np.ndarray | None:
+    image = getattr(material, "image", None)
+    if image is None:
+        image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        return None
+    arr = np.asarray(image.convert("RGB"))
+    if min(arr.shape[:2]) < _PLACEHOLDER_TEXELS:
+        return None
+    return arr
+
+
+def _read_texture(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise InputError("no such texture file; check the path", path=path)
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except Exception as exc:
+        raise InputError(f"cannot read the texture image ({exc}); give a PNG or JPEG", path=path) from exc
+
+
+def _weld(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices at the same position (UV seams split them).
+
+    Returns ``first`` (U,), the index of each kept vertex, and ``inverse`` (V,), old → new index.
+    """
+    scale = max(float(np.ptp(vertices, axis=0).max()), 1e-12)
+    keys = np.round(vertices / (scale * 1e-9)).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.ravel()
+
+
+# barycentric sample points per face of a textured mesh: centroid plus six around it
+FACE_SAMPLES = (
+    np.array(
+        [
+            [1 / 3, 1 / 3, 1 / 3],
+            [2 / 3, 1 / 6, 1 / 6],
+            [1 / 6, 2 / 3, 1 / 6],
+            [1 / 6, 1 / 6, 2 / 3],
+            [1 / 2, 1 / 2, 0.0],
+            [0.0, 1 / 2, 1 / 2],
+            [1 / 2, 0.0, 1 / 2],
+        ]
+    )
+    * 0.9
+    + 0.1 / 3
+)  # pulled 10 % toward the centroid so edge samples are not shared by two faces
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Nearest-texel lookup: ``uv`` (..., 2) in [0, 1] (v up, wrapped) → sRGB (..., 3) uint8."""
+    h, w = texture.shape[:2]
+    u = np.mod(uv[..., 0], 1.0)
+    v = np.mod(uv[..., 1], 1.0)
+    col = np.minimum((u * w).astype(np.int64), w - 1)
+    row = np.minimum(((1.0 - v) * h).astype(np.int64), h - 1)
+    return texture[row, col]

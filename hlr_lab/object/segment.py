@@ -1,0 +1,324 @@
+"""Colour regions (paper §3.1): parts of the surface with the same colour share one reflectance.
+
+Pipeline, each step a pure function:
+1. colour samples on a graph: vertex colours on the vertex graph, or texture samples on the face graph;
+2. cluster the sample colours in CIELAB into materials: the count comes from a ΔE threshold (or is given);
+3. merge tiny connected fragments (anti-aliased borders, speckles) into the neighbour they share most edges with;
+4. regions = materials, or (``split_connected``) each connected patch of a material;
+5. per-vertex and per-face labels plus a summary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from hlr_lab.errors import InputError
+from hlr_lab.geometry.colour import linear_to_srgb8, srgb8_to_lab, srgb8_to_linear
+from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, sample_texture
+
+DEFAULT_DELTA_E = 10.0
+DEFAULT_MIN_FRAGMENT = 0.001  # fraction of the total surface area
+_LAB_BIN = 0.5  # ΔE; colours closer than this are one bin before clustering (speed only)
+_KMEANS_ITERATIONS = 20
+
+
+@dataclass(frozen=True)
+class Region:
+    id: int
+    material: int
+    colour: tuple[int, int, int]  # mean surface colour, 8-bit sRGB
+    vertices: int
+    faces: int
+    area_m2: float
+
+
+@dataclass(frozen=True, eq=False)
+class Segmentation:
+    """vertex_labels (V,) and face_labels (F,) hold region ids; ``regions`` is sorted by id."""
+
+    vertex_labels: np.ndarray
+    face_labels: np.ndarray
+    regions: list[Region]
+    delta_e: float
+    split_connected: bool
+    min_fragment: float
+
+    @property
+    def n_regions(self) -> int:
+        return len(self.regions)
+
+
+def segment(
+    mesh: ColouredMesh,
+    *,
+    delta_e: float = DEFAULT_DELTA_E,
+    n_materials: int | None = None,
+    split_connected: bool = False,
+    min_fragment: float = DEFAULT_MIN_FRAGMENT,
+) -> Segmentation:
+    """Split the surface of ``mesh`` into same-colour regions (ids ordered by area, largest first)."""
+    if not mesh.has_colour:
+        raise InputError(
+            "the mesh has no colour to segment; give vertex colours or --texture PNG", path=mesh.source
+        )
+    if n_materials is not None and n_materials < 1:
+        raise InputError(f"--regions must be at least 1, got {n_materials}", field="--regions")
+    on_faces = mesh.vertex_colours is None
+    if on_faces:
+        srgb = sample_texture(mesh.texture, np.einsum("sk,fkt->fst", FACE_SAMPLES, mesh.corner_uv))
+        samples = srgb.reshape(-1, 3)
+        sample_weight = np.repeat(mesh.face_areas / len(FACE_SAMPLES), len(FACE_SAMPLES))
+        node_weight, adjacency = mesh.face_areas, mesh.face_adjacency
+    else:
+        samples, sample_weight = mesh.vertex_colours, mesh.vertex_areas
+        node_weight, adjacency = mesh.vertex_areas, mesh.vertex_adjacency
+
+    sample_label = cluster_colours(
+        srgb8_to_lab(samples), sample_weight, delta_e=delta_e, n_clusters=n_materials
+    )
+    if on_faces:
+        node_label = weighted_mode(
+            sample_label.reshape(len(mesh.faces), -1),
+            np.broadcast_to(sample_weight.reshape(len(mesh.faces), -1), srgb.shape[:2]),
+        )
+    else:
+        node_label = sample_label
+    if n_materials is None:  # with a fixed count, every requested material stays
+        node_label = merge_fragments(node_label, adjacency, node_weight, min_fragment * node_weight.sum())
+    node_material = node_label
+    if split_connected:
+        node_label = _connected_patches(node_label, adjacency)
+
+    if on_faces:
+        face_labels = node_label
+        vertex_labels = _vertex_majority(mesh, face_labels)
+    else:
+        vertex_labels = node_label
+        face_labels = weighted_mode(vertex_labels[mesh.faces], mesh.vertex_areas[mesh.faces])
+
+    material = _material_of(node_label, node_material)
+    per_node = len(samples) // len(node_label)
+    sample_region = np.repeat(node_label, per_node)
+    # a region's colour is that of its material's samples: anti-aliased borders and the odd texel of
+    # another colour inside it (an eye's glint) would otherwise pull the mean toward other regions
+    own = sample_label == np.repeat(node_material, per_node)
+    return _summarise(
+        mesh,
+        vertex_labels,
+        face_labels,
+        node_label,
+        material,
+        sample_region[own],
+        srgb8_to_linear(samples[own]),
+        sample_weight[own],
+        delta_e,
+        split_connected,
+        min_fragment,
+    )
+
+
+def cluster_colours(
+    lab: np.ndarray, weight: np.ndarray, *, delta_e: float, n_clusters: int | None = None
+) -> np.ndarray:
+    """Cluster (N, 3) Lab colours with (N,) weights; returns (N,) cluster ids 0…K−1.
+
+    Automatic K: seed a centre at the heaviest colour not within ``delta_e`` of a centre, refine by
+    weighted k-means, then merge centres closer than ``delta_e``. Given K: weighted farthest-point
+    seeding then k-means. Deterministic.
+    """
+    keys = np.round(lab / _LAB_BIN).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    bin_lab = np.zeros((len(first), 3))
+    np.add.at(bin_lab, inverse, lab * weight[:, None])
+    bin_w = np.bincount(inverse, weights=weight, minlength=len(first))
+    bin_lab = np.where(bin_w[:, None] > 0, bin_lab / np.maximum(bin_w, 1e-300)[:, None], lab[first])
+    bin_w = np.maximum(bin_w, 1e-300)  # zero-area samples still get a label
+
+    if n_clusters is None:
+        centres = _leader_seeds(bin_lab, bin_w, delta_e)
+    else:
+        if n_clusters > len(bin_lab):
+            raise InputError(
+                f"--regions {n_clusters} asks for more regions than the mesh has distinct "
+                f"colours ({len(bin_lab)})",
+                field="--regions",
+            )
+        centres = _farthest_seeds(bin_lab, bin_w, n_clusters)
+    label, centres = _kmeans(bin_lab, bin_w, centres)
+    if n_clusters is None:
+        label = _merge_close(bin_lab, bin_w, label, centres, delta_e)
+    return _compact(label)[inverse]
+
+
+def _leader_seeds(lab: np.ndarray, w: np.ndarray, delta_e: float) -> np.ndarray:
+    order = np.argsort(-w, kind="stable")
+    lab = lab[order]
+    free = np.ones(len(lab), bool)
+    seeds = []
+    while free.any():
+        i = int(np.argmax(free))  # heaviest colour not yet near a centre
+        seeds.append(lab[i])
+        free &= np.linalg.norm(lab - lab[i], axis=1) > delta_e
+    return np.array(seeds)
+
+
+def _farthest_seeds(lab: np.ndarray, w: np.ndarray, k: int) -> np.ndarray:
+    seeds = [int(np.argmax(w))]
+    d2 = np.sum((lab - lab[seeds[0]]) ** 2, axis=1)
+    for _ in range(k - 1):
+        seeds.append(int(np.argmax(w * d2)))
+        d2 = np.minimum(d2, np.sum((lab - lab[seeds[-1]]) ** 2, axis=1))
+    return lab[seeds]
+
+
+def _kmeans(lab: np.ndarray, w: np.ndarray, centres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    label = np.zeros(len(lab), np.int64)
+    for _ in range(_KMEANS_ITERATIONS):
+        d2 = ((lab[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2)
+        new = np.argmin(d2, axis=1)
+        sums = np.zeros_like(centres)
+        np.add.at(sums, new, lab * w[:, None])
+        mass = np.bincount(new, weights=w, minlength=len(centres))
+        centres = np.where(mass[:, None] > 0, sums / np.maximum(mass, 1e-300)[:, None], centres)
+        if np.array_equal(new, label):
+            break
+        label = new
+    return label, centres
+
+
+def _merge_close(lab, w, label, centres, delta_e) -> np.ndarray:
+    """Merge clusters whose weighted centres are within ``delta_e`` (closest pair first)."""
+    while True:
+        ids = np.unique(label)
+        if len(ids) < 2:
+            return label
+        mass = np.bincount(label, weights=w)[ids]
+        c = np.stack([np.average(lab[label == i], axis=0, weights=w[label == i]) for i in ids])
+        d = np.linalg.norm(c[:, None] - c[None], axis=2)
+        np.fill_diagonal(d, np.inf)
+        a, b = np.unravel_index(np.argmin(d), d.shape)
+        if d[a, b] > delta_e:
+            return label
+        keep, drop = (ids[a], ids[b]) if mass[a] >= mass[b] else (ids[b], ids[a])
+        label = np.where(label == drop, keep, label)
+
+
+def _compact(label: np.ndarray) -> np.ndarray:
+    return np.unique(label, return_inverse=True)[1].ravel()
+
+
+def weighted_mode(labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Row-wise weighted mode of (N, k) integer labels with (N, k) weights → (N,)."""
+    n, k = labels.shape
+    return heaviest_label(np.repeat(np.arange(n), k), labels.ravel(), weights.ravel(), n)
+
+
+def heaviest_label(rows: np.ndarray, labels: np.ndarray, weights: np.ndarray, n_rows: int) -> np.ndarray:
+    """For votes (row, label, weight): per row, the label with the largest summed weight (ties: the
+    smaller label); −1 for rows without a vote. Vectorised (scipy's sparse argmax loops in Python)."""
+    n_labels = int(labels.max()) + 1 if len(labels) else 1
+    code, inv = np.unique(rows.astype(np.int64) * n_labels + labels, return_inverse=True)
+    total = np.bincount(inv.ravel(), weights=weights)
+    r, c = code // n_labels, code % n_labels
+    order = np.lexsort((c, -total, r))
+    first = order[np.r_[True, r[order][1:] != r[order][:-1]]]
+    out = np.full(n_rows, -1, dtype=np.int64)
+    out[r[first]] = c[first]
+    return out
+
+
+def merge_fragments(
+    label: np.ndarray, adjacency: sp.csr_matrix, weight: np.ndarray, min_weight: float
+) -> np.ndarray:
+    """Relabel connected same-label patches lighter than ``min_weight`` to the neighbouring label they
+    share most edges with; repeats until none is left (a patch with no neighbour stays)."""
+    label = label.copy()
+    a = adjacency.tocoo()
+    for _ in range(50):
+        comp = _components(label, a)
+        comp_w = np.bincount(comp, weights=weight)
+        small = comp_w < min_weight
+        cross = (label[a.row] != label[a.col]) & small[comp[a.row]] & ~small[comp[a.col]]
+        if not cross.any():
+            # small patches bordering only small patches: let the lightest join its neighbour
+            cross = (label[a.row] != label[a.col]) & small[comp[a.row]]
+            if not cross.any():
+                return label
+            lightest = np.argmin(np.where(small, comp_w, np.inf))
+            cross &= comp[a.row] == lightest
+        new_label_of_comp = heaviest_label(
+            comp[a.row[cross]], label[a.col[cross]], np.ones(cross.sum()), comp.max() + 1
+        )
+        moved = new_label_of_comp[comp]
+        label = np.where(moved >= 0, moved, label)
+    return label
+
+
+def _components(label: np.ndarray, a: sp.coo_matrix) -> np.ndarray:
+    same = label[a.row] == label[a.col]
+    g = sp.coo_matrix((np.ones(same.sum(), bool), (a.row[same], a.col[same])), shape=a.shape)
+    return connected_components(g, directed=False)[1]
+
+
+def _connected_patches(label: np.ndarray, adjacency: sp.csr_matrix) -> np.ndarray:
+    return _components(label, adjacency.tocoo())
+
+
+def _vertex_majority(mesh: ColouredMesh, face_labels: np.ndarray) -> np.ndarray:
+    """Each vertex takes the label covering most of its adjacent area."""
+    return heaviest_label(
+        mesh.faces.ravel(), np.repeat(face_labels, 3), np.repeat(mesh.face_areas, 3), len(mesh.vertices)
+    )
+
+
+def _material_of(node_label: np.ndarray, colour_label: np.ndarray) -> np.ndarray:
+    """Material (colour cluster) of each node label: the colour cluster most of its nodes carry."""
+    return heaviest_label(node_label, colour_label, np.ones(len(node_label)), int(node_label.max()) + 1)
+
+
+def _summarise(
+    mesh,
+    vertex_labels,
+    face_labels,
+    node_label,
+    material,
+    sample_region,
+    sample_linear,
+    sample_weight,
+    delta_e,
+    split_connected,
+    min_fragment,
+) -> Segmentation:
+    used = np.unique(np.concatenate([vertex_labels, face_labels]))
+    area = np.bincount(face_labels, weights=mesh.face_areas, minlength=used.max() + 1)
+    order = used[np.lexsort((used, -area[used]))]  # largest area first, ties by old id
+    new_id = np.full(used.max() + 1, -1)
+    new_id[order] = np.arange(len(order))
+    vertex_labels, face_labels = new_id[vertex_labels], new_id[face_labels]
+    sample_new = new_id[sample_region]
+
+    colour_sum = np.zeros((len(order), 3))
+    np.add.at(colour_sum, sample_new, sample_linear * sample_weight[:, None])
+    mass = np.bincount(sample_new, weights=sample_weight, minlength=len(order))
+    mean_colour = linear_to_srgb8(colour_sum / np.maximum(mass, 1e-300)[:, None])
+    n_vert = np.bincount(vertex_labels, minlength=len(order))
+    n_face = np.bincount(face_labels, minlength=len(order))
+    area_new = np.bincount(face_labels, weights=mesh.face_areas, minlength=len(order))
+    material_new = _compact(material[order])
+    regions = [
+        Region(
+            int(i),
+            int(material_new[i]),
+            tuple(int(c) for c in mean_colour[i]),
+            int(n_vert[i]),
+            int(n_face[i]),
+            float(area_new[i]),
+        )
+        for i in range(len(order))
+    ]
+    return Segmentation(vertex_labels, face_labels, regions, delta_e, split_connected, min_fragment)
