@@ -29,6 +29,16 @@ from hlr_lab.instrument.devices import Links
 from hlr_lab.rig.file import Rig
 
 DEFAULT = Settings()
+board_along_zero_option = click.option(
+    "--board-along-zero",
+    is_flag=True,
+    help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.",
+)
+
+
+def _count(name: str, lo: int, hi: int, default: int, help: str):
+    """A count option of a procedure (how many photographs, poses, positions, exposures)."""
+    return click.option(name, type=click.IntRange(lo, hi), default=default, show_default=True, help=help)
 
 
 def photograph_options(replaced: str):
@@ -140,18 +150,14 @@ def calibrate() -> None:
 
 @calibrate.command("camera")
 @rig_options("Calibrate the simulated rig (a simulated board on a wedge).")
-@click.option(
+@_count(
     "--views",
-    type=click.IntRange(16, 200),
-    default=DEFAULT.views,
-    show_default=True,
-    help="Photographs: half on each face of the wedge, spread over ±55° of turntable.",
+    16,
+    200,
+    DEFAULT.views,
+    "Photographs: half on each face of the wedge, spread over ±55° of turntable.",
 )
-@click.option(
-    "--board-along-zero",
-    is_flag=True,
-    help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.",
-)
+@board_along_zero_option
 @photograph_options("camera fields")
 @speed_factor_option("With --sim: simulated")
 def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, output, speed_factor) -> None:
@@ -179,12 +185,8 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
 
 @calibrate.command("gantry")
 @rig_options("Calibrate the simulated rig (a simulated mirror ball).")
-@click.option(
-    "--poses",
-    type=click.IntRange(12, 200),
-    default=DEFAULT.poses,
-    show_default=True,
-    help="Lamp poses, each photographed with the ball at two turntable angles.",
+@_count(
+    "--poses", 12, 200, DEFAULT.poses, "Lamp poses, each photographed with the ball at two turntable angles."
 )
 @photograph_options("gantry fields")
 @speed_factor_option("With --sim: simulated")
@@ -229,20 +231,8 @@ def warm_up_options(f):
 
 @calibrate.command("radiometric")
 @rig_options("Calibrate the simulated rig (a simulated white reference).")
-@click.option(
-    "--positions",
-    type=click.IntRange(3, 60),
-    default=DEFAULT.positions,
-    show_default=True,
-    help="Lamp positions over the white reference.",
-)
-@click.option(
-    "--levels",
-    type=click.IntRange(4, 40),
-    default=DEFAULT.levels,
-    show_default=True,
-    help="Exposures of the photon transfer.",
-)
+@_count("--positions", 3, 60, DEFAULT.positions, "Lamp positions over the white reference.")
+@_count("--levels", 4, 40, DEFAULT.levels, "Exposures of the photon transfer.")
 @warm_up_options
 @photograph_options("[sensor] fields")
 @speed_factor_option("With --sim: simulated")
@@ -282,29 +272,11 @@ def radiometric(
 
 @calibrate.command("all")
 @rig_options("Calibrate the simulated rig.")
-@click.option(
-    "--views",
-    type=click.IntRange(16, 200),
-    default=DEFAULT.views,
-    show_default=True,
-    help="Board photographs.",
-)
-@click.option(
-    "--poses", type=click.IntRange(12, 200), default=DEFAULT.poses, show_default=True, help="Lamp poses."
-)
-@click.option(
-    "--positions",
-    type=click.IntRange(3, 60),
-    default=DEFAULT.positions,
-    show_default=True,
-    help="Lamp positions over the white reference.",
-)
+@_count("--views", 16, 200, DEFAULT.views, "Board photographs.")
+@_count("--poses", 12, 200, DEFAULT.poses, "Lamp poses.")
+@_count("--positions", 3, 60, DEFAULT.positions, "Lamp positions over the white reference.")
 @click.option("--no-radiometric", is_flag=True, help="Camera and gantry only (no white reference).")
-@click.option(
-    "--board-along-zero",
-    is_flag=True,
-    help="The board was mounted along the plate's 0° line: also correct turntable.zero_steps.",
-)
+@board_along_zero_option
 @click.option(
     "--out",
     "out",
