@@ -6,10 +6,11 @@ import statistics
 import time
 from collections.abc import Callable
 
-from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from sim.dynamixel.bus import SimBus
+from drivers.dynamixel import UrlPortHandler
+from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS, SimBus
 from sim.turntable import register_map as rm
 from sim.turntable.server import TurntableServer
 
@@ -31,7 +32,7 @@ def servo_round_trips(n: int = 1000) -> dict[str, dict[str, float]]:
     with SimBus.with_servos([1, 2]) as bus:
         for s in bus.servos:
             s.table[9] = 0
-        port = PortHandler(bus.serve_pty())
+        port = UrlPortHandler(bus.serve_pty(), CLIENT_REPLY_TIMEOUT_MS)
         port.openPort()
         try:
             ph = PacketHandler(2.0)

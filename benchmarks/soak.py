@@ -170,24 +170,30 @@ def _unsafe(world: SimRig) -> str:
 
 
 def _inject(world: SimRig, rng: random.Random, interval_s: float, counts: Counter, stop: threading.Event):
+    """Inject a fault every ``interval_s`` (± 50 %) until ``stop``. A one-shot fault (the next reply
+    dropped, corrupted, refused) is armed only when none of its kind is pending: a queue of them would
+    grow while that link is idle (a long exposure) and then fall on one exchange as a burst longer than
+    any bounded retry, which is a test of the queue, not of the driver."""
     names, weights = list(FAULTS), list(FAULTS.values())
     while not stop.wait(rng.uniform(0.5, 1.5) * interval_s):
         fault = rng.choices(names, weights)[0]
         servo = rng.choice(world.endpoints.servo_ids)
-        if fault == "servo reply dropped":
-            world.bus.fault(servo).drop_replies += 1
-        elif fault == "servo reply corrupted":
-            world.bus.fault(servo).corrupt_replies += 1
-        elif fault == "Modbus reply dropped":
-            world.turntable.faults.no_reply += 1
+        one_shot = {
+            "servo reply dropped": (world.bus.fault(servo), "drop_replies"),
+            "servo reply corrupted": (world.bus.fault(servo), "corrupt_replies"),
+            "Modbus reply dropped": (world.turntable.faults, "no_reply"),
+            "Modbus device failure": (world.turntable.faults, "exception"),
+            "camera frame cut short": (world.camera_server, "cut_replies"),
+        }
+        if fault in one_shot:
+            faults, name = one_shot[fault]
+            if getattr(faults, name):
+                continue  # one of its kind is still pending
+            setattr(faults, name, 1)
         elif fault == "Modbus link dropped":
             world.turntable.disconnect_clients()
-        elif fault == "camera frame cut short":
-            world.camera_server.cut_replies += 1
         elif fault == "axis knocked off during an exposure":
             world.bus.servo(servo).slip(rng.choice((-40, 40)), hold_s=0.1 * world.bus.speed_factor)
-        elif fault == "Modbus device failure":
-            world.turntable.faults.exception += 1
         elif fault == "servo overload":
             world.bus.servo(servo).hardware_fault(OVERLOAD)
         counts[fault] += 1

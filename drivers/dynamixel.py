@@ -2,8 +2,10 @@
 
 * Ports are device paths or pyserial URLs (``socket://host:port``, ``loop://``): the SDK's PortHandler
   opens ``serial.Serial(port=…)``, which cannot take URLs, so :class:`UrlPortHandler` uses
-  ``serial.serial_for_url``. On a real FTDI adapter set its latency timer to 1 ms
-  (``/sys/bus/usb-serial/devices/ttyUSB0/latency_timer``); the SDK waits 2 × 16 + 2 ms for a reply.
+  ``serial.serial_for_url``. The SDK waits 2 × 16 + 2 ms for a status packet beyond the bytes' time on
+  the wire (twice an FTDI adapter's default 16 ms latency timer); :attr:`GantryConfig.reply_timeout_ms`
+  sets that wait (a simulated servo, a thread of a busy process, needs longer; an adapter whose latency
+  timer is set to 1 ms, ``/sys/bus/usb-serial/devices/ttyUSB0/latency_timer``, can take less).
 * Connect: ping, check the model, refuse a servo in hardware alarm (or reboot it if allowed), then with
   torque off write the EEPROM settings and read each back, then the profile, then torque on.
 * Goals outside the configured limits are refused before anything is sent. Both axes move with one sync
@@ -107,8 +109,21 @@ class ServoReport:
     voltage_limits_v: tuple[float, float]  # min, max input voltage before the servo shuts down
 
 
+SDK_REPLY_TIMEOUT_MS = 2 * 16 + 2  # dynamixel-sdk's wait: twice its LATENCY_TIMER (16 ms), plus 2 ms
+
+
 class UrlPortHandler(PortHandler):
-    """dynamixel-sdk's PortHandler, opening any pyserial URL or device path."""
+    """dynamixel-sdk's PortHandler, opening any pyserial URL or device path, and waiting
+    ``reply_timeout_ms`` (plus the packet's time on the wire) for a reply instead of the SDK's fixed
+    :data:`SDK_REPLY_TIMEOUT_MS`."""
+
+    def __init__(self, port_name: str, reply_timeout_ms: float = SDK_REPLY_TIMEOUT_MS):
+        super().__init__(port_name)
+        self.reply_timeout_ms = reply_timeout_ms
+
+    def setPacketTimeout(self, packet_length):  # the SDK's formula (port_handler.py), with our wait
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = self.tx_time_per_byte * packet_length + self.reply_timeout_ms
 
     def setupPort(self, cflag_baud):
         if self.is_open:
@@ -144,6 +159,7 @@ class GantryConfig:
     retries: int = 3
     backoff_s: float = 0.01
     reboot_on_alarm: bool = False  # only when the operator allowed it
+    reply_timeout_ms: float = SDK_REPLY_TIMEOUT_MS  # the wait for a status packet, beyond its bytes' time
 
 
 @dataclass
@@ -152,7 +168,7 @@ class DynamixelGantry:
     retried: int = field(default=0, init=False)  # reads that needed a retry
 
     def __post_init__(self):
-        self.port = UrlPortHandler(self.config.port)
+        self.port = UrlPortHandler(self.config.port, self.config.reply_timeout_ms)
         try:
             opened = self.port.openPort()
         except (serial.SerialException, OSError) as exc:
@@ -438,7 +454,7 @@ class DynamixelGantry:
         with self._lock:
             if self.port.is_using:
                 log.warning("%s: the previous exchange was cut short; clearing the port", self.name)
-                time.sleep(0.04)  # longer than the SDK's reply timeout (2 × 16 + 2 ms)
+                time.sleep(self.config.reply_timeout_ms / 1000 + 0.005)  # a late reply has arrived by then
                 self.port.clearPort()
                 self.port.is_using = False
             try:

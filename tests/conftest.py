@@ -20,6 +20,7 @@ from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.rig.file import Rig, sim_rig
+from tests.renderer_guard import require_renderer
 
 # generated broken files (tests/test_readers_property.py): a CI-sized run, or the nightly one
 settings.register_profile("ci", max_examples=150, database=None)
@@ -32,6 +33,12 @@ SHARED_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 def pytest_configure(config):
     """Device locks of the tests (and of the hlr-lab processes they start) in a folder of their own."""
     os.environ["HLR_LAB_LOCK_DIR"] = tempfile.mkdtemp(prefix="hlr-lab-test-locks-")
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A test marked ``renderer`` is skipped where Mitsuba or libLLVM is missing (failed in CI)."""
+    if item.get_closest_marker("renderer"):
+        require_renderer()
 
 
 @pytest.fixture(autouse=True)

@@ -34,7 +34,9 @@ from sim.render.camera import CameraSpec
 from sim.render.scene import Material, SceneSpec
 from sim.render.sensor import SensorModel
 from sim.rig import SimRig
-from tests.test_sim_render import half_size_camera  # also skips this module where no renderer runs
+from tests.cameras import half_size_camera
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 
 @contextlib.contextmanager
@@ -346,9 +348,8 @@ def test_a_dropping_camera_link_is_retried_and_journaled(plan_file, rig, tmp_pat
         outcome = run(world, rig, plan, tmp_path)
     assert outcome.taken == len(plan.poses[0].exposures_s)
     events = read_journal(tmp_path / JOURNAL)
-    retries = [e for e in events if e["event"] == "retry"]
-    assert len(retries) == 2
-    assert "stopped after" in retries[0]["error"]
+    cut = [e for e in events if e["event"] == "retry" and "stopped after" in e["error"]]  # a frame cut short
+    assert len(cut) == 2
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
 
 
@@ -392,10 +393,11 @@ def test_a_link_fault_is_retried_journaled_and_the_run_completes(fault, plan_fil
     assert outcome.taken == sum(len(p.exposures_s) for p in plan.poses)
     events = read_journal(tmp_path / JOURNAL)
     retries = [e for e in events if e["event"] == "retry"]
-    # the injected fault is the first retry, where it was injected; a host loaded with other work can add
-    # a genuine one (a reply later than the SDK's 34 ms), which is journaled and counted like any other
-    assert (retries[0]["pose"], retries[0]["source"]) == (plan.poses[1].id, source)
-    assert "retrying (1 of 3)" in retries[0]["error"]
+    # the injected fault is retried where it was injected; a host stalled by other work for longer than
+    # the rig file's reply timeout could add a genuine retry elsewhere, journaled and counted like any other
+    injected = [e for e in retries if (e["pose"], e["source"]) == (plan.poses[1].id, source)]
+    assert injected, retries
+    assert "retrying (1 of 3)" in injected[0]["error"]
     assert events[-1]["event"] == "run_end"
     assert outcome.retries == events[-1]["retries"] == len(retries)
     assert all(load_frame(tmp_path, e) is not None for e in events if e["event"] == "frame")
@@ -442,7 +444,7 @@ def test_a_device_fault_mid_run_stops_safely(fault, plan_file, rig, tmp_path):
     assert re.search(words, events[-1]["reason"])
     assert events[-1]["frames_taken"] == len(plan.poses[0].exposures_s)
     assert {e["pose"] for e in events if e["event"] == "frame"} == {plan.poses[0].id}
-    assert not [e for e in events if e["event"] == "retry"]
+    assert not [e for e in events if e["event"] == "retry" and re.search(words, e["error"])]
 
 
 def test_a_rig_without_a_lamp_relay_is_refused_before_anything_opens(plan_file, tmp_path, capsys):
@@ -483,7 +485,7 @@ def test_a_frame_exposed_while_an_axis_moved_is_retaken_after_settling(plan_file
     assert outcome.taken == bracket
     events = read_journal(tmp_path / JOURNAL)
     assert [e["event"] for e in events].count("pose") == 2  # settled, then settled anew
-    retakes = [e for e in events if e["event"] == "retry"]
+    retakes = [e for e in events if e["event"] == "retry" and "servo was at" in e["error"]]
     assert len(retakes) == 1
     assert "elevation servo was at" in retakes[0]["error"]
     for e in (e for e in events if e["event"] == "frame"):

@@ -16,7 +16,8 @@ from calibration.procedures import default_folder
 from hlr_lab.cli.main import main
 from hlr_lab.rig.file import load_rig
 from sim.true_rig import load_true_rig
-from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
 

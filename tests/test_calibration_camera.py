@@ -15,7 +15,8 @@ from calibration.charuco import BoardSpec, CalibrationError, Detection, calibrat
 from sim.render.sensor import SensorModel
 from sim.targets import Board, Wedge, charuco_scene
 from sim.true_rig import load_true_rig
-from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 BOARD = Board()  # the simulator's print of it
 SPEC = BoardSpec(BOARD.squares, BOARD.square_m, BOARD.marker_m, BOARD.dictionary)  # hlr-lab's description

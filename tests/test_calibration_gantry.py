@@ -15,7 +15,8 @@ from hlr_lab.geometry.camera import Camera
 from sim.render.sensor import SensorModel
 from sim.targets import mirror_ball_scene
 from sim.true_rig import load_true_rig
-from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 RADIUS, PLACE = 0.025, (0.06, 0.0)  # the ball, and where it rests on the plate at turntable 0°
 

@@ -12,7 +12,9 @@ from drivers.protocols import Camera
 from sim.render.camera import CameraSpec
 from sim.render.scene import builtin_scene
 from sim.rig import SimRig
-from tests.test_sim_render import half_size_camera  # also skips this module where no renderer runs
+from tests.cameras import half_size_camera
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 GAIN_X2_DB = 20 * np.log10(2.0)
 

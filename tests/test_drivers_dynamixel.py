@@ -5,7 +5,7 @@ import pytest
 from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
 from drivers.errors import DeviceError, DeviceFault, DeviceTimeout, HardwareAlarm, LimitError, SettleTimeout
 from drivers.protocols import Positioner
-from sim.dynamixel.bus import SimBus
+from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS, SimBus
 from sim.dynamixel.servo import OVERLOAD
 
 AXES = (Axis(1, 1024, 3072, "azimuth"), Axis(2, 1024, 2048, "elevation"))
@@ -18,7 +18,16 @@ def bus():
 
 
 def gantry_on(bus, url=None, **kw) -> DynamixelGantry:
-    return DynamixelGantry(GantryConfig(url or bus.serve_pty(), AXES, retries=2, backoff_s=0.001, **kw))
+    config = {"retries": 2, "backoff_s": 0.001, "reply_timeout_ms": CLIENT_REPLY_TIMEOUT_MS} | kw
+    return DynamixelGantry(GantryConfig(url or bus.serve_pty(), AXES, **config))
+
+
+def test_the_wait_for_a_reply_is_the_configured_one_not_the_sdks(bus):
+    """A reply 0.1 s late is lost to the SDK's 34 ms wait and read within a 300 ms one."""
+    bus.fault(1).delay_s = 0.1
+    with pytest.raises(DeviceTimeout, match="no reply"):
+        gantry_on(bus, retries=0, reply_timeout_ms=34).connect()
+    assert gantry_on(bus, retries=0, reply_timeout_ms=300).connect()[1] == "XM430-W350"
 
 
 def test_connect_configures_and_verifies(bus):
@@ -94,7 +103,9 @@ def test_overload_and_stuck_axis_during_a_move(bus):
 
 def test_device_refusals_become_faults(bus):
     bad = (Axis(1, 0, 5000, "azimuth"), AXES[1])  # the servo's limit range ends at 4095
-    g = DynamixelGantry(GantryConfig(bus.serve_pty(), bad, retries=0))
+    g = DynamixelGantry(
+        GantryConfig(bus.serve_pty(), bad, retries=0, reply_timeout_ms=CLIENT_REPLY_TIMEOUT_MS)
+    )
     with pytest.raises(DeviceFault, match="data range error") as err:
         g.connect()
     assert err.value.code == 4

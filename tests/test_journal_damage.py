@@ -16,7 +16,8 @@ import pytest
 from hlr_lab.cli.main import main
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.session.journal import DAMAGED, JOURNAL, read_journal
-from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 
 @pytest.fixture

@@ -19,16 +19,19 @@ import time
 from pathlib import Path
 
 import pytest
-from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler
 from pymodbus.client import ModbusTcpClient
 
 from benchmarks.acquire import repeated_poses
+from drivers.dynamixel import UrlPortHandler
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.session.journal import JOURNAL, read_journal
+from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
-from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
 from worlds.plan_world import rig_file_text, sim_scene, world_geometry
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 TRIALS = int(os.environ.get("HLR_LAB_STOP_TRIALS", "2"))
 SEED = os.environ.get("HLR_LAB_STOP_SEED", "0")  # other moments in another nightly run
@@ -86,7 +89,7 @@ def finish(child: subprocess.Popen, timeout_s: float = 60) -> tuple[int, str]:
 
 def device_state(world: SimRig) -> dict:
     """What the simulated devices report, asked through dynamixel-sdk and pymodbus."""
-    port = PortHandler(world.endpoints.dynamixel)
+    port = UrlPortHandler(world.endpoints.dynamixel, CLIENT_REPLY_TIMEOUT_MS)
     assert port.openPort()
     ph = PacketHandler(2.0)
     try:

@@ -8,7 +8,7 @@ from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.planning.geometry import placement
-from tests.test_sim_render import half_size_camera
+from tests.cameras import half_size_camera
 
 
 @pytest.mark.parametrize("turntable_deg", [0.0, 90.0, 215.0])

@@ -2,6 +2,7 @@
 
 import time
 
+import numpy as np
 import pytest
 from dynamixel_sdk import (
     COMM_RX_CORRUPT,
@@ -11,14 +12,13 @@ from dynamixel_sdk import (
     GroupSyncRead,
     GroupSyncWrite,
     PacketHandler,
-    PortHandler,
 )
 
 from drivers.dynamixel import UrlPortHandler
-from sim.dynamixel.bus import SimBus
+from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS, SimBus
 from sim.dynamixel.control_table import ACCELERATION_UNIT_TICKS_PER_S2, VELOCITY_UNIT_TICKS_PER_S
 from sim.dynamixel.protocol import Error, PacketReader, crc16, frame, instruction_packet, stuff, unstuff
-from sim.dynamixel.servo import OVERLOAD
+from sim.dynamixel.servo import OVERLOAD, SimServo
 
 H = bytes.fromhex
 
@@ -148,8 +148,11 @@ def test_status_return_level():
 
 
 def test_trapezoidal_motion_follows_the_profile():
-    bus = SimBus.with_servos([1], speed_factor=20.0)
-    s = bus.servo(1)
+    """The servo's motion read at chosen instants of its own clock (stepped by the test, so a busy
+    machine cannot shift them): ramp up, cruise, ramp down, arriving when the trapezoid says."""
+    now = [0.0]
+    s = SimServo(1, lambda: now[0])
+    bus = SimBus([s])
     s.table[9] = 0
     for address, value, size in ((112, 100, 4), (108, 20, 4), (64, 1, 1)):
         assert (
@@ -158,24 +161,27 @@ def test_trapezoidal_motion_follows_the_profile():
             )[8]
             == 0
         )
-    t0 = s.clock()
     bus.handle(instruction_packet(1, 0x03, (116).to_bytes(2, "little") + (3048).to_bytes(4, "little")))
     v, a, d = 100 * VELOCITY_UNIT_TICKS_PER_S, 20 * ACCELERATION_UNIT_TICKS_PER_S2, 1000
-    expected = 2 * v / a + (d - v * v / a) / v  # trapezoid: ramp up, cruise, ramp down
+    ramp_s = v / a
+    expected = 2 * ramp_s + (d - v * ramp_s) / v  # trapezoid: ramp up, cruise, ramp down
     seen = []
-    while s.present_position() != 3048 and s.clock() - t0 < 3 * expected:
-        seen.append((s.clock() - t0, s.present_position(), s.get("moving")))
-        time.sleep(0.002)
-    assert s.present_position() == 3048
-    assert s.clock() - t0 == pytest.approx(expected, rel=0.1)
-    positions = [p for _, p, _ in seen]
-    assert positions == sorted(positions)  # monotonic
+    for t in np.linspace(0.0, 1.2 * expected, 241):
+        now[0] = float(t)
+        seen.append((float(t), s.present_position(), s.get("moving")))
+    # the rounded position reads the goal once half a tick is left, sqrt(2 × 0.5 / a) before the end
+    arrived = next(t for t, p, _ in seen if p == 3048)
+    assert arrived == pytest.approx(expected - (1 / a) ** 0.5, abs=0.006 * expected)  # ≥ the grid's step
+    positions = np.array([p for _, p, _ in seen])
+    assert np.all(np.diff(positions) >= 0)  # monotonic
     assert all(m == 1 for _, p, m in seen if p < 3048)
-    # the rounded position reaches the goal while the last half tick is still ramping down (≈ 14 ms of
-    # simulated time, 0.7 ms here): the profile must end, and report so, right after
-    deadline = time.monotonic() + 0.1
-    while s.present_position() == 3048 and s.get("moving") and time.monotonic() < deadline:
-        time.sleep(0.0005)
+    # half-way through the ramp up (t = ramp_s / 2) the axis has covered a t² / 2
+    now[0] = ramp_s / 2
+    assert s.present_position() - 2048 == pytest.approx(a * (ramp_s / 2) ** 2 / 2, abs=1)
+    # the rounded position reaches the goal while the last half tick is still ramping down: the profile
+    # must end, and report so, right after
+    now[0] = expected + 1e-3
+    assert s.present_position() == 3048  # (a read brings the table up to the clock)
     assert s.get("moving") == 0
     assert s.get("moving_status") & 0x01
 
@@ -201,7 +207,7 @@ def sdk():
     bus = SimBus.with_servos([1, 2], speed_factor=50.0)
     for s in bus.servos:
         s.table[9] = 0
-    port = PortHandler(bus.serve_pty())
+    port = UrlPortHandler(bus.serve_pty(), CLIENT_REPLY_TIMEOUT_MS)
     assert port.openPort()
     assert port.setBaudRate(1_000_000)
     yield bus, port, PacketHandler(2.0)
@@ -280,7 +286,7 @@ def test_sdk_sees_injected_faults(sdk):
 def test_sdk_over_a_socket_url():
     with SimBus.with_servos([1]) as bus:
         bus.servo(1).table[9] = 0
-        port = UrlPortHandler(bus.serve_tcp())
+        port = UrlPortHandler(bus.serve_tcp(), CLIENT_REPLY_TIMEOUT_MS)
         assert port.openPort()
         ph = PacketHandler(2.0)
         assert ph.ping(port, 1)[1] == COMM_SUCCESS
@@ -291,9 +297,10 @@ def test_sdk_over_a_socket_url():
 
 def test_injected_delay_is_seen_as_a_timeout(sdk):
     bus, port, ph = sdk
-    bus.fault(1).delay_s = 0.08  # longer than the SDK's 34 ms reply timeout (2 × latency timer + 2 ms)
+    late_s = CLIENT_REPLY_TIMEOUT_MS / 1000 + 0.05  # later than the port waits
+    bus.fault(1).delay_s = late_s
     assert ph.ping(port, 1)[1] == COMM_RX_TIMEOUT
     bus.fault(1).delay_s = 0.0
-    time.sleep(0.1)
+    time.sleep(late_s)
     port.clearPort()  # the late reply arrived after the timeout: a driver must flush it
     assert ph.ping(port, 1)[1] == COMM_SUCCESS

@@ -17,10 +17,10 @@ from dynamixel_sdk import (
     GroupSyncRead,
     GroupSyncWrite,
     PacketHandler,
-    PortHandler,
 )
 
-from sim.dynamixel.bus import INTER_BYTE_TIMEOUT_S, SimBus
+from drivers.dynamixel import UrlPortHandler
+from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS, INTER_BYTE_TIMEOUT_S, SimBus
 from sim.dynamixel.protocol import HEADER, Error, crc16, instruction_packet, status_packet
 
 TORQUE, MODE, HOMING, BUS_WATCHDOG, GOAL_VELOCITY, GOAL, MOVING, PRESENT_VELOCITY, PRESENT = (
@@ -43,7 +43,7 @@ def sdk():
     bus = SimBus.with_servos([1, 2], speed_factor=20.0)
     for s in bus.servos:
         s.table[9] = 0  # no return delay
-    port = PortHandler(bus.serve_pty())
+    port = UrlPortHandler(bus.serve_pty(), CLIENT_REPLY_TIMEOUT_MS)
     assert port.openPort()
     assert port.setBaudRate(57600)
     yield bus, port, PacketHandler(2.0)

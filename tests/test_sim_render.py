@@ -9,12 +9,11 @@ import pytest
 import scipy.ndimage as ndi
 import trimesh
 
-from hlr_lab.geometry.camera import Camera
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
-from hlr_lab.rig.file import sim_rig
 from sim.render.llvm import RendererUnavailable
 from sim.render.sensor import SensorModel
+from tests.cameras import half_size_camera
 from tests.renderer_guard import require_renderer
 
 require_renderer(module_level=True)
@@ -24,16 +23,6 @@ from sim.render.renderer import Renderer  # noqa: E402
 from sim.render.scene import Material, SceneSpec  # noqa: E402
 
 RD, RS, N = np.array([0.55, 0.4, 0.3]), np.array([0.3, 0.3, 0.35]), 30.0
-
-
-def half_size_camera(aspect: float = 1.0):
-    """The sim rig's camera at 640×480: off-centre principal point and barrel distortion kept; ``aspect``
-    fy / fx (a calibrated camera's pixels are seldom exactly square)."""
-    c = sim_rig().camera
-    k = c.matrix.copy()
-    k[:2] /= 2
-    k[1, 1] *= aspect
-    return Camera(k, c.distortion, c.rotation, c.translation, 640, 480)
 
 
 def scene_of(meshes: list[tuple[trimesh.Trimesh, Material]], power=1.0) -> SceneSpec:

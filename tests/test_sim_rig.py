@@ -8,9 +8,11 @@ import subprocess
 import sys
 import time
 
-from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler
 from pymodbus.client import ModbusTcpClient
 
+from drivers.dynamixel import UrlPortHandler
+from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
 
@@ -23,7 +25,7 @@ def test_endpoints_answer_real_clients_and_stop_cleanly():
     fds = open_fds()
     with SimRig(speed_factor=10.0) as rig:
         e = rig.endpoints
-        port = PortHandler(e.dynamixel)
+        port = UrlPortHandler(e.dynamixel, CLIENT_REPLY_TIMEOUT_MS)
         assert port.openPort()
         ph = PacketHandler(2.0)
         assert all(ph.ping(port, i)[1] == COMM_SUCCESS for i in e.servo_ids)
@@ -62,7 +64,7 @@ def test_sim_serve_prints_endpoints_and_stops_on_sigint():
     with sim_serve() as proc:
         endpoints = json.loads(proc.stdout.readline())
         assert set(endpoints) >= {"dynamixel", "modbus", "servo_ids"}
-        port = PortHandler(endpoints["dynamixel"])
+        port = UrlPortHandler(endpoints["dynamixel"], CLIENT_REPLY_TIMEOUT_MS)
         assert port.openPort()
         assert PacketHandler(2.0).ping(port, endpoints["servo_ids"][0])[1] == COMM_SUCCESS
         port.closePort()
@@ -83,7 +85,7 @@ def test_the_camera_photographs_where_the_axes_are():
     from sim.render.camera import CameraSpec
     from sim.render.scene import Material, SceneSpec, pose_matrix
     from sim.render.sensor import SensorModel
-    from tests.test_sim_render import half_size_camera
+    from tests.cameras import half_size_camera
 
     cam = half_size_camera()
     body = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
@@ -98,7 +100,7 @@ def test_the_camera_photographs_where_the_axes_are():
     sensor = SensorModel(bits=12, sensitivity=2000.0)
     with SimRig(speed_factor=5.0, scene=spec, camera=camera_spec, sensor=sensor, spp=4) as rig:
         camera = rig.camera
-        port = PortHandler(rig.endpoints.dynamixel)
+        port = UrlPortHandler(rig.endpoints.dynamixel, CLIENT_REPLY_TIMEOUT_MS)
         port.openPort()
         ph = PacketHandler(2.0)
         for sid in rig.endpoints.servo_ids:

@@ -11,7 +11,8 @@ import os
 import pytest
 
 from benchmarks.soak import leak_window, soak
-from tests.test_sim_render import half_size_camera  # noqa: F401  (skips this module where no renderer runs)
+
+pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 POSES = int(os.environ.get("HLR_LAB_SOAK_POSES", "30"))
 KILLS = int(os.environ.get("HLR_LAB_SOAK_KILLS", "2"))

@@ -57,6 +57,7 @@ def gantry_config(rig: Rig, port: str | None = None) -> GantryConfig:
         tolerance_ticks=g.tolerance_ticks,
         settle_s=g.settle_s,
         reboot_on_alarm=g.reboot_on_alarm,
+        reply_timeout_ms=g.reply_timeout_ms,
     )
 
 

@@ -150,6 +150,9 @@ class _GantrySection(StrictModel):
     tolerance_ticks: int = Field(default=2, ge=0)
     settle_s: float = Field(default=0.05, ge=0)
     reboot_on_alarm: bool = False  # clear a hardware error by reboot only when the operator allows it
+    # the wait for a servo's reply beyond its bytes' time: the SDK's 2 × 16 + 2 ms (an FTDI adapter's
+    # default latency timer, twice); less once the adapter's timer is 1 ms, more behind a slow link
+    reply_timeout_ms: float = Field(default=34.0, gt=0, le=10_000)
     # at the end of a run or on a stop: "torque_off" (the arm can be moved by hand; a heavy arm may sag)
     # or "hold" (the servos keep the last position, powered)
     park: Literal["torque_off", "hold"] = "torque_off"

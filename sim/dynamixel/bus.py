@@ -50,6 +50,10 @@ from sim.dynamixel.servo import SimServo
 log = logging.getLogger(__name__)
 GOAL_POSITION = BY_NAME["goal_position"]
 INTER_BYTE_TIMEOUT_S = 0.01  # silence that ends a partial packet (a master writes a packet in one go)
+# how long a master should wait for a reply: the servos are threads of a Python process that may also be
+# rendering, on a machine that may be busy, so a reply can be far later than a real servo's (the SDK
+# waits 34 ms); the simulated rig's file sets its gantry.reply_timeout_ms to this
+CLIENT_REPLY_TIMEOUT_MS = 250
 BAUD_CODES = {bps: code for code, bps in BAUD_RATES.items()}
 _TERMIOS_SPEEDS = {getattr(termios, f"B{b}"): b for b in BAUD_CODES if hasattr(termios, f"B{b}")}
 
