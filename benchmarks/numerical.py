@@ -243,9 +243,9 @@ def mesh_label(mesh_path: str | None) -> str:
 
 
 def nearest_neighbour_spacing_deg(directions: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
-    d, _ = cKDTree(directions).query(directions, k=2)
+    d, _ = KDTree(directions).query(directions, k=2)
     return float(np.degrees(2 * np.arcsin(d[:, 1].max() / 2)))
 
 

@@ -115,9 +115,8 @@ def board_spec(rig: Rig) -> tuple[BoardSpec, float]:
             path=rig.source,
             field="calibration.board",
         )
-    return BoardSpec(
-        tuple(board.squares), board.square_m, board.marker_m, board.dictionary
-    ), board.centre_height_m
+    across, down = board.squares
+    return BoardSpec((across, down), board.square_m, board.marker_m, board.dictionary), board.centre_height_m
 
 
 def board_angles(views: int) -> list[tuple[int, float]]:

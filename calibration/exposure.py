@@ -29,16 +29,17 @@ class ExposureGoal:
 def exposed(camera: Camera, exposure_s: float, goal: ExposureGoal) -> RawFrame:
     """The first frame, from ``exposure_s`` on, whose level ``goal`` accepts (each miss rescales the
     exposure toward ``goal.fill``); after ``goal.tries`` frames, the last one."""
-    for _ in range(goal.tries):
+    tried = 0
+    while True:
         camera.set_exposure(exposure_s)
         frame = camera.capture()
+        tried += 1
         top = (1 << frame.bits) - 1
         level = float(goal.level(frame.pixels))
         lo, hi = goal.accept
-        if level < goal.clipped_at * top and lo * top < level < hi * top:
+        if (level < goal.clipped_at * top and lo * top < level < hi * top) or tried >= goal.tries:
             return frame
         clipped = level >= goal.clipped_at * top
         exposure_s = frame.exposure_s * (
             goal.clipped_factor if clipped else goal.fill * top / max(level, 1.0)
         )
-    return frame

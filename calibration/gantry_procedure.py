@@ -61,7 +61,8 @@ def ball_spec(rig: Rig) -> tuple[float, tuple[float, float]]:
             path=rig.source,
             field="calibration.mirror_ball",
         )
-    return ball.radius_m, tuple(ball.place_m)
+    x, y = ball.place_m
+    return ball.radius_m, (x, y)
 
 
 def lamp_poses(rig: Rig, count: int = DEFAULT_POSES) -> list[tuple[float, float]]:

@@ -45,7 +45,7 @@ def _journaled(folder: Path, procedure: str, fields: tuple[str, ...]) -> Iterato
         )
     for e in (e for e in events if e["event"] == "frame"):
         sidecar, problem = checked_sidecar(folder, e)
-        if problem:
+        if problem or sidecar is None:
             raise InputError(f"{problem}; take the calibration's photographs again", path=folder)
         missing = [f for f in fields if f not in sidecar]
         if missing:

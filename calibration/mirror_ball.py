@@ -238,7 +238,7 @@ def fit_gantry(
     names = ("centre_x_m", "centre_y_m", "centre_z_m", "arm_radius_m", "axis_x", "axis_y", "zero_az_ticks",
              "zero_el_ticks", "ball_x_m", "ball_y_m")  # fmt: skip
     axis = tuple(np.asarray(k.azimuth_axis) / np.linalg.norm(k.azimuth_axis))
-    zero = tuple(round(t) for t in k.zero_ticks)
+    zero = (round(k.zero_ticks[0]), round(k.zero_ticks[1]))
     rounded = GantryKinematics(k.centre, k.arm_radius, zero, k.directions, k.ticks_per_rev, axis)
     return GantryFit(rounded, fit.x[8:10].copy(), 1e3 * np.linalg.norm(misses(fit.x), axis=1),
                      dict(zip(names, se.tolist(), strict=True)))  # fmt: skip

@@ -181,6 +181,7 @@ def calibrate_all(
     order: tuple[ProcedureName, ...] = (
         ("camera", "gantry", "radiometric") if radiometric else ("camera", "gantry")
     )
+    outcomes: list[Calibrated] = []
     with new_photographs_folder(folder):
         for i, name in enumerate(order):
             last = i == len(order) - 1
@@ -194,8 +195,9 @@ def calibrate_all(
                 progress=progress,
             )
             done(outcome)
+            outcomes.append(outcome)
             rig = outcome.rig
-    return outcome
+    return outcomes[-1]
 
 
 def _capture(

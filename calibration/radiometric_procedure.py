@@ -72,7 +72,8 @@ def white_spec(rig: Rig) -> WhiteReference:
             path=rig.source,
             field="calibration.white_reference",
         )
-    return WhiteReference(np.asarray(w.reflectance, float), w.size_m, tuple(w.place_m), w.thickness_m)
+    x, y = w.place_m
+    return WhiteReference(np.asarray(w.reflectance, float), w.size_m, (x, y), w.thickness_m)
 
 
 def reference_pixels(rig: Rig, white: WhiteReference) -> tuple[np.ndarray, np.ndarray]:

@@ -43,9 +43,9 @@ from dynamixel_sdk import (
     COMM_RX_TIMEOUT,
     COMM_SUCCESS,
     GroupSyncWrite,
-    PacketHandler,
     PortHandler,
 )
+from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
 
 from drivers.errors import (
     RETRY,
@@ -180,7 +180,7 @@ class DynamixelGantry:
             raise DeviceError(
                 "cannot open the port; check the cable and the port in the rig file", device=self.name
             )
-        self.ph = PacketHandler(2.0)
+        self.ph = Protocol2PacketHandler()  # what PacketHandler(2.0) returns; the servos speak only 2.0
         self._goal: tuple[int, ...] | None = None
         self._lock = threading.RLock()  # one SDK transaction at a time, whichever thread asks
 
@@ -343,6 +343,7 @@ class DynamixelGantry:
         that could not be made safe."""
         failed = []
         for axis in self.config.axes:
+            problem = "not tried (attempts < 1)"
             for attempt in range(1, attempts + 1):
                 try:
                     # a servo in hardware alarm (overload…) answers with the alert bit, and has shut its

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import cast
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -274,10 +275,9 @@ class ModbusStage:
                 ),
                 f"read at {address}",
             )
+            int32 = self.client.DATATYPE.INT32  # converts to one int (the union is over all data types)
             return [
-                self.client.convert_from_registers(
-                    rr.registers[2 * i : 2 * i + 2], self.client.DATATYPE.INT32
-                )
+                cast(int, self.client.convert_from_registers(rr.registers[2 * i : 2 * i + 2], int32))
                 for i in range(n)
             ]
 

@@ -129,7 +129,7 @@ class OpenCVCamera:
     def _set_format(self) -> None:
         c = self.config
         if c.fourcc:
-            self._control("pixel format", cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*c.fourcc))
+            self._control("pixel format", cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*c.fourcc))
             if c.fourcc in RAW_FOURCCS:
                 self._control("raw frames (RGB conversion off)", cv2.CAP_PROP_CONVERT_RGB, 0)
         if c.width:

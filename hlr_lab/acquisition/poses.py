@@ -318,12 +318,13 @@ class _Run:
         progress(f"exposure {exposure:g} s" + ("" if kind == "planned" else f" ({kind})"))
         adaptive, dark, pose = kind == "adaptive", kind == "dark", place.pose
         self.instruments.camera.set_exposure(exposure)
-        for attempt in range(MOTION_RETAKES + 1):
+        retakes = 0
+        while True:
             frame = _retry_capture(self.instruments.camera)
             moved = place.moved_during_exposure()
             if not moved:
                 break
-            if attempt == MOTION_RETAKES:
+            if retakes == MOTION_RETAKES:
                 raise AxisMoved(
                     f"{moved} during the exposure of {pose.id} frame {k}, again after settling anew; "
                     "check the axes for slipping couplings or an obstruction",
@@ -332,6 +333,7 @@ class _Run:
             log.warning("%s: %s during the exposure; frame %d is taken again", pose.id, moved, k, extra=RETRY)
             progress("settling again")
             place.settle(lamp=not dark)
+            retakes += 1
         clipped = _clipped(frame.pixels, frame.bits, window)
         state = place.state
         sidecar = {
@@ -388,7 +390,7 @@ class _LampOnReference:
         outcome.reference_poses = 0
 
     def measure(self, pose_id: str, measured: dict, frames: list[RawFrame]) -> None:
-        self.outcome.reference_poses += 1
+        self.outcome.reference_poses = (self.outcome.reference_poses or 0) + 1
         reading = self.meter(measured, frames)
         if reading is None:
             log.info("%s: no lamp measurement (the white reference hidden, shadowed or ill exposed)", pose_id)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 from scipy.cluster.vq import kmeans2
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from hlr_lab.errors import InputError
 from hlr_lab.object.mesh import ColouredMesh, arrays_sha256
@@ -70,7 +70,7 @@ def paint_patches(
         raise ValueError(f"at most {len(PALETTE)} distinct patch colours")
     pts = mesh.vertices if among is None else mesh.vertices[among]
     centres, _ = kmeans2(pts, k, seed=np.random.default_rng(seed), minit="++")
-    patch = cKDTree(centres).query(mesh.vertices)[1]
+    patch = KDTree(centres).query(mesh.vertices)[1]
     colours = PALETTE[patch]
     return ProceduralObject(
         ColouredMesh(

@@ -14,11 +14,11 @@ Two levels, so that planning stays fast on million-vertex meshes yet every count
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.planning.geometry import Highlights
@@ -57,6 +57,7 @@ class ViewSamples:
     n_regions: int
     camera_centre: np.ndarray
     caster: RayCaster
+    _visibility: np.ndarray = field(init=False, repr=False, compare=False)  # (N,) int8, set below
 
     def __post_init__(self):
         object.__setattr__(self, "_visibility", np.full(len(self.region), -1, np.int8))  # −1: not tested yet
@@ -98,12 +99,12 @@ class ViewSamples:
         )
 
     @cached_property
-    def footprint_tree(self) -> cKDTree:
-        return cKDTree(self.footprint_dirs)
+    def footprint_tree(self) -> KDTree:
+        return KDTree(self.footprint_dirs)
 
 
 def count_estimates(
-    view: ViewSamples, caster: RayCaster, theta_c: float, cell: float, tree: cKDTree | None = None
+    view: ViewSamples, caster: RayCaster, theta_c: float, cell: float, tree: KDTree | None = None
 ) -> np.ndarray:
     """(Q, R) estimated highlight count of each candidate per region.
 
@@ -113,7 +114,7 @@ def count_estimates(
     estimates = np.zeros(q * view.n_regions)
     if len(view.region) == 0 or q == 0:
         return estimates.reshape(q, view.n_regions)
-    tree = tree or cKDTree(view.candidate_dirs)
+    tree = tree or KDTree(view.candidate_dirs)
     seen = np.flatnonzero(view.visible(np.arange(len(view.region))))
     keep = np.zeros(len(view.region), bool)
     keep[seen] = ~caster.shadowed(
@@ -130,7 +131,7 @@ def count_estimates(
         per_pool = max(1.0, np.pi * r_max**2 * density)
         stop = max(start + 1, min(stop, start + int(_PAIRS_PER_BATCH / per_pool)))
         batch = order[start:stop]
-        pairs = cKDTree(pools.footprint[batch]).sparse_distance_matrix(
+        pairs = KDTree(pools.footprint[batch]).sparse_distance_matrix(
             tree, pools.radius[batch].max(), output_type="ndarray"
         )
         g, cand = batch[pairs["i"]], pairs["j"]

@@ -128,12 +128,13 @@ def _top(estimates, exact, used, need, capped):
     """Best (view, candidate, score) among exactly scored and among estimated candidates (None below the
     minimum gain)."""
     worth = _min_gain(need)
-    best = {True: None, False: None}
+    best: dict[bool, tuple[int, int, float] | None] = {True: None, False: None}
     for v in used:
         s = score(estimates[v], need, capped)
         for is_exact in (True, False):
             masked = np.where(exact[v] == is_exact, s, -np.inf)
             q = int(np.argmax(masked)) if len(masked) else -1
-            if q >= 0 and masked[q] >= worth and (best[is_exact] is None or masked[q] > best[is_exact][2]):
+            held = best[is_exact]
+            if q >= 0 and masked[q] >= worth and (held is None or masked[q] > held[2]):
                 best[is_exact] = (v, q, float(masked[q]))
     return best[True], best[False]

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from hlr_lab.geometry.sphere import directions_with_spacing, rotation_z
 from hlr_lab.object.mesh import ColouredMesh
@@ -107,8 +107,10 @@ class _Candidates:
 
         self.fine, self.total = reachable(spacing_deg)
         self.coarse = reachable(coarse_deg)[0] if coarse_deg > spacing_deg else self.fine
-        self.coarse_tree = cKDTree(self.coarse)
-        owner = self.coarse_tree.query(self.fine)[1] if len(self.coarse) else np.zeros(0, np.int64)
+        self.coarse_tree = KDTree(self.coarse)
+        owner = (
+            np.asarray(self.coarse_tree.query(self.fine)[1]) if len(self.coarse) else np.zeros(0, np.int64)
+        )
         self._order = np.argsort(owner, kind="stable")
         self._start = np.searchsorted(owner[self._order], np.arange(len(self.coarse) + 1))
 

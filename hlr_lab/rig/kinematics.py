@@ -11,6 +11,7 @@ on a rig built to its drawing), azimuth 0 along world +x projected onto the plan
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,8 @@ class GantryKinematics:
             round(self.zero_ticks[1] + self.directions[1] * elevation_deg * per_deg),
         )
 
-    def angles_for(self, ticks: tuple[int, int]) -> tuple[float, float]:
+    def angles_for(self, ticks: tuple[Any, Any]) -> tuple[Any, Any]:
+        """Azimuth and elevation (degrees) at servo readings ``ticks`` (ints, or (N,) arrays of them)."""
         per_deg = self.ticks_per_rev / 360.0
         return (
             (ticks[0] - self.zero_ticks[0]) / (self.directions[0] * per_deg),
