@@ -210,7 +210,7 @@ class Throughput:
         return (self.inputs_bytes + self.peak_extra_bytes) / self.samples
 
 
-def _throughput_case(samples: int, method: str) -> Throughput:
+def _throughput_case(samples: int, method: EstimatorName) -> Throughput:
     truth = Truth(np.array([0.6, 0.3, 0.2]), np.array([0.3, 0.3, 0.35]), 80.0)
     r = synthetic_region(
         truth,

@@ -14,7 +14,7 @@ import functools
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.acquisition.run import PLANNED_ONLY, acquire_session
@@ -136,7 +136,7 @@ def fit_into(
     session: Path,
     output: Path | None = None,
     *,
-    theta_c_deg: float | str = "auto",
+    theta_c_deg: float | Literal["auto"] = "auto",
     method: EstimatorName = DEFAULT_ESTIMATOR,
     allow_incomplete: bool = False,
     correct_lamp: bool = True,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import click
 from rich.markup import escape
@@ -10,13 +11,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from hlr_lab.cli.console import console
-from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS
+from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName
 from hlr_lab.formats.materials import MaterialsFile
 from hlr_lab.pipeline import fit_into
 from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, FitStep
 
 
-def _theta_c(value: str) -> float | str:
+def _theta_c(value: str) -> float | Literal["auto"]:
     if value == "auto":
         return value
     try:
@@ -64,7 +65,12 @@ def _theta_c(value: str) -> float | str:
     "file's power, to see what the correction is worth.",
 )
 def fit(
-    session: Path, theta_c, method: str, output: Path | None, allow_incomplete: bool, no_lamp_correction
+    session: Path,
+    theta_c,
+    method: EstimatorName,
+    output: Path | None,
+    allow_incomplete: bool,
+    no_lamp_correction,
 ) -> None:
     """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
 

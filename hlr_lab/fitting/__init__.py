@@ -54,7 +54,7 @@ class Estimator:
 
 
 EstimatorName = Literal["robust", "paper"]
-ESTIMATORS: dict[str, Estimator] = {
+ESTIMATORS: dict[EstimatorName, Estimator] = {
     "robust": Estimator(fit_robust, per_theta_c=False,
                         summary="robust weighted least squares on the full model, all pixels at once (the default)"),
     "paper": Estimator(fit_paper, per_theta_c=True,
@@ -85,7 +85,7 @@ class RegionFit:
     rd_se: np.ndarray
     rs_se: np.ndarray
     n_se: float
-    method: str
+    method: EstimatorName
     residual_rms: float  # RMS of I − model over all pixels, intensity units
     noise_sigma: float  # estimated per-pixel noise at the highlight
 

@@ -103,7 +103,7 @@ def unmeasured_entry(
     theta_c_deg: float,
     pixels: PixelCounts,
     residual_rms: float,
-    estimator: str,
+    estimator: EstimatorName,
 ) -> MaterialEntry:
     return MaterialEntry(
         id=region.id,

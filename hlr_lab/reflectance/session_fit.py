@@ -334,7 +334,7 @@ def fit_session(
 
 
 def _fit_one(
-    region: RegionEntry, p: _Pooled, theta_c_deg, method
+    region: RegionEntry, p: _Pooled, theta_c_deg, method: EstimatorName
 ) -> tuple[MaterialEntry | None, dict, RegionFit | None]:
     """The region's entry (None when not even its diffuse colour can be told), diagnostics, and the fit
     when its specular was measured."""
@@ -389,7 +389,7 @@ def _unphysical(rd: np.ndarray) -> str | None:
 
 
 def _diffuse_only(
-    region, intensity, irradiance, cos_alpha, cos_beta, reason: str, method: str
+    region, intensity, irradiance, cos_alpha, cos_beta, reason: str, method: EstimatorName
 ) -> MaterialEntry | str:
     """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE; or why
     there is none (too few such pixels, an Rd below 0)."""
