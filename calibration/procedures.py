@@ -181,7 +181,7 @@ def calibrate_all(
     order: tuple[ProcedureName, ...] = (
         ("camera", "gantry", "radiometric") if radiometric else ("camera", "gantry")
     )
-    outcomes: list[Calibrated] = []
+    outcome: Calibrated | None = None
     with new_photographs_folder(folder):
         for i, name in enumerate(order):
             last = i == len(order) - 1
@@ -195,9 +195,9 @@ def calibrate_all(
                 progress=progress,
             )
             done(outcome)
-            outcomes.append(outcome)
             rig = outcome.rig
-    return outcomes[-1]
+    assert outcome is not None  # the order is never empty
+    return outcome
 
 
 def _capture(

@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
+from drivers.dynamixel import SDK_REPLY_TIMEOUT_MS
 from drivers.modbus_stage import StageMap
 from hlr_lab.files import OpenModel, StrictModel, check_header, read_toml, validate
 from hlr_lab.geometry.camera import Camera
@@ -152,7 +153,7 @@ class _GantrySection(StrictModel):
     reboot_on_alarm: bool = False  # clear a hardware error by reboot only when the operator allows it
     # the wait for a servo's reply beyond its bytes' time: the SDK's 2 × 16 + 2 ms (an FTDI adapter's
     # default latency timer, twice); less once the adapter's timer is 1 ms, more behind a slow link
-    reply_timeout_ms: float = Field(default=34.0, gt=0, le=10_000)
+    reply_timeout_ms: float = Field(default=SDK_REPLY_TIMEOUT_MS, gt=0, le=10_000)
     # at the end of a run or on a stop: "torque_off" (the arm can be moved by hand; a heavy arm may sag)
     # or "hold" (the servos keep the last position, powered)
     park: Literal["torque_off", "hold"] = "torque_off"
