@@ -79,16 +79,19 @@ class TimedCamera:
     capturing: Stopwatch
     exposed_s: float = 0.0
 
-    def set_exposure(self, seconds: float) -> float:
-        return self.inner.set_exposure(seconds)
+    def set_exposure(self, seconds: float) -> None:
+        self.inner.set_exposure(seconds)
 
-    def set_gain(self, db: float) -> float:
-        return self.inner.set_gain(db)
+    def set_gain(self, gain_db: float) -> None:
+        self.inner.set_gain(gain_db)
 
     def capture(self) -> RawFrame:
         frame = self.capturing.timed(self.inner.capture)
         self.exposed_s += frame.exposure_s
         return frame
+
+    def close(self) -> None:
+        self.inner.close()
 
 
 @dataclass

@@ -1,10 +1,11 @@
 """``hlr-lab bench calibration``: calibrate the simulated bench built as a true rig file while hlr-lab
 believes the drawing, then measure what the calibration is worth.
 
-1. ``calibrate camera`` (board along the plate's zero), ``calibrate gantry`` on its result and
-   ``calibrate radiometric --warm-up 30`` on that, through the same library functions as the commands,
-   the rig's motion, exposures and warm-up clocked: the simulated-rig time (motion waits × the speed
-   factor + exposures + the warm-up; rendering is not rig time).
+1. ``calibrate all --board-along-zero`` with a 30-minute warm-up before the radiometry, through the same
+   library function as the command (:func:`calibration.procedures.calibrate_all`: its photographs, rig
+   files and summary pages are in the folder as the command leaves them), the rig's motion, exposures
+   and warm-up clocked: the simulated-rig time (motion waits × the speed factor + exposures + the
+   warm-up; rendering is not rig time); the wall time of each procedure here, photographing and solving.
 2. Recovery: the calibrated rig file against the true one, turned into the world the calibration
    defines (the camera keeps its drawn azimuth about the turntable axis: docs/calibration.md); the
    sensor and the warm lamp's power in absolute terms.
@@ -18,25 +19,25 @@ believes the drawing, then measure what the calibration is worth.
 
 from __future__ import annotations
 
-import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import tomlkit
 
 from benchmarks.acquire import Stopwatch, TimedCamera, TimedPositioner, repeated_poses
+from calibration.camera_procedure import CameraCalibration
+from calibration.images import journaled_sidecars
+from calibration.procedures import Calibrated, ProcedureName, Settings, calibrate_all, check_targets
 from hlr_lab.files import atomic_write_text
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.geometry.sphere import rotation_z
-from hlr_lab.instrument.control import open_rig
 from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.object.segment import segment
 from hlr_lab.pipeline import acquire_plan, fit_into, load_object, plan_object
 from hlr_lab.planning.planner import PlanSettings
-from hlr_lab.rig.calibrated import write_calibrated_rig
 from hlr_lab.rig.file import Rig, load_rig, rig_source_path, sim_rig
 from hlr_lab.session.lamp import UNWATCHED, LampWatch
 from sim.rig import SimRig
@@ -124,77 +125,37 @@ def calibration_figures(
     progress: Callable[[str], None] = lambda _: None,
 ) -> CalibrationFigures:
     """Run the three parts (module docstring) in ``folder`` (photographs, rig files, sessions kept)."""
-    from calibration.camera_procedure import board_spec, capture_board_frames, load_board_frames, solve_camera
-    from calibration.gantry_procedure import ball_spec, capture_ball_frames, load_ball_frames, solve_gantry
-    from calibration.images import journaled_sidecars
-    from calibration.radiometric_procedure import (
-        capture_radiometric_frames,
-        load_radiometric_frames,
-        solve_radiometric,
-        white_spec,
-    )
-
     drawing, figures = sim_rig(), CalibrationFigures()
-    board_spec(drawing), ball_spec(drawing), white_spec(drawing)
-    warm = LampWatch(warm_up_s=60 * WARM_UP)
+    settings = Settings(views=views, board_along_zero=True, poses=poses, warm_up_min=WARM_UP)
+    check_targets(drawing, ("camera", "gantry", "radiometric"))
+    clocks: dict[str, RigClock] = {}
 
-    def procedure(name: str, rig: Rig, world, capture) -> None:
-        """Photograph ``name``'s frames into folder/name on ``rig`` in ``world`` (stack → links, and what
-        else ``capture`` needs of the world), the rig's time clocked: ``capture(instruments, folder,
-        world's extra)`` returns the seconds it waited besides the motion and the exposures."""
-        progress(f"calibrate {name}: photographing")
-        (folder / name).mkdir(parents=True)
-        clock, started = RigClock(), time.perf_counter()
-        with contextlib.ExitStack() as stack:
-            links, extra = world(stack)
-            with open_rig(rig, links) as opened:
-                waited_s = capture(clock.clocked(opened.instruments), folder / name, extra)
-        figures.rig_s[name] = clock.rig_seconds(speed_factor) + waited_s
-        figures.wall_s[name] = time.perf_counter() - started
+    def clocked(procedure: ProcedureName, instruments: Instruments) -> Instruments:
+        progress(f"calibrate {procedure}: photographing")
+        clocks[procedure] = RigClock()
+        return clocks[procedure].clocked(instruments)
 
-    def board_frames(i, out, turn) -> float:
-        capture_board_frames(i, drawing, out, views=views, turn_the_wedge=turn)
-        return 0.0
+    outcomes: dict[str, Calibrated] = {}
+    started = time.perf_counter()
+
+    def done(c: Calibrated) -> None:
+        nonlocal started
+        outcomes[c.procedure] = c
+        warmed_s = 60 * c.warmed.minutes if c.warmed else 0.0  # the warm-up's waits are rig time too
+        figures.rig_s[c.procedure] = clocks[c.procedure].rig_seconds(speed_factor) + warmed_s
+        figures.wall_s[c.procedure], started = time.perf_counter() - started, time.perf_counter()
 
     targets = SimulatedTargets(true_rig, speed_factor)
-    procedure("camera", drawing, lambda stack: targets.board(stack, drawing), board_frames)
-    camera = solve_camera(load_board_frames(folder / "camera"), drawing)
-    with_camera = write_calibrated_rig(rig_source_path(drawing), folder / "rig-camera.toml",
-                                       camera.rig_fields(drawing, board_along_zero=True), "camera",
-                                       camera.record(folder / "camera"))  # fmt: skip
-    procedure("gantry", with_camera, lambda stack: (targets.mirror_ball(stack, with_camera), None),
-              lambda i, out, _: capture_ball_frames(i, with_camera, out, poses=poses) or 0.0)  # fmt: skip
-    gantry = solve_gantry(load_ball_frames(folder / "gantry"), with_camera)
-    record = gantry.record(folder / "gantry")
-    with_gantry = write_calibrated_rig(
-        folder / "rig-camera.toml",
-        folder / "rig-gantry.toml",
-        gantry.rig_fields(with_camera),
-        "gantry",
-        record,
-    )
-
-    def radiometric_frames(i, out, _) -> float:
-        warmed = capture_radiometric_frames(i, with_gantry, out, warm=warm)
-        return 60 * warmed.minutes if warmed else 0.0  # the warm-up's waits are rig time too
-
-    procedure("radiometric", with_gantry, lambda stack: (targets.white_reference(stack, with_gantry), None),
-              radiometric_frames)  # fmt: skip
-    radiometric = solve_radiometric(load_radiometric_frames(folder / "radiometric"), with_gantry)
-    record = radiometric.record(folder / "radiometric")
-    calibrated = write_calibrated_rig(
-        folder / "rig-gantry.toml",
-        folder / "rig-calibrated.toml",
-        radiometric.rig_fields(),
-        "radiometric",
-        record,
-    )
+    last = calibrate_all(drawing, folder, folder / "rig-calibrated.toml", targets, settings, done=done,
+                         instrumented=clocked)  # fmt: skip
+    calibrated, camera = last.rig, outcomes["camera"].result
+    assert isinstance(camera, CameraCalibration)
     truth = load_true_rig(true_rig)
     figures.recovery = recovery(calibrated, drawing, truth, camera.pose.rms_px)
-    sidecars = journaled_sidecars(folder / "radiometric", "calibrate radiometric")
+    sidecars = journaled_sidecars(last.images, "calibrate radiometric")
     lamp_frames = [sidecar for sidecar in sidecars if sidecar["kind"] == "lamp"]
     figures.radiometric = radiometric_recovery(calibrated, truth, lamp_frames)
-    watched = replace(warm, every=5)
+    watched = LampWatch(every=5, warm_up_s=60 * WARM_UP)
     for name, believed, lamp in (("drawing", drawing, UNWATCHED), ("calibrated", calibrated, watched)):
         progress(f"end to end with the {name} rig file: plan, acquire, fit")
         figures.end_to_end[name] = end_to_end(folder / f"e2e-{name}", believed, true_rig, speed_factor, run_poses,
@@ -206,7 +167,8 @@ def calibration_figures(
     atomic_write_text(beside, with_run_reference(rig_source_path(calibrated).read_text(encoding="utf-8")))
     atomic_write_text(true_beside, with_run_reference(true_rig_text(true_rig)))
     figures.end_to_end["white ref."] = end_to_end(folder / "e2e-white-reference", load_rig(beside),
-                                                  str(true_beside), speed_factor, run_poses, warm)  # fmt: skip
+                                                  str(true_beside), speed_factor, run_poses,
+                                                  LampWatch(warm_up_s=60 * WARM_UP))  # fmt: skip
     return figures
 
 
@@ -229,15 +191,18 @@ def radiometric_recovery(calibrated: Rig, truth: TrueRig, watched: list[dict]) -
     referred to it (``watched``: the sidecars of the frames of the lamp from above, the first of which is
     that moment; the simulator left the lamp's output in them), and how far that lamp still was from its
     warm power."""
-    s, t = calibrated.file.sensor, truth.sensor
+    s, t, light = calibrated.file.sensor, truth.sensor, calibrated.file.light
+    gain = s.conversion_gain_dn_per_e
+    true_electrons = t.electrons_per_dn
+    assert gain is not None  # the radiometric calibration wrote it and the power
+    assert light.power is not None
+    assert true_electrons is not None  # the bench's sensor has photon noise
     lamp_then = min(watched, key=lambda w: w["captured_at"])["camera"]["lamp_output"]
     return RadiometricRecovery(
         black_level_dn=abs(s.black_level_dn - t.black_level_dn),
         read_noise=abs(s.read_noise_dn / t.read_noise_dn - 1),
-        conversion_gain=abs(s.conversion_gain_dn_per_e * t.electrons_per_dn - 1),
-        sensitivity_times_power=abs(
-            s.sensitivity * calibrated.file.light.power / (t.sensitivity * lamp_then) - 1
-        ),
+        conversion_gain=abs(gain * true_electrons - 1),
+        sensitivity_times_power=abs(s.sensitivity * light.power / (t.sensitivity * lamp_then) - 1),
         lamp_short_of_warm=1 - lamp_then / truth.lamp.power,
     )
 
@@ -302,12 +267,10 @@ def end_to_end(folder: Path, believed: Rig, true_rig: str, speed_factor: float, 
     errors = {rid: RegionErrors(float("nan"), float("nan"), float("nan")) for rid in truth}  # nan: not fitted
     for entry in fitted.regions:
         true = truth[entry.id]
-        measured = entry.specular == "measured"
-        errors[entry.id] = RegionErrors(
-            rd_pct=_worst_pct(entry.rd, true.rd),
-            rs_pct=_worst_pct(entry.rs, true.rs) if measured else float("nan"),
-            n_pct=100 * abs(entry.n / true.n - 1) if measured else float("nan"),
-        )
+        rs_pct = n_pct = float("nan")
+        if entry.rs is not None and entry.n is not None:  # its specular measured
+            rs_pct, n_pct = _worst_pct(entry.rs, true.rs), 100 * abs(entry.n / true.n - 1)
+        errors[entry.id] = RegionErrors(_worst_pct(entry.rd, true.rd), rs_pct, n_pct)
     return errors
 
 

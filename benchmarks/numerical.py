@@ -47,7 +47,7 @@ def paper_41_object(
 def subdivided(mesh: ColouredMesh, min_vertices: int) -> ColouredMesh:
     v, f = mesh.vertices, mesh.faces
     while len(v) < min_vertices:
-        v, f = trimesh.remesh.subdivide(v, f)
+        v, f = trimesh.remesh.subdivide(v, f)[:2]
     return ColouredMesh(v, f)
 
 

@@ -98,6 +98,7 @@ def render_figures(frames: int = 1000, sizes=((640, 480), (1280, 960)), spp: int
         pose_matrix((0, 0, 0.07)),
     )
     figures = {}
+    renderer: Renderer | None = None
     for width, height in sizes:
         f = 2400 * width / 1280
         k = np.array([[f, 0, width / 2 + 1.5], [0, f, height / 2 - 2.0], [0, 0, 1]])
@@ -108,19 +109,20 @@ def render_figures(frames: int = 1000, sizes=((640, 480), (1280, 960)), spp: int
         rot = np.stack([x, np.cross(z, x), z])
         cam = CameraSpec(k, np.array([-0.04, 0.015]), rot, -rot @ np.array([0.0, -0.62, 0.30]), width, height)
         renderer = Renderer(spec, cam, spp=spp)
-        renderer.render(0.0, [0.2, -0.2, 0.3])  # JIT
+        renderer.render(0.0, np.array([0.2, -0.2, 0.3]))  # JIT
         n = 10
         t = time.perf_counter()
         for i in range(n):  # a new light position every frame, as between poses of one view
-            renderer.render(0.0, [0.2, -0.2 + 0.01 * i, 0.3])
+            renderer.render(0.0, np.array([0.2, -0.2 + 0.01 * i, 0.3]))
         figures[f"render {width}x{height} {spp} spp, new light, s/frame"] = (time.perf_counter() - t) / n
         t = time.perf_counter()
         for i in range(n):  # the turntable too: vertex upload and acceleration-structure rebuild
-            renderer.render(float(i + 1), [0.2, -0.2 + 0.01 * i, 0.3])
+            renderer.render(float(i + 1), np.array([0.2, -0.2 + 0.01 * i, 0.3]))
         figures[f"render {width}x{height} {spp} spp, new view, s/frame"] = (time.perf_counter() - t) / n
+    assert renderer is not None, "no film size to render at"
     before = _rss_mb()
     for i in range(frames):
-        renderer.render(float(i % 360), [0.3 * np.cos(i / 50), 0.3 * np.sin(i / 50), 0.25], seed=i)
+        renderer.render(float(i % 360), np.array([0.3 * np.cos(i / 50), 0.3 * np.sin(i / 50), 0.25]), seed=i)
     figures[f"RSS before {frames} re-renders, MB"] = before
     figures[f"RSS after {frames} re-renders, MB"] = _rss_mb()
     return figures

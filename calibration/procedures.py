@@ -42,12 +42,19 @@ from calibration.summary import camera_summary, gantry_summary
 from hlr_lab.errors import InputError
 from hlr_lab.instrument.control import open_rig
 from hlr_lab.instrument.devices import Links
+from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.rig.calibrated import write_calibrated_rig
 from hlr_lab.rig.file import Rig, rig_source_path
 from hlr_lab.session.lamp import LampWatch, WarmUp
 
 ProcedureName = Literal["camera", "gantry", "radiometric"]
 Progress = Callable[[str], None]
+# what a procedure drives, given the devices as opened: the same by default; a benchmark's clocks around them
+Instrumented = Callable[[ProcedureName, Instruments], Instruments]
+
+
+def _as_opened(procedure: ProcedureName, instruments: Instruments) -> Instruments:
+    return instruments
 
 
 class Targets(Protocol):
@@ -143,13 +150,15 @@ def run_procedure(
     *,
     solve_only: bool = False,
     progress: Progress = lambda _: None,
+    instrumented: Instrumented = _as_opened,
 ) -> Calibrated:
     """Photograph ``procedure``'s frames into ``images`` (a new folder; unless ``solve_only``: then it
     holds an earlier run's), solve, and write ``output``: ``rig``'s file with the procedure's fields
-    replaced and its ``[calibration.PROCEDURE]`` record."""
+    replaced and its ``[calibration.PROCEDURE]`` record. The photographs are taken with
+    ``instrumented(procedure, the opened devices)``."""
     if not solve_only:
         with new_photographs_folder(images):
-            warmed = _capture(procedure, rig, images, targets, settings, progress)
+            warmed = _capture(procedure, rig, images, targets, settings, progress, instrumented)
     else:
         warmed = None
     progress("solving…")
@@ -174,10 +183,12 @@ def calibrate_all(
     radiometric: bool = True,
     progress: Progress = lambda _: None,
     done: Callable[[Calibrated], None] = lambda _: None,
+    instrumented: Instrumented = _as_opened,
 ) -> Calibrated:
     """Camera, then the gantry on the file the camera wrote, then (``radiometric``) the radiometry on the
     gantry's: photographs in ``folder``/PROCEDURE, the intermediate files ``folder``/rig-PROCEDURE.toml,
-    the last written to ``output`` (it carries every record). ``done`` is called after each procedure."""
+    the last written to ``output`` (it carries every record). ``done`` is called after each procedure;
+    ``instrumented`` as for :func:`run_procedure`."""
     order: tuple[ProcedureName, ...] = (
         ("camera", "gantry", "radiometric") if radiometric else ("camera", "gantry")
     )
@@ -193,6 +204,7 @@ def calibrate_all(
                 targets,
                 settings,
                 progress=progress,
+                instrumented=instrumented,
             )
             done(outcome)
             rig = outcome.rig
@@ -201,7 +213,13 @@ def calibrate_all(
 
 
 def _capture(
-    procedure: ProcedureName, rig: Rig, images: Path, targets: Targets, settings: Settings, progress: Progress
+    procedure: ProcedureName,
+    rig: Rig,
+    images: Path,
+    targets: Targets,
+    settings: Settings,
+    progress: Progress,
+    instrumented: Instrumented,
 ) -> WarmUp | None:
     def step(i: int, n: int, what: str) -> None:
         progress(f"photograph {i + 1}/{n}: {what}")
@@ -211,17 +229,28 @@ def _capture(
             links, turn = targets.board(stack, rig)
             with open_rig(rig, links) as opened:
                 capture_board_frames(
-                    opened.instruments, rig, images, views=settings.views, turn_the_wedge=turn, progress=step
+                    instrumented(procedure, opened.instruments),
+                    rig,
+                    images,
+                    views=settings.views,
+                    turn_the_wedge=turn,
+                    progress=step,
                 )
             return None
         if procedure == "gantry":
             with open_rig(rig, targets.mirror_ball(stack, rig)) as opened:
-                capture_ball_frames(opened.instruments, rig, images, poses=settings.poses, progress=step)
+                capture_ball_frames(
+                    instrumented(procedure, opened.instruments),
+                    rig,
+                    images,
+                    poses=settings.poses,
+                    progress=step,
+                )
             return None
         warm = LampWatch(warm_up_s=60 * settings.warm_up_min, stable_per_min=settings.warm_up_within / 100)
         with open_rig(rig, targets.white_reference(stack, rig)) as opened:
             return capture_radiometric_frames(
-                opened.instruments,
+                instrumented(procedure, opened.instruments),
                 rig,
                 images,
                 positions=settings.positions,

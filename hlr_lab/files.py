@@ -10,6 +10,7 @@ import re
 import shutil
 import tempfile
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TypeVar
 
@@ -18,6 +19,7 @@ import pydantic
 from hlr_lab.errors import DiskFull, InputError
 
 Model = TypeVar("Model", bound=pydantic.BaseModel)
+T = TypeVar("T")
 
 
 class StrictModel(pydantic.BaseModel):
@@ -38,6 +40,18 @@ class OpenModel(pydantic.BaseModel):
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 FILE_MODE = 0o666 & ~_UMASK
+
+
+def as_pair(values: Sequence[T]) -> tuple[T, T]:
+    """A file's two-element list (its model checked the length) as the 2-tuple the code declares."""
+    first, second = values
+    return first, second
+
+
+def as_triple(values: Sequence[T]) -> tuple[T, T, T]:
+    """A file's three-element list (its model checked the length) as a 3-tuple."""
+    x, y, z = values
+    return x, y, z
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

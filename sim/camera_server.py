@@ -42,9 +42,11 @@ class CameraServer:
         return f"{host}:{self._server.getsockname()[1]}"
 
     def _accept(self) -> None:
+        server = self._server
+        assert server is not None  # serve_tcp made it before starting this thread
         while not self._stop.is_set():
             try:
-                conn, _ = self._server.accept()
+                conn, _ = server.accept()
             except (TimeoutError, OSError):
                 continue
             try:

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from sim.render.scene import Material, MirrorBall, SceneSpec
+from sim.tuples import triple
 
 INK, PAPER = (
     Material((0.04, 0.04, 0.04), (0.0, 0.0, 0.0), 1.0),
@@ -109,7 +110,7 @@ def mirror_ball_scene(
     vertices = np.vstack([[0.0, 0.0, 0.0], rim])
     n = len(angles)
     faces = np.array([[0, 1 + i, 1 + (i + 1) % n] for i in range(n)])  # counter-clockwise seen from above
-    plate = Material((plate_rd,) * 3, (0.0, 0.0, 0.0), 1.0)
+    plate = Material((plate_rd, plate_rd, plate_rd), (0.0, 0.0, 0.0), 1.0)
     ball = MirrorBall((float(centre_xy_m[0]), float(centre_xy_m[1]), radius_m), radius_m)
     return SceneSpec(vertices, faces, np.zeros(n, np.int64), [plate], np.eye(4), mirror_balls=(ball,),
                      normals=np.tile([0.0, 0.0, 1.0], (len(vertices), 1)))  # fmt: skip
@@ -137,7 +138,7 @@ def white_reference_scene(
     s = n + 1
     faces = np.array([*plate_faces, [s, s + 1, s + 2], [s, s + 2, s + 3]])
     regions = np.array([0] * n + [1, 1], np.int64)
-    materials = [Material((plate_rd,) * 3, (0.0, 0.0, 0.0), 1.0),
-                 Material(tuple(float(r) for r in reflectance), (0.0, 0.0, 0.0), 1.0)]  # fmt: skip
+    materials = [Material((plate_rd, plate_rd, plate_rd), (0.0, 0.0, 0.0), 1.0),
+                 Material(triple(float(r) for r in reflectance), (0.0, 0.0, 0.0), 1.0)]  # fmt: skip
     return SceneSpec(vertices, faces, regions, materials, np.eye(4),
                      normals=np.tile([0.0, 0.0, 1.0], (len(vertices), 1)))  # fmt: skip

@@ -27,6 +27,7 @@ from sim.lamp import LampModel
 from sim.render.camera import CameraSpec
 from sim.render.scene import Patch
 from sim.render.sensor import SensorModel
+from sim.tuples import pair, triple
 
 BUILTIN = "builtin:"
 
@@ -86,16 +87,16 @@ def load_true_rig(spec: str | Path) -> TrueRig:
 
 def _world(data: dict, source: str) -> TrueRig:
     c, g, t = data["camera"], data["gantry"], data["turntable"]
-    ids = tuple(int(i) for i in g.get("servo_ids", (1, 2)))
+    ids = pair(int(i) for i in g.get("servo_ids", (1, 2)))
     gantry = GantryGeometry(
-        centre=tuple(float(v) for v in g["centre_m"]),
+        centre=triple(float(v) for v in g["centre_m"]),
         arm_radius=float(g["arm_radius_m"]),
         azimuth_servo=ids[0],
         elevation_servo=ids[1],
-        zero_ticks=tuple(int(v) for v in g.get("zero_ticks", (2048, 1024))),
+        zero_ticks=pair(int(v) for v in g.get("zero_ticks", (2048, 1024))),
         ticks_per_rev=int(g.get("ticks_per_rev", 4096)),
-        directions=tuple(int(v) for v in g.get("directions", (1, 1))),
-        azimuth_axis=tuple(float(v) for v in g.get("azimuth_axis", (0.0, 0.0, 1.0))),
+        directions=pair(int(v) for v in g.get("directions", (1, 1))),
+        azimuth_axis=triple(float(v) for v in g.get("azimuth_axis", (0.0, 0.0, 1.0))),
     )
     stage = StageGeometry(float(t["steps_per_degree"]), int(t.get("zero_steps", 0)))
     return TrueRig(_camera(c), gantry, stage, ids, source, _sensor(data.get("sensor", {})),
@@ -109,13 +110,14 @@ def _run_reference(calibration: dict) -> Patch | None:
         return None
     x, y = (float(v) for v in w["run_place_m"])
     return Patch((x, y), float(w.get("size_m", 0.1)), float(w.get("thickness_m", 0.0)),
-                 tuple(float(r) for r in w.get("reflectance", (0.99, 0.99, 0.99))))  # fmt: skip
+                 triple(float(r) for r in w.get("reflectance", (0.99, 0.99, 0.99))))  # fmt: skip
 
 
 def _sensor(s: dict) -> SensorModel:
     """[sensor] as the simulator takes it: sensitivity (DN per radiance · s), black level and read noise
     (DN), conversion gain (DN per electron: sets the photon noise)."""
     d = SensorModel()
+    assert d.electrons_per_dn is not None  # the default sensor has photon noise
     gain = float(s.get("conversion_gain_dn_per_e", 1.0 / d.electrons_per_dn))
     if not (gain > 0 and float(s.get("sensitivity", d.sensitivity)) > 0):
         raise ValueError("sensitivity and conversion_gain_dn_per_e must be positive")

@@ -48,7 +48,9 @@ def test_segment_then_plan_on_the_builtin_object(capsys, tmp_path):
     assert p.poses
     assert all(c.satisfied for c in p.coverage.values())
     assert p.parameters.criterion == "capped"
-    assert p.summary["lights_by_criterion"]["plain"] >= len(p.poses)
+    assert p.summary is not None
+    assert p.summary.lights_by_criterion is not None
+    assert p.summary.lights_by_criterion["plain"] >= len(p.poses)
 
 
 def test_uncovered_regions_give_exit_status_3_and_a_written_plan(capsys, tmp_path):

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from hlr_lab.errors import InputError
+from hlr_lab.files import as_triple
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.formats.planned_object import (
     face_regions,
@@ -102,7 +103,7 @@ def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> Scene
     order = {rid: i for i, rid in enumerate(region_ids(plan))}
     region = np.vectorize(order.__getitem__, otypes=[np.int64])(face_regions(plan, mesh))
     rd = srgb8_to_linear(palette(plan)) * RD_SCALE
-    materials = [Material(tuple(map(float, c)), DEFAULT_RS, DEFAULT_N) for c in rd]
+    materials = [Material(as_triple([float(x) for x in c]), DEFAULT_RS, DEFAULT_N) for c in rd]
     if mesh.texture is None or mesh.corner_uv is None:
         return SceneSpec(mesh.vertices, mesh.faces, region, materials, placement)
     # textured: the renderer takes the material per texel; one vertex per face corner carries its UV
@@ -139,7 +140,7 @@ def scene_file_object(scene_path: Path) -> SceneFileObject:
     try:
         data = tomllib.loads(scene_path.read_text(encoding="utf-8"))
         mesh = scene_path.parent / data["object"]["mesh"]
-        colours = [tuple(int(c) for c in r["color"]) for r in data.get("region", [])]
+        colours = [as_triple([int(c) for c in r["color"]]) for r in data.get("region", [])]  # (ValueError)
     except (OSError, KeyError, TypeError, ValueError, tomllib.TOMLDecodeError) as exc:
         raise InputError(
             f"cannot read the scene's object.mesh and region colours ({exc})", path=scene_path

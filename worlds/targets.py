@@ -12,6 +12,7 @@ from pathlib import Path
 from calibration.camera_procedure import board_spec
 from calibration.gantry_procedure import ball_spec
 from calibration.radiometric_procedure import white_spec
+from hlr_lab.files import as_pair
 from hlr_lab.instrument.devices import Links
 from hlr_lab.rig.file import Rig
 from sim.rig import SimRig
@@ -34,7 +35,7 @@ class SimulatedTargets:
         board_spec(rig)  # a rig file without a board is refused in one line
         b = rig.file.calibration.board
         assert b is not None
-        board = Board(tuple(b.squares), b.square_m, b.marker_m, b.dictionary)
+        board = Board(as_pair(b.squares), b.square_m, b.marker_m, b.dictionary)
         faces = [Wedge(tilt_deg=tilt, height_m=b.centre_height_m) for tilt in WEDGE_TILTS_DEG]
         world = self._world(stack, rig, charuco_scene(board, faces[0]), BOARD_SPP)
         return world_links(world), lambda face: world.show(charuco_scene(board, faces[face]))

@@ -223,7 +223,8 @@ class _RetryJournal(logging.Handler):
 
     def __init__(self, journal: Journal):
         super().__init__(logging.WARNING)
-        self.journal, self.count, self.pose = journal, 0, None
+        self.journal, self.count = journal, 0
+        self.pose: str | None = None  # the pose being taken, for the journal line
 
     def emit(self, record: logging.LogRecord) -> None:
         if getattr(record, "retry", False):
@@ -437,6 +438,8 @@ class _LampReference:
         frame, name = self._photograph(progress, warming=False)
         if self.first is None:
             self._set_baseline(frame.pixels, name, frame.bits)
+        assert self.first is not None  # _set_baseline sets first and compared
+        assert self.compared is not None
         output = relative_output(frame.pixels, self.first, self.compared, self.watch.black_level_dn)
         self.run.journal.append({"event": "lamp", "at": frame.captured_at, "output": output,
                                  "baseline": self.baseline})  # fmt: skip

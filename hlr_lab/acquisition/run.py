@@ -89,8 +89,10 @@ def acquire_session(
             if (session / JOURNAL).exists():
                 _journal_safe_state(stop.safe, session)
             raise
-        _journal_safe_state(opened.devices.safe, session)
-    outcome.safe = opened.devices.safe
+        safe = opened.devices.safe
+        assert safe is not None  # open_rig's block is left: the rig was made safe and confirmed
+        _journal_safe_state(safe, session)
+    outcome.safe = safe
     return outcome
 
 

@@ -29,6 +29,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from drivers.protocols import RawFrame
 from hlr_lab.errors import InputError
+from hlr_lab.files import as_pair
 from hlr_lab.geometry.camera import Camera
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.rig.file import Rig
@@ -212,6 +213,6 @@ def reference_meter(
             path=rig.source,
             field="calibration.white_reference.run_place_m",
         )
-    reference = RunReference(rig.camera, vertices, window=window, place_m=tuple(w.run_place_m), size_m=w.size_m,
+    reference = RunReference(rig.camera, vertices, window=window, place_m=as_pair(w.run_place_m), size_m=w.size_m,
                              height_m=w.thickness_m, reflectance=np.asarray(w.reflectance))  # fmt: skip
     return ReferenceMeter(rig, reference)

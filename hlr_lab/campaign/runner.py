@@ -209,6 +209,7 @@ def forecast(campaign: Campaign) -> Forecast:
     filesystem need more than it has free."""
     frames, needed, duration = {}, {}, {}
     by_filesystem: dict[int, list[str]] = {}
+    out: dict[str, Path] = {}  # each acquire job's session folder
     for job in campaign.jobs:
         if not isinstance(job, AcquireJob):
             continue
@@ -221,8 +222,9 @@ def forecast(campaign: Campaign) -> Forecast:
             estimate_duration_s(plan, motion_targets(plan, rig, job.plan), rig) / job.speed_factor
         )
         by_filesystem.setdefault(_device_of(job.out), []).append(job.name)
+        out[job.name] = job.out
     for names in by_filesystem.values():
-        where = next(j.out for j in campaign.jobs if j.name == names[0])
+        where = out[names[0]]
         total, free = sum(needed[n] for n in names), free_bytes(where)
         if total > free:
             raise DiskFull(
@@ -355,6 +357,7 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
             links = links_for(job, world)
         except HlrLabError as exc:  # its simulated world could not be built (a scene file, a true rig)
             return JobResult(job.name, "failed", 0, str(exc))
+        attempt = 0
         for attempt in range(1, ATTEMPTS + 1):
             say(f"acquiring (attempt {attempt})")
 

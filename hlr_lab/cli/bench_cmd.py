@@ -370,12 +370,15 @@ def bench_calibration(true_rig, views, poses, run_poses, out_dir, speed_factor) 
             f = calibration_figures(folder, true_rig=true_rig, views=views, poses=poses, run_poses=run_poses,
                                     speed_factor=speed_factor, progress=status.update)  # fmt: skip
     r, q = f.recovery, f.radiometric
+    assert r is not None  # calibration_figures measures both before it returns
+    assert q is not None
     rig_times = ", ".join(f"{name} {seconds:.0f} s" for name, seconds in f.rig_s.items())
     walls = " + ".join(f"{seconds:.0f} s" for seconds in f.wall_s.values())
     lines = [
         f"world: {true_rig}; hlr-lab starts from the drawing (the built-in simulated rig)",
         f"simulated-rig time: {rig_times} (target ≤ 5 min for camera and gantry; {views} views, {poses} lamp "
-        f"poses × 2 ball places, the radiometry's warm-up included); wall here at ×{speed_factor:g}: {walls}",
+        f"poses × 2 ball places, the radiometry's warm-up included); wall here at ×{speed_factor:g} "
+        f"(photographing and solving): {walls}",
         "recovery against the true rig (target):",
         f"  focal length {r.focal_pct:.3f} % (0.2 %), principal point {r.principal_point_px:.2f} px (1 px), "
         f"reprojection RMS {r.rms_px:.3f} px (0.3 px)",

@@ -276,6 +276,7 @@ def radiometric(
 @_count("--poses", 12, 200, DEFAULT.poses, "Lamp poses.")
 @_count("--positions", 3, 60, DEFAULT.positions, "Lamp positions over the white reference.")
 @click.option("--no-radiometric", is_flag=True, help="Camera and gantry only (no white reference).")
+@warm_up_options
 @board_along_zero_option
 @click.option(
     "--out",
@@ -300,6 +301,8 @@ def all_(
     poses,
     positions,
     no_radiometric,
+    warm_up_within,
+    warm_up_min,
     board_along_zero,
     out,
     output,
@@ -315,12 +318,20 @@ def all_(
     \b
     Examples:
       hlr-lab calibrate all --rig rig.toml --board-along-zero -o rig-calibrated.toml
-      hlr-lab calibrate all --sim --true-rig builtin:bench-night --board-along-zero -o calibrated.toml
+      hlr-lab calibrate all --sim --true-rig builtin:bench-night --board-along-zero --warm-up 30 \\
+          -o calibrated.toml
     """
     rig = believed_rig(rig_path, sim, true_rig)
     check_targets(rig, ("camera", "gantry") if no_radiometric else ("camera", "gantry", "radiometric"))
     folder = out or default_folder("all", time.strftime("%Y-%m-%d-%H%M%S"))
-    settings = Settings(views=views, poses=poses, positions=positions, board_along_zero=board_along_zero)
+    settings = Settings(
+        views=views,
+        poses=poses,
+        positions=positions,
+        board_along_zero=board_along_zero,
+        warm_up_min=warm_up_min,
+        warm_up_within=warm_up_within,
+    )
     with console.status("calibrating…") as status:
         calibrate_all(
             rig,

@@ -55,7 +55,9 @@ def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:
             "which rig? give --rig rig.toml for a real rig, or --sim for the built-in simulated rig",
             field="--rig",
         )
-    return sim_rig() if use_sim else load_rig(rig_path)
+    if rig_path is None:
+        return sim_rig()
+    return load_rig(rig_path)
 
 
 def believed_rig(rig_path: Path | None, use_sim: bool, true_rig: str | None = None) -> Rig:

@@ -157,6 +157,8 @@ def _truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, sessi
         rd, true_rd = np.array(e.rd), np.array(true.rd)
         row = [str(rid), _v(rd), _v(true_rd), f"{_err(rd, true_rd):.2f}"]
         if e.specular == "measured":
+            assert e.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
+            assert e.n is not None
             row += [f"{_err(np.array(e.rs), np.array(true.rs)):.2f}", f"{e.n:.1f} ({true.n:g})"]
             row.append(f"{100 * abs(e.n - true.n) / true.n:.2f}")
         else:

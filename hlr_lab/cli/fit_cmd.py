@@ -136,6 +136,8 @@ def materials_table(materials: MaterialsFile) -> Table:
     for e in materials.regions:
         rd = " ".join(f"{v:.4f}±{s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
         if e.specular == "measured":
+            assert e.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
+            assert e.n is not None
             rs = " ".join(f"{v:.4f}" for v in e.rs)
             n = f"{e.n:.1f}±{e.n_se:.1f}"
         else:

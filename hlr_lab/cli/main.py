@@ -61,10 +61,10 @@ class LazyGroup(click.Group):
     def list_commands(self, ctx: click.Context) -> list[str]:
         return list(COMMANDS)
 
-    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
-        if name not in COMMANDS:
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in COMMANDS:
             return None
-        module, _, attribute = COMMANDS[name][0].partition(":")
+        module, _, attribute = COMMANDS[cmd_name][0].partition(":")
         return getattr(importlib.import_module(module), attribute)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
@@ -165,7 +165,7 @@ def _os_error(exc: OSError) -> str:
         errno.ENOTDIR: "a part of that path is a file, not a folder",
         errno.ENOENT: "no such file or folder: check the path",
         errno.ENOSPC: "the disk is full: free space, or write elsewhere",
-    }.get(exc.errno, "check the path")
+    }.get(exc.errno or 0, "check the path")  # (errno 0 is no error: not a key)
     return f"{where}: {exc.strerror or exc}; {advice}"
 
 

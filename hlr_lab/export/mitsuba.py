@@ -11,6 +11,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 import trimesh
+from trimesh.exchange.ply import export_ply
 
 from hlr_lab.export.conversion import MITSUBA_PLASTIC_IOR, beckmann_alpha, ior_for_f0, specular_f0
 from hlr_lab.export.regions import RegionPart
@@ -24,7 +25,7 @@ def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:
     for p in parts:
         ply = folder / "meshes" / f"{p.name}.ply"
         mesh = trimesh.Trimesh(p.vertices, p.faces, vertex_normals=p.normals, process=False)
-        atomic_write_bytes(ply, trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=True))
+        atomic_write_bytes(ply, export_ply(mesh, encoding="binary", vertex_normal=True))
         written.append(ply)
     pts = np.concatenate([p.vertices for p in parts])
     centre = (pts.min(axis=0) + pts.max(axis=0)) / 2

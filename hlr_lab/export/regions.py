@@ -60,7 +60,11 @@ def region_parts(
                 field=f"regions[{m.id}].color",
             )
         measured = m.specular == "measured"
-        rs, n = (np.array(m.rs), float(m.n)) if measured else (np.zeros(3), 1.0)
+        rs, n = np.zeros(3), 1.0
+        if measured:
+            assert m.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
+            assert m.n is not None
+            rs, n = np.array(m.rs), float(m.n)
         parts.append(_part(mesh, seg, m.id, np.array(m.rd), rs, n, measured))
     # every face is exported: a region the fit gave no material (too few pixels, never seen) gets its
     # colour as a diffuse-only stand-in, named as such (RegionPart.name) — never a hole in the object

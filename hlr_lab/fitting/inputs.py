@@ -2,16 +2,25 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from scipy.stats import median_abs_deviation
 
 from hlr_lab.errors import HlrLabError, InputError
 
 MIN_DIFFUSE = 20  # diffuse-only pixels needed for Rd (3 values) with outlier rejection
 MIN_HIGHLIGHT = 20  # highlight pixels needed for Rs (3 values) and n
 MIN_BETA_SPAN_DEG = 1.0  # n is the lobe's fall-off: the highlight pixels must span some range of β
+
+
+def normal_mad(x: np.ndarray, axis: int = 0, center: Callable[..., object] = np.median) -> np.ndarray:
+    """The median absolute deviation scaled to a normal σ (÷ Φ⁻¹(¾) ≈ 0.6745): a scale 50 % of outliers
+    cannot move. ``x`` (N, …) → the shape of ``x`` without ``axis``."""
+    # scipy takes scale="normal"; its type stubs allow only a float there
+    return np.asarray(median_abs_deviation(x, axis=axis, center=center, scale="normal"))  # pyright: ignore[reportArgumentType]
 
 
 class InsufficientSamples(HlrLabError):
@@ -72,7 +81,7 @@ def check_samples(intensity, irradiance, cos_alpha, cos_beta) -> Samples:
         irr = irr[:, None]
     elif irr.shape != (n, 3):
         raise InputError(f"must have shape ({n},) or ({n}, 3), got {irr.shape}", field="irradiance")
-    _count_bad("irradiance", ~(irr > 0).all(axis=1), "≤ 0 (unlit pixels do not belong in a fit)")
+    _count_bad("irradiance", ~np.all(irr > 0, axis=1), "≤ 0 (unlit pixels do not belong in a fit)")
     _count_bad("cos_alpha", ~((ca > 0) & (ca <= 1 + 1e-9)), "outside (0, 1] (the light must be in front)")
     _count_bad("cos_beta", ~((cb > 0) & (cb <= 1 + 1e-9)), "outside (0, 1]")
     return Samples(i, irr, np.minimum(ca, 1.0), np.minimum(cb, 1.0))

@@ -18,9 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from scipy.stats import median_abs_deviation
 
-from hlr_lab.fitting.inputs import Samples
+from hlr_lab.fitting.inputs import Samples, normal_mad
 from hlr_lab.fitting.model import predict
 
 _REJECT_SIGMAS = 3.0  # "values that deviate strongly" (paper: inter-reflection and the like)
@@ -50,12 +49,12 @@ def fit_paper(s: Samples, highlight: np.ndarray, n_range: tuple[float, float]) -
     diffuse = ~highlight
     ratio = s.intensity[diffuse] / (s.irradiance[diffuse] * s.cos_alpha[diffuse, None])  # (Nd, 3)
     med = np.median(ratio, axis=0)
-    mad = median_abs_deviation(ratio, axis=0, scale="normal")
+    mad = normal_mad(ratio)
     keep = (np.abs(ratio - med) <= _REJECT_SIGMAS * np.maximum(mad, 1e-12)).all(axis=1)
     rd = ratio[keep].mean(axis=0)
     rd_se = ratio[keep].std(axis=0, ddof=1) / np.sqrt(keep.sum())
     resid = s.intensity[diffuse][keep] - s.irradiance[diffuse][keep] * s.cos_alpha[diffuse][keep, None] * rd
-    sigma = float(np.mean(median_abs_deviation(resid, axis=0, scale="normal")))
+    sigma = float(np.mean(normal_mad(resid)))
 
     h = s.subset(highlight)
     specular = (h.intensity - h.irradiance * h.cos_alpha[:, None] * rd) / h.irradiance  # Is / L, (Nh, 3)

@@ -20,9 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import minimize_scalar, nnls
-from scipy.stats import median_abs_deviation
 
-from hlr_lab.fitting.inputs import Samples
+from hlr_lab.fitting.inputs import Samples, normal_mad
 from hlr_lab.fitting.paper import Estimate
 
 HUBER_K = 1.345  # 95 % efficiency under Gaussian noise
@@ -120,7 +119,7 @@ def _profile_n(s: Samples, w: np.ndarray, n0: float, n_range) -> tuple[float, np
     lo, hi = np.log(n_range[0]), np.log(n_range[1])
     # scale for the Huber weights from a first fit at n0
     _, _, r0 = _linear_given_n(s, w, n0)
-    sigma = float(median_abs_deviation(r0, axis=None, center=_about_zero, scale="normal")) + 1e-12
+    sigma = float(normal_mad(np.ravel(r0), center=_about_zero)) + 1e-12
 
     def cost(log_n: float) -> float:
         _, _, r = _linear_given_n(s, w, float(np.exp(log_n)))
@@ -154,7 +153,7 @@ def _noise_model(s: Samples, rd, rs, n) -> np.ndarray:
         rk = r[which == k]
         if len(rk) >= 20:
             rows.append([1.0, float(np.median(mu[which == k]))])
-            var.append(float(median_abs_deviation(rk, axis=None, scale="normal")) ** 2)
+            var.append(float(normal_mad(np.ravel(rk))) ** 2)
     if len(rows) < 2:
         return np.array([max(float(np.var(r)), 1e-12), 0.0])
     coef, _ = nnls(np.array(rows), np.array(var))
@@ -201,12 +200,13 @@ def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range):
         ):
             p = trial
             break
+        t = _normal_equations(s, trial, noise)
         for _halving in range(_MAX_HALVINGS):
-            t = _normal_equations(s, trial, noise)
             if t[2] <= cost * (1 + 1e-9):
                 break
             step = step / 2
             trial = p + step
+            t = _normal_equations(s, trial, noise)  # the sums are always the trial's own
         p, sums = trial, t
     hessian, _, _, meat, rss = sums
     h_inv = np.linalg.pinv(hessian)
@@ -250,6 +250,7 @@ def _chunk_sums(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
     jac = np.empty((3, len(ca)))
     hess, meat, grads = np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), np.zeros((3, 3))
     cost = rss = 0.0
+    lobe0 = np.empty(0)  # the start's lobe under this light: set at c = 0, and per channel if lights differ
     for c in range(3):
         if c == 0 or not shared_light:
             light = s.irradiance[sl, 0 if shared_light else c]

@@ -19,6 +19,7 @@ from hlr_lab import __version__
 from hlr_lab.files import OpenModel, read_format, write_json
 from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.object.segment import Segmentation
+from hlr_lab.planning.geometry import SphereSource
 from hlr_lab.planning.planner import PlanResult
 
 PLAN_FORMAT = "hlr-lab.plan"
@@ -48,7 +49,15 @@ class PlanParameters(OpenModel):
     sphere_radius_m: float = Field(gt=0)
     count: Literal["pixels", "vertices"]
     criterion: Literal["capped", "plain"] = "capped"
-    sphere_source: Literal["rig", "scale"] = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
+    sphere_source: SphereSource = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
+    # what hlr-lab's planner was run with, for the record (another tool's plan may leave them out)
+    sphere_centre_m: Vec3 | None = None
+    cone: str | None = None
+    candidate_spacing_deg: float | None = None
+    max_view_angle_deg: float | None = None
+    shadows: bool | None = None
+    views_deg: list[float] | None = None
+    max_lights: int | None = None
 
 
 class PlanLight(OpenModel):
@@ -71,11 +80,27 @@ class PlanPose(OpenModel):
         list[Annotated[float, Field(gt=0, le=3600)]], Field(min_length=1)
     ]  # an hour at most
     expected: dict[str, float]
+    greedy_step: int | None = None  # the order hlr-lab's greedy chose the light in
 
 
 class RegionCoverage(OpenModel):
     samples: float = Field(ge=0)
     satisfied: bool
+    needed: float | None = None
+
+
+class PlanSummary(OpenModel):
+    """What hlr-lab's planner reports about its plan, for people: every field optional (another tool's plan)."""
+
+    lights: int | None = None
+    lights_by_criterion: dict[str, int] | None = None
+    views_used: list[float] | None = None
+    candidates: int | None = None
+    reachable_candidates: int | None = None
+    rig: str | None = None
+    seconds: dict[str, float] | None = None
+    created: str | None = None  # ISO 8601, UTC
+    software: str | None = None
 
 
 class Uncovered(OpenModel):
@@ -91,6 +116,7 @@ class PlanFile(OpenModel):
     poses: list[PlanPose]
     coverage: dict[str, RegionCoverage]
     uncovered: list[Uncovered] = []
+    summary: PlanSummary | None = None
 
     @field_validator("poses")
     @classmethod
@@ -187,17 +213,17 @@ def build_plan(
             for r in range(seg.n_regions)
         },
         uncovered=[Uncovered(region=r, reason=why) for r, why in sorted(result.uncovered.items())],
-        summary={
-            "lights": len(result.lights),
-            "lights_by_criterion": result.lights_by_criterion,
-            "views_used": sorted({p.turntable_deg for p in poses}),
-            "candidates": result.candidates,
-            "reachable_candidates": result.reachable,
-            "rig": rig_name,
-            "seconds": {k: round(v, 3) for k, v in result.seconds.items()},
-            "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-            "software": f"hlr-lab {__version__}",
-        },
+        summary=PlanSummary(
+            lights=len(result.lights),
+            lights_by_criterion=result.lights_by_criterion,
+            views_used=sorted({p.turntable_deg for p in poses}),
+            candidates=result.candidates,
+            reachable_candidates=result.reachable,
+            rig=rig_name,
+            seconds={k: round(v, 3) for k, v in result.seconds.items()},
+            created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            software=f"hlr-lab {__version__}",
+        ),
     )
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from hlr_lab.errors import InputError
-from hlr_lab.files import OpenModel, StrictModel, read_format, write_json
+from hlr_lab.files import OpenModel, StrictModel, as_triple, read_format, write_json
 from hlr_lab.object.mesh import ColouredMesh, file_sha256
 from hlr_lab.object.segment import Region, Segmentation
 
@@ -129,6 +129,8 @@ def read_regions(path: str | Path, mesh: ColouredMesh) -> Segmentation:
     for name, labels in (("vertex_labels", v), ("face_labels", fl)):
         if len(labels) and (labels.min() < 0 or labels.max() >= len(ids)):
             raise InputError(f"labels must lie in 0…{len(ids) - 1}", path=path, field=name)
-    regions = [Region(r.id, r.material, tuple(r.color), r.vertices, r.faces, r.area_m2) for r in f.regions]
+    regions = [
+        Region(r.id, r.material, as_triple(r.color), r.vertices, r.faces, r.area_m2) for r in f.regions
+    ]
     p = f.parameters
     return Segmentation(v, fl, regions, p.delta_e, p.split_connected, p.min_fragment)

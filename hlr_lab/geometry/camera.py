@@ -123,8 +123,11 @@ class Camera:
         pts = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
         if np.any(self._dist5):
             criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-            if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4; OpenCV 5 folded it into undistortPoints
-                norm = cv2.undistortPointsIter(pts, self.matrix, self._dist5, None, None, criteria)
+            undistort_iter = getattr(
+                cv2, "undistortPointsIter", None
+            )  # OpenCV 4; 5 folded it into undistortPoints
+            if undistort_iter is not None:
+                norm = undistort_iter(pts, self.matrix, self._dist5, None, None, criteria)
             else:
                 norm = cv2.undistortPoints(pts, self.matrix, self._dist5, R=None, P=None, criteria=criteria)
             norm = norm.reshape(-1, 2)

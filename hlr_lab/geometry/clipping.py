@@ -18,4 +18,4 @@ def clipped(values: np.ndarray, bits: int, *, channels: bool) -> np.ndarray:
     """Raw values → bool, True where clipped: with ``channels``, the last axis holds a pixel's channels and
     any channel at or above :func:`clip_level` clips the pixel ((…, C) → (…)); without, value by value."""
     at = np.asarray(values) >= clip_level(bits)
-    return at.any(axis=-1) if channels else at
+    return np.any(at, axis=-1) if channels else at

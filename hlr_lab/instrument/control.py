@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from drivers.protocols import Camera, Clock
-from hlr_lab.errors import HlrLabError
+from hlr_lab.errors import HlrLabError, InputError
 from hlr_lab.instrument.devices import (
     Links,
     RigDevices,
@@ -47,6 +47,25 @@ class RunStopped(HlrLabError):
         super().__init__(f"{why}. {state}. Run the same command again to resume.")
 
 
+class _NoLampRelay:
+    """The lamp of a rig file without a ``[lamp]`` section: off, and refusing to be switched on."""
+
+    def __init__(self, rig_source: str):
+        self.rig_source = rig_source
+
+    def set(self, on: bool) -> None:
+        if on:
+            raise InputError(
+                "this step switches the lamp on, and the rig file has no [lamp] section (its relay): add one "
+                "(docs/rig.example.toml)",
+                path=self.rig_source,
+                field="lamp",
+            )
+
+    def get(self) -> bool:
+        return False
+
+
 @dataclass(frozen=True)
 class OpenRig:
     """The rig's devices, connected and energised, its camera and its clock."""
@@ -54,11 +73,13 @@ class OpenRig:
     devices: RigDevices
     camera: Camera
     clock: Clock
+    rig_source: str  # the rig file, for errors
 
     @property
     def instruments(self) -> Instruments:
         d = self.devices
-        return Instruments(d.stage, d.gantry, self.camera, d.lamp, (d.gantry,), self.clock)
+        lamp = d.lamp if d.lamp is not None else _NoLampRelay(self.rig_source)
+        return Instruments(d.stage, d.gantry, self.camera, lamp, (d.gantry,), self.clock)
 
 
 @contextlib.contextmanager
@@ -76,10 +97,12 @@ def open_rig(rig: Rig, links: Links = NO_OVERRIDES) -> Iterator[OpenRig]:
             camera = open_camera(rig, links.camera)  # before anything is energised
             stack.callback(camera.close)
             devices.connect()
-            yield OpenRig(devices, camera, links.clock or WALL_CLOCK)
+            yield OpenRig(devices, camera, links.clock or WALL_CLOCK, rig.source)
     except BaseException as exc:
         if devices is None or devices.safe is None:
             raise
         raise RunStopped(exc, devices.safe) from exc
-    if not devices.safe.ok:
-        raise RunStopped(HlrLabError("the run ended but the rig could not be made safe"), devices.safe)
+    safe = devices.safe
+    assert safe is not None  # leaving open_devices' block made the rig safe and recorded it
+    if not safe.ok:
+        raise RunStopped(HlrLabError("the run ended but the rig could not be made safe"), safe)

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 import trimesh
 from PIL import Image
+from trimesh.visual import ColorVisuals, TextureVisuals
 
 from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_bytes
@@ -257,6 +258,7 @@ def write_vertex_coloured_ply(path: str | Path, mesh: ColouredMesh) -> None:
     data = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=rgba, process=False).export(
         file_type="ply"
     )
+    assert isinstance(data, bytes)  # PLY is binary by default
     atomic_write_bytes(path, data)
 
 
@@ -276,9 +278,9 @@ def _check_utf8(path: Path) -> None:
 def _colour_of(loaded: trimesh.Trimesh, faces: np.ndarray):
     visual = loaded.visual
     kind = getattr(visual, "kind", None)
-    if kind == "vertex":
+    if isinstance(visual, ColorVisuals) and kind == "vertex":
         return np.asarray(visual.vertex_colors)[:, :3].astype(np.uint8), None, None
-    if kind == "face":
+    if isinstance(visual, ColorVisuals) and kind == "face":
         # per-face colour becomes per-vertex colour, the largest adjacent face winning a shared vertex
         fc = np.asarray(visual.face_colors)[:, :3].astype(np.uint8)
         vc = np.zeros((len(loaded.vertices), 3), np.uint8)
@@ -286,7 +288,7 @@ def _colour_of(loaded: trimesh.Trimesh, faces: np.ndarray):
         for corner in range(3):
             vc[faces[order, corner]] = fc[order]
         return vc, None, None
-    if kind == "texture" and getattr(visual, "uv", None) is not None:
+    if isinstance(visual, TextureVisuals) and visual.uv is not None:
         uv = np.asarray(visual.uv, dtype=np.float64)
         image = _material_image(visual.material)
         return None, uv[faces], image

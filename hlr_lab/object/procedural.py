@@ -69,8 +69,8 @@ def paint_patches(
     if k > len(PALETTE):
         raise ValueError(f"at most {len(PALETTE)} distinct patch colours")
     pts = mesh.vertices if among is None else mesh.vertices[among]
-    centres, _ = kmeans2(pts, k, seed=np.random.default_rng(seed), minit="++")
-    patch = KDTree(centres).query(mesh.vertices)[1]
+    centres, _ = kmeans2(pts, k, rng=np.random.default_rng(seed), minit="++")
+    patch = np.asarray(KDTree(centres).query(mesh.vertices)[1], dtype=np.intp)
     colours = PALETTE[patch]
     return ProceduralObject(
         ColouredMesh(

@@ -7,6 +7,7 @@ Everything is in the mesh's own frame; express cameras and lights there first
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import trimesh
@@ -63,7 +64,8 @@ class RayCaster:
         dist = np.full(len(origins), np.inf)
         for start in range(0, len(origins), _RAY_CHUNK):
             o, d = origins[start : start + _RAY_CHUNK], directions[start : start + _RAY_CHUNK]
-            tri, ray, loc = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
+            hits = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
+            tri, ray, loc = cast(tuple[np.ndarray, np.ndarray, np.ndarray], hits)  # with return_locations
             face[start + ray] = tri
             dist[start + ray] = np.linalg.norm(loc - o[ray], axis=1)
         return face, dist

@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from hlr_lab.errors import InputError
+from hlr_lab.files import as_triple
 from hlr_lab.geometry.colour import linear_to_srgb8, srgb8_to_lab, srgb8_to_linear
 from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, sample_texture
 
@@ -67,14 +68,18 @@ def segment(
         )
     if n_materials is not None and n_materials < 1:
         raise InputError(f"--regions must be at least 1, got {n_materials}", field="--regions")
-    on_faces = mesh.vertex_colours is None
-    if on_faces:
-        srgb = sample_texture(mesh.texture, np.einsum("sk,fkt->fst", FACE_SAMPLES, mesh.corner_uv))
+    vertex_colours = mesh.vertex_colours
+    on_faces = vertex_colours is None
+    if vertex_colours is None:
+        texture, corner_uv = mesh.texture, mesh.corner_uv
+        assert texture is not None  # has_colour: without vertex colours, a texture and its UVs
+        assert corner_uv is not None
+        srgb = sample_texture(texture, np.einsum("sk,fkt->fst", FACE_SAMPLES, corner_uv))
         samples = srgb.reshape(-1, 3)
         sample_weight = np.repeat(mesh.face_areas / len(FACE_SAMPLES), len(FACE_SAMPLES))
         node_weight, adjacency = mesh.face_areas, mesh.face_adjacency
     else:
-        samples, sample_weight = mesh.vertex_colours, mesh.vertex_areas
+        samples, sample_weight = vertex_colours, mesh.vertex_areas
         node_weight, adjacency = mesh.vertex_areas, mesh.vertex_adjacency
 
     sample_label = cluster_colours(
@@ -83,7 +88,7 @@ def segment(
     if on_faces:
         node_label = weighted_mode(
             sample_label.reshape(len(mesh.faces), -1),
-            np.broadcast_to(sample_weight.reshape(len(mesh.faces), -1), srgb.shape[:2]),
+            np.broadcast_to(sample_weight.reshape(len(mesh.faces), -1), (len(mesh.faces), len(FACE_SAMPLES))),
         )
     else:
         node_label = sample_label
@@ -259,7 +264,7 @@ def merge_fragments(
     return label
 
 
-def _components(label: np.ndarray, a: sp.coo_matrix) -> np.ndarray:
+def _components(label: np.ndarray, a: sp.coo_array | sp.coo_matrix) -> np.ndarray:
     same = label[a.row] == label[a.col]
     g = sp.coo_matrix((np.ones(same.sum(), bool), (a.row[same], a.col[same])), shape=a.shape)
     return connected_components(g, directed=False)[1]
@@ -314,7 +319,7 @@ def _summarise(
         Region(
             int(i),
             int(material_new[i]),
-            tuple(int(c) for c in mean_colour[i]),
+            as_triple([int(c) for c in mean_colour[i]]),
             int(n_vert[i]),
             int(n_face[i]),
             float(area_new[i]),

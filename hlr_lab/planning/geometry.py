@@ -4,6 +4,7 @@ where each vertex's highlight lands on S."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -44,6 +45,9 @@ def _rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx / (1 + c)
 
 
+SphereSource = Literal["rig", "scale"]  # the gantry's sphere, or the paper's K × the object's
+
+
 @dataclass(frozen=True, eq=False)
 class LightSphere:
     """The sphere S lights are placed on, in world coordinates, and the gantry limits that apply.
@@ -53,7 +57,7 @@ class LightSphere:
 
     centre: np.ndarray
     radius: float
-    source: str
+    source: SphereSource
     gantry: Gantry
 
     def reachable(self, positions: np.ndarray, camera: Camera) -> np.ndarray:
@@ -79,7 +83,8 @@ def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: floa
     Raises PlanningError when the object pokes out of S (a light there would sit inside the object).
     """
     if sphere_scale is None:
-        centre, radius, source = np.asarray(gantry.centre, float), float(gantry.arm_radius), "rig"
+        centre, radius = np.asarray(gantry.centre, float), float(gantry.arm_radius)
+        source: SphereSource = "rig"
     else:
         if sphere_scale <= 1:
             raise InputError(

@@ -73,7 +73,7 @@ def merge_bracket(
         total_dn += signal * take
         total_kt += kt * take
         used += take.any(axis=-1)
-    ok = (total_kt > 0).all(axis=-1)
+    ok = np.all(total_kt > 0, axis=-1)
     value = np.full(shape, np.nan, np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):
         value[where] = np.where(ok[:, None], total_dn / total_kt, np.nan)

@@ -207,9 +207,10 @@ def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
         if e.get("event") != "frame":
             continue
         sidecar, problem = checked_sidecar(path, e)  # the image's checksum is checked as it is read
-        problem = problem or _sidecar_problem(sidecar)
-        if problem:
-            rejected.append(f"{e['file']}: {problem}")
+        if sidecar is not None and problem is None:
+            problem = _sidecar_problem(sidecar)
+        if problem is not None or sidecar is None:
+            rejected.append(f"{e['file']}: {problem or 'no sidecar'}")
         else:
             latest[(e["pose"], e["exposure_index"], e["dark"])] = (e, sidecar)
     groups: dict[tuple[str, str], View] = {}

@@ -148,6 +148,8 @@ def _materials(session: Session, materials: MaterialsFile) -> str:
     for e in materials.regions:
         rd = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
         if e.specular == "measured":
+            assert e.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
+            assert e.rs_se is not None
             rs = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rs, e.rs_se, strict=True))
             n = f"{e.n:.2f} ± {e.n_se:.2f}"
         else:

@@ -49,7 +49,7 @@ def rerender(geometry: PixelGeometry, materials: MaterialsFile, shape: tuple[int
 def compare(captured: np.ndarray, rendered: np.ndarray, within: np.ndarray | None = None) -> Comparison:
     """PSNR over the object's pixels where both exist (and ``within``, (H, W) bool, when given), peak =
     the brightest captured value there."""
-    mask = np.isfinite(captured).all(axis=-1) & np.isfinite(rendered).all(axis=-1)
+    mask = np.all(np.isfinite(captured), axis=-1) & np.all(np.isfinite(rendered), axis=-1)
     if within is not None:
         mask &= within
     if not mask.any():

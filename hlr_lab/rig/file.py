@@ -16,7 +16,7 @@ from pydantic import Field, field_validator, model_validator
 
 from drivers.dynamixel import SDK_REPLY_TIMEOUT_MS
 from drivers.modbus_stage import StageMap
-from hlr_lab.files import OpenModel, StrictModel, check_header, read_toml, validate
+from hlr_lab.files import OpenModel, StrictModel, as_pair, as_triple, check_header, read_toml, validate
 from hlr_lab.geometry.camera import Camera
 from hlr_lab.rig.kinematics import GantryKinematics, TurntableKinematics
 
@@ -186,14 +186,16 @@ class _GantrySection(StrictModel):
         return GantryKinematics(
             np.array(self.centre_m),
             self.arm_radius_m,
-            tuple(self.zero_ticks),
-            tuple(self.directions),
+            as_pair(self.zero_ticks),
+            as_pair(self.directions),
             self.ticks_per_rev,
-            tuple(self.azimuth_axis),
+            as_triple(self.azimuth_axis),
         )
 
     def _limits_fit_the_servos(self) -> None:
-        spans = self.kinematics().tick_span(self.azimuth_limits_deg, self.elevation_limits_deg)
+        spans = self.kinematics().tick_span(
+            as_pair(self.azimuth_limits_deg), as_pair(self.elevation_limits_deg)
+        )
         # one tick of slack: a closed full circle [−180°, 180°] needs ticks_per_rev + 1 positions
         for name, (lo, hi) in zip(("azimuth_limits_deg", "elevation_limits_deg"), spans, strict=True):
             if lo < -1 or hi > self.ticks_per_rev:
@@ -227,8 +229,9 @@ class _TurntableSection(StrictModel):
     @field_validator("address")
     @classmethod
     def _a_modbus_link(cls, address: str | None) -> str | None:
-        serial = address is None or address.startswith(("/", "COM"))  # drivers.modbus_stage reads it so
-        return address if serial else _host_port(address, ", nor a serial device path (/dev/…, COMn)")
+        if address is None or address.startswith(("/", "COM")):  # a serial device: drivers.modbus_stage
+            return address
+        return _host_port(address, ", nor a serial device path (/dev/…, COMn)")
 
     @field_validator("registers")
     @classmethod
@@ -445,13 +448,13 @@ def _build(f: RigFile, source: str) -> Rig:
     gantry = Gantry(
         np.array(g.centre_m),
         g.arm_radius_m,
-        tuple(np.radians(g.azimuth_limits_deg)),
-        tuple(np.radians(g.elevation_limits_deg)),
+        as_pair([float(a) for a in np.radians(g.azimuth_limits_deg)]),
+        as_pair([float(a) for a in np.radians(g.elevation_limits_deg)]),
         float(np.radians(g.camera_keepout_deg)),
         g.min_light_height_m,
         kinematics,
-        tuple(g.servo_ids),
-        kinematics.servo_limits(g.azimuth_limits_deg, g.elevation_limits_deg),
+        as_pair(g.servo_ids),
+        kinematics.servo_limits(as_pair(g.azimuth_limits_deg), as_pair(g.elevation_limits_deg)),
     )
     t = f.turntable
     return Rig(
@@ -459,7 +462,7 @@ def _build(f: RigFile, source: str) -> Rig:
         camera,
         tuple(c.exposure_bracket_s),
         gantry,
-        tuple(t.limits_deg),
+        as_pair(t.limits_deg),
         TurntableKinematics(t.steps_per_degree, t.zero_steps),
         source,
         f,

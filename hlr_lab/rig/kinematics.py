@@ -86,8 +86,8 @@ class GantryKinematics:
         its last tick: the two ends are the same place, reachable at −180°.
         """
         top = self.ticks_per_rev - 1
-        span = self.tick_span(azimuth_limits_deg, elevation_limits_deg)
-        return tuple((max(lo, 0), min(hi, top)) for lo, hi in span)
+        (az_lo, az_hi), (el_lo, el_hi) = self.tick_span(azimuth_limits_deg, elevation_limits_deg)
+        return (max(az_lo, 0), min(az_hi, top)), (max(el_lo, 0), min(el_hi, top))
 
     def light_position(self, ticks: tuple[int, int]) -> np.ndarray:
         """(3,) world position of the lamp for servo readings — the *measured* light of a frame."""

@@ -30,6 +30,7 @@ def read_record(session: Path) -> dict:
         )
     record = read_json(path)
     check_header(record, path, SESSION_FORMAT, {1})
+    assert isinstance(record, dict)  # check_header refuses anything but a table with the header
     if (where := non_finite(record)) is not None:
         raise InputError("is not a number (NaN or infinity): the session record is damaged; restore it from a "
                          "backup of the session", path=path, field=where)  # fmt: skip

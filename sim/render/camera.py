@@ -78,7 +78,7 @@ class PinholeFilm:
             "fov_axis": "x",
             "principal_point_offset_x": float(-(self.cx - (self.width - 1) / 2) / self.width),
             "principal_point_offset_y": float(-(self.cy - (self.height - 1) / 2) / self.height),
-            "to_world": mi.ScalarTransform4f(to_world),
+            "to_world": mi.ScalarTransform4f(to_world.tolist()),
             "film": {
                 "type": "hdrfilm",
                 "width": self.width,

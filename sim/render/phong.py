@@ -6,6 +6,10 @@ is cosine-weighted (the direct integrator samples the light; the path tracer als
 ``dr.select`` rather than ``dr.maximum``: LLVM 15 could not compile the latter in a custom BSDF.
 """
 
+# Mitsuba's stubs describe its C++ classes; a Python plugin written after its documented pattern (fields of
+# a BSDFSample3f set, traverse overridden, Dr.Jit arithmetic on parameters) looks wrong to them
+# pyright: reportAttributeAccessIssue=false, reportIncompatibleMethodOverride=false, reportOperatorIssue=false
+
 from __future__ import annotations
 
 import drjit as dr

@@ -128,6 +128,7 @@ class Renderer:
         mi = self.mi
         from sim.render import phong
 
+        assert scene.region_texture is not None  # only a textured scene's regions come from a map
         index_image = scene.region_texture.astype(np.float32)[..., None]
         region_map = mi.load_dict(
             {
@@ -170,12 +171,12 @@ class Renderer:
             p["sensor.film.crop_offset"] = mi.ScalarPoint2u(*self._crop[:2])
             p["sensor.film.crop_size"] = mi.ScalarVector2u(*self._crop[2:])
             self._angle = turntable_deg
-        light = [float(x) for x in light]
+        xyz = [float(x) for x in light]
         if self.spec.light == "point":
-            p["light.position"] = mi.Point3f(*light)
+            p["light.position"] = mi.Point3f(*xyz)
             p["light.intensity.value"] = mi.Color3f([self._strength if lamp_on else 0.0] * 3)
         else:
-            p["light.to_world"] = mi.Transform4f().look_at(origin=[0, 0, 0], target=light, up=_up(light))
+            p["light.to_world"] = mi.Transform4f().look_at(origin=[0, 0, 0], target=xyz, up=_up(xyz))
             p["light.irradiance.value"] = mi.Color3f([self._strength if lamp_on else 0.0] * 3)
         p.update()
         crop = np.asarray(mi.render(self.scene, seed=seed, spp=self.spp), dtype=np.float32)

@@ -28,6 +28,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from PIL import Image
+from trimesh.visual import ColorVisuals, TextureVisuals
+
+from sim.tuples import triple
 
 
 class SceneError(ValueError):
@@ -169,13 +172,14 @@ def load_scene(path: str | Path) -> SceneSpec:
     )  # a lamp that shines
     try:
         mesh = trimesh.load(mesh_path, process=False, force="mesh")
+        assert isinstance(mesh, trimesh.Trimesh)  # force="mesh" concatenates a scene into one
         faces = np.asarray(mesh.faces, np.int64)
         vertices = np.asarray(mesh.vertices, np.float64)
         face_colour = _face_colours(mesh, faces, texture)
         uv = region_texture = normals = None
-        if texture is not None or getattr(mesh.visual, "kind", None) == "texture":
+        if isinstance(mesh.visual, TextureVisuals):  # (_face_colours refused a texture without UVs)
             image = np.asarray(
-                (Image.open(texture) if texture else mesh.visual.material.image).convert("RGB")
+                (Image.open(texture) if texture else _material_image(mesh.visual)).convert("RGB")
             )
             region_texture = _nearest(image.reshape(-1, 3).astype(np.float64), palette).reshape(
                 image.shape[:2]
@@ -246,7 +250,7 @@ def _material(r: dict, i: int, path: Path) -> Material:
     (n,) = _numbers(
         [r.get("n")], 1, path, f"region[{i}].n", low=1e-6, high=1e5
     )  # a Phong exponent is positive
-    return Material(tuple(rd), tuple(rs), n)
+    return Material(triple(rd), triple(rs), n)
 
 
 def _nearest(colours: np.ndarray, palette: np.ndarray) -> np.ndarray:
@@ -256,22 +260,27 @@ def _nearest(colours: np.ndarray, palette: np.ndarray) -> np.ndarray:
 
 def _face_colours(mesh: trimesh.Trimesh, faces: np.ndarray, texture: Path | None) -> np.ndarray:
     visual = mesh.visual
-    if texture is not None or getattr(visual, "kind", None) == "texture":
-        image = (
-            np.asarray(Image.open(texture).convert("RGB"))
-            if texture
-            else np.asarray(visual.material.image.convert("RGB"))
-        )
+    if isinstance(visual, TextureVisuals) or texture is not None:
+        if not isinstance(visual, TextureVisuals):
+            raise ValueError("a texture was given but the mesh has no UV coordinates")
+        image = np.asarray((Image.open(texture) if texture else _material_image(visual)).convert("RGB"))
         uv = np.asarray(visual.uv)[faces].mean(axis=1)
         h, w = image.shape[:2]
         col = np.clip((np.mod(uv[:, 0], 1) * w).astype(int), 0, w - 1)
         row = np.clip(((1 - np.mod(uv[:, 1], 1)) * h).astype(int), 0, h - 1)
         return image[row, col].astype(np.float64)
-    if getattr(visual, "kind", None) == "face":
+    if isinstance(visual, ColorVisuals) and visual.kind == "face":
         return np.asarray(visual.face_colors)[:, :3].astype(np.float64)
-    if getattr(visual, "kind", None) == "vertex":
+    if isinstance(visual, ColorVisuals) and visual.kind == "vertex":
         return np.asarray(visual.vertex_colors)[:, :3][faces].mean(axis=1).astype(np.float64)
     return np.zeros((len(faces), 3))
+
+
+def _material_image(visual: TextureVisuals) -> Image.Image:
+    image = getattr(visual.material, "image", None)
+    if not isinstance(image, Image.Image):
+        raise ValueError("the mesh's material has no texture image")
+    return image
 
 
 def paper_cylinder() -> SceneSpec:

@@ -25,15 +25,16 @@ from pymodbus.pdu.register_message import ReadHoldingRegistersRequest, ReadInput
 COIL_ON, COIL_OFF = 0xFF00, 0x0000
 
 
-def _counted(base: type[ModbusPDU]) -> type[ModbusPDU]:
-    """``base`` (a read request) whose quantity is checked when answered, not when decoded."""
+def _counted(base: type[ModbusPDU], max_count: int) -> type[ModbusPDU]:
+    """``base`` (a read request) whose quantity, 1 … ``max_count``, is checked when answered, not when
+    decoded."""
 
     class Counted(base):
         def decode(self, data: bytes) -> None:
             self.address, self.count = struct.unpack(">HH", data[:4])
 
         async def datastore_update(self, context, device_id: int) -> ModbusPDU:
-            if not 1 <= self.count <= self.MAX_COUNT:
+            if not 1 <= self.count <= max_count:
                 return ExceptionResponse(self.function_code, ExcCodes.ILLEGAL_VALUE)
             return await super().datastore_update(context, device_id)
 
@@ -68,7 +69,7 @@ def _unsupported(code: int) -> type[ModbusPDU]:
     return Unsupported
 
 
-CHECKED = [_counted(c) for c in (ReadCoilsRequest, ReadDiscreteInputsRequest, ReadHoldingRegistersRequest,
+CHECKED = [_counted(c, c.MAX_COUNT) for c in (ReadCoilsRequest, ReadDiscreteInputsRequest, ReadHoldingRegistersRequest,
                                  ReadInputRegistersRequest)] + [CheckedCoilWrite]  # fmt: skip
 UNSUPPORTED = [_unsupported(code) for code in range(1, 0x80) if code not in DecodePDU(True).pdu_table]
 
