@@ -105,7 +105,14 @@ class Calibrated:
 
 
 def check_targets(rig: Rig, procedures: tuple[ProcedureName, ...]) -> None:
-    """Refuse, before anything moves, a rig file that does not describe the procedures' targets."""
+    """Refuse, before anything moves, a rig file that does not describe the procedures' targets, or has
+    no lamp relay to light them."""
+    if procedures and rig.file.lamp is None:
+        raise InputError(
+            "calibration switches the lamp: add a [lamp] section (its relay: docs/rig.example.toml)",
+            path=rig.source,
+            field="lamp",
+        )
     for name in procedures:
         if name == "camera":
             board_spec(rig)

@@ -97,6 +97,33 @@ def test_the_photographs_are_solved_again_without_the_rig(calibrated, tmp_path, 
     assert len(list((calibrated / "images" / "frames").glob("*.png"))) == 24 * FRAMES_PER_VIEW
 
 
+def test_a_rig_file_without_a_lamp_is_refused_before_anything_moves(tmp_path, capsys):
+    """Every procedure lights its target with the lamp: without a [lamp] relay, one line naming the rig
+    file's section, and no photographs' folder. (The relay's stand-in refuses the same way for a library
+    caller who skipped the check: hlr_lab.instrument.control.)"""
+    text = SIM_RIG.read_text()
+    bare = tmp_path / "rig.toml"
+    bare.write_text(re.sub(r"(?ms)^\[lamp\].*?(?=^\[)", "", text))
+    for procedure in ("camera", "radiometric", "all"):
+        out = tmp_path / procedure
+        command = [
+            "calibrate",
+            procedure,
+            "--rig",
+            str(bare),
+            "--sim",
+            "--out",
+            str(out),
+            "-o",
+            str(tmp_path / "c.toml"),
+        ]
+        assert main(command) == 1
+        assert re.search(
+            r"rig\.toml: lamp: calibration switches the lamp: add a \[lamp\]", capsys.readouterr().err
+        )
+        assert not out.exists()
+
+
 def test_a_rig_file_without_a_board_or_a_used_folder_is_refused(tmp_path, capsys):
     text = SIM_RIG.read_text()
     bare = tmp_path / "rig.toml"
