@@ -278,7 +278,7 @@ conversion_gain_dn_per_e = 0.31
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1200)  # a calibration, a 40-pose night and two fits: 78 s alone, 216 s at full film beside another worker
+@pytest.mark.timeout(1200)  # calibration, 40-pose night, two fits: 78 s alone (216 s full film, loaded)
 def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, capsys):
     """The issue's figure, on the drawing's geometry with builtin:bench-night's sensor and lamp (S·Φ
     22.6 % below the nominal, the lamp cold at the start of each command, then −1 % per hour, flickering):
