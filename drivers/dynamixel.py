@@ -34,8 +34,10 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import serial
 from dynamixel_sdk import (
@@ -48,7 +50,6 @@ from dynamixel_sdk import (
 from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
 
 from drivers.errors import (
-    RETRY,
     ChecksumError,
     DeviceError,
     DeviceFault,
@@ -57,8 +58,10 @@ from drivers.errors import (
     LimitError,
     SettleTimeout,
 )
+from drivers.retrying import retried
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 try:  # a vanished tty fails termios calls (pyserial's buffer resets) with termios.error, not an OSError
     from termios import error as _TermiosError
 except ImportError:  # not on POSIX
@@ -491,20 +494,23 @@ class DynamixelGantry:
             )
         return value
 
-    def _retry(self, operation):
-        """Repeat an exchange on a timeout or corrupted reply, with growing pauses; then give up."""
-        for attempt in range(self.config.retries + 1):
-            try:
-                return operation()
-            except (DeviceTimeout, ChecksumError) as exc:
-                if attempt == self.config.retries:
-                    raise
-                self.retried += 1
-                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries, extra=RETRY)
-                with self._transaction():
-                    self.port.clearPort()  # a late reply must not be taken for the next one
-                time.sleep(self.config.backoff_s * 2**attempt)
-        raise AssertionError("unreachable")
+    def _retry(self, operation: Callable[[], T]) -> T:
+        """Repeat an exchange on a timeout or corrupted reply, with growing pauses; then give up
+        (:func:`drivers.retrying.retried`)."""
+
+        def before_retry(_: BaseException) -> None:
+            self.retried += 1
+            with self._transaction():
+                self.port.clearPort()  # a late reply must not be taken for the next one
+
+        return retried(
+            operation,
+            retries=self.config.retries,
+            backoff_s=self.config.backoff_s,
+            on=(DeviceTimeout, ChecksumError),
+            log=log,
+            before_retry=before_retry,
+        )
 
     def _device(self, axis: Axis) -> str:
         return f"gantry {axis.label} (id {axis.servo_id}) on {self.config.port}"

@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import cast
+from typing import TypeVar, cast
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from drivers.errors import (
-    RETRY,
     DeviceError,
     DeviceFault,
     DeviceTimeout,
@@ -32,8 +32,10 @@ from drivers.errors import (
     LimitError,
     SettleTimeout,
 )
+from drivers.retrying import retried
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 EXCEPTIONS = {1: "illegal function", 2: "illegal address", 3: "illegal value", 4: "device failure", 6: "busy"}
 
 
@@ -283,20 +285,26 @@ class ModbusStage:
 
         return self._retry(read)
 
-    def _retry(self, operation):
-        """Repeat an exchange whose reply was lost (or whose link dropped), with growing pauses."""
-        for attempt in range(self.config.retries + 1):
-            try:
-                return operation()
-            except DeviceTimeout as exc:
-                if attempt == self.config.retries:
-                    raise
-                self.retried += 1
-                log.warning("%s; retrying (%d of %d)", exc, attempt + 1, self.config.retries, extra=RETRY)
-                time.sleep(self.config.backoff_s * 2**attempt)
-                if not self.client.connected:
-                    self.client.connect()
-        raise AssertionError("unreachable")
+    def _retry(self, operation: Callable[[], T]) -> T:
+        """Repeat an exchange whose reply was lost (or whose link dropped), with growing pauses, on a link
+        connected again if it dropped (:func:`drivers.retrying.retried`)."""
+
+        def count(_: BaseException) -> None:
+            self.retried += 1
+
+        def reconnect_if_dropped() -> None:
+            if not self.client.connected:
+                self.client.connect()
+
+        return retried(
+            operation,
+            retries=self.config.retries,
+            backoff_s=self.config.backoff_s,
+            on=(DeviceTimeout,),
+            log=log,
+            before_retry=count,
+            after_pause=reconnect_if_dropped,
+        )
 
     def _io(self, call):
         try:

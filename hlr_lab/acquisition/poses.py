@@ -24,6 +24,7 @@ import numpy as np
 
 from drivers.errors import RETRY, ChecksumError, DeviceError, DeviceTimeout
 from drivers.protocols import Camera, RawFrame
+from drivers.retrying import retried
 from hlr_lab.acquisition.white_reference import Reading
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose
@@ -512,15 +513,13 @@ def _clipped(pixels: np.ndarray, bits: int, window: np.ndarray | None) -> int:
 def _retry_capture(camera: Camera) -> RawFrame:
     """Capture, retrying a dropped link or a frame cut short with growing pauses (each retry logged, so
     journaled); a refusal or a fault that stays is raised (and stops the run safely)."""
-    for attempt in range(CAPTURE_RETRIES + 1):
-        try:
-            return camera.capture()
-        except (DeviceTimeout, ChecksumError) as exc:
-            if attempt == CAPTURE_RETRIES:
-                raise
-            log.warning("%s; retrying (%d of %d)", exc, attempt + 1, CAPTURE_RETRIES, extra=RETRY)
-            time.sleep(RETRY_BACKOFF_S * 2**attempt)
-    raise AssertionError("unreachable")
+    return retried(
+        camera.capture,
+        retries=CAPTURE_RETRIES,
+        backoff_s=RETRY_BACKOFF_S,
+        on=(DeviceTimeout, ChecksumError),
+        log=log,
+    )
 
 
 MOTION_RETAKES = 1  # a frame taken while an axis moved is retaken once; twice in a row stops the run

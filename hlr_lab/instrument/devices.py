@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from functools import partial
@@ -22,6 +21,7 @@ from drivers.modbus_stage import ModbusRelay, ModbusStage, StageConfig, StageMap
 from drivers.net_camera import NetworkCamera
 from drivers.opencv_camera import OpenCVCamera, OpenCVCameraConfig
 from drivers.protocols import Camera, Clock
+from drivers.retrying import retried
 from hlr_lab.errors import InputError
 from hlr_lab.rig.file import Rig
 
@@ -192,18 +192,21 @@ def _on_fresh_links(stage: ModbusStage, step: Callable[[], str]) -> Callable[[],
     """A Modbus safe-state step, tried again on a fresh link after a failure: the driver's own retries
     may all fall into one burst of faults, and a lamp left on is worth a second and a third try."""
 
+    def fresh_link() -> None:
+        with contextlib.suppress(DeviceError):
+            stage.reconnect()
+
     def attempts() -> str:
-        for n in range(1, SAFE_STATE_ATTEMPTS + 1):
-            try:
-                return step()
-            except DeviceError as exc:
-                if n == SAFE_STATE_ATTEMPTS:
-                    raise
-                log.warning("safe state: %s; trying again on a fresh link", exc)
-                time.sleep(0.1 * n)
-                with contextlib.suppress(DeviceError):
-                    stage.reconnect()
-        raise AssertionError("unreachable")
+        return retried(
+            step,
+            retries=SAFE_STATE_ATTEMPTS - 1,
+            backoff_s=0.1,
+            on=(DeviceError,),
+            log=log,
+            message="safe state: %s; trying again on a fresh link (%d of %d)",
+            after_pause=fresh_link,
+            journaled=False,  # the run is over: the safe-state lines are the log's
+        )
 
     return attempts
 
