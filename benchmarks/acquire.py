@@ -193,3 +193,20 @@ def _mark(world: SimRig, waiting: Stopwatch, capturing: Stopwatch) -> tuple:
         world.bus.instructions,
         world.turntable.requests,
     )
+
+
+def report(f: AcquireFigures, speed_factor: float) -> list[str]:
+    """What ``hlr-lab bench acquire`` prints."""
+    overhead = sorted(1e3 * p.overhead_s for p in f.poses)
+    p90 = overhead[min(len(overhead) - 1, int(0.9 * len(overhead)))]
+    return [
+        f"{len(f.poses)} poses, {f.frames} frames (1280×960×3, 16-bit) in {f.total_s:.1f} s, motion ×{speed_factor:g}",
+        f"software overhead per pose (target ≤ 20 ms median): median {f.median('overhead_s') * 1e3:.1f} ms, "
+        f"p90 {p90:.1f} ms, max {overhead[-1]:.1f} ms",
+        f"  per pose, median: wall {f.median('wall_s') * 1e3:.0f} ms = waiting for the axes "
+        f"{f.median('moving_s') * 1e3:.0f} ms + camera {f.median('capture_s') * 1e3:.0f} ms + overhead",
+        f"transactions per pose, median: servo {f.median('servo_transactions'):.0f}, "
+        f"Modbus {f.median('modbus_transactions'):.0f}",
+        f"storing the frames still queued after the last pose: {f.drain_s * 1e3:.0f} ms",
+        f"peak RSS {f.peak_rss_mb:.0f} MB",
+    ]

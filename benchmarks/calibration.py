@@ -280,3 +280,45 @@ def _worst_pct(got, true) -> float:
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0))))
+
+
+def report(
+    f: CalibrationFigures, *, true_rig: str, views: int, poses: int, run_poses: int, speed_factor: float
+) -> list[str]:
+    """What ``hlr-lab bench calibration`` prints: times, recovery against the truth, end-to-end errors."""
+    r, q = f.recovery, f.radiometric
+    assert r is not None  # calibration_figures measures both before it returns
+    assert q is not None
+    rig_times = ", ".join(f"{name} {seconds:.0f} s" for name, seconds in f.rig_s.items())
+    walls = " + ".join(f"{seconds:.0f} s" for seconds in f.wall_s.values())
+    lines = [
+        f"world: {true_rig}; hlr-lab starts from the drawing (the built-in simulated rig)",
+        f"simulated-rig time: {rig_times} (target ≤ 5 min for camera and gantry; {views} views, {poses} lamp "
+        f"poses × 2 ball places, the radiometry's warm-up included); wall here at ×{speed_factor:g} "
+        f"(photographing and solving): {walls}",
+        "recovery against the true rig (target):",
+        f"  focal length {r.focal_pct:.3f} % (0.2 %), principal point {r.principal_point_px:.2f} px (1 px), "
+        f"reprojection RMS {r.rms_px:.3f} px (0.3 px)",
+        f"  camera position {r.camera_position_mm:.2f} mm (1 mm), viewing direction {r.view_direction_deg:.3f}° "
+        f"(0.05°), roll {r.roll_deg:.3f}° (0.05°), turntable zero {r.turntable_zero_steps:+d} steps",
+        f"  gantry zero ticks {r.gantry_zero_ticks} (2), arm radius {r.arm_radius_mm:.2f} mm (1 mm), "
+        f"azimuth axis {r.azimuth_axis_deg:.3f}° (0.1°), lamp worst {r.lamp_worst_mm:.2f} mm (2 mm)",
+        f"  black level {q.black_level_dn:.2f} DN (0.5 DN), read noise {100 * q.read_noise:.2f} % (5 %), "
+        f"conversion gain {100 * q.conversion_gain:.2f} % (3 %), sensitivity × power "
+        f"{100 * q.sensitivity_times_power:.2f} % (1 %; the lamp then {100 * q.lamp_short_of_warm:.2f} % short "
+        "of its warm power: what the warm-up leaves)",
+        f"end to end, builtin:pebble, {run_poses} poses, error per region in % (targets with the calibrated "
+        "file: Rd 1, Rs 3, n 3):",
+    ]
+    for name, regions in f.end_to_end.items():
+        cells = "; ".join(
+            f"{rid}: Rd {e.rd_pct:.2f} Rs {e.rs_pct:.2f} n {e.n_pct:.2f}" if np.isfinite(e.rd_pct)
+            else f"{rid}: not fitted"
+            for rid, e in sorted(regions.items())
+        )  # fmt: skip
+        worst = [  # nan: no region has that figure (no specular fitted anywhere)
+            max((getattr(e, k) for e in regions.values() if np.isfinite(getattr(e, k))), default=float("nan"))
+            for k in ("rd_pct", "rs_pct", "n_pct")
+        ]
+        lines.append(f"  {name:10}: worst Rd {worst[0]:.2f}, Rs {worst[1]:.2f}, n {worst[2]:.2f} ({cells})")
+    return lines

@@ -281,3 +281,63 @@ def _session_fit_case(session: str) -> SessionFitFigures:
 def run_session_fit_case(session: Path) -> SessionFitFigures:
     """``hlr-lab fit``'s work on ``session`` in a fresh process: time, per-stage time, peak memory."""
     return in_fresh_process(_session_fit_case, str(session))
+
+
+def plan_report(f: PlanFigures) -> list[str]:
+    """What ``hlr-lab bench plan`` prints for one case."""
+    stages = ", ".join(f"{k} {v:.2f}" for k, v in f.stages.items())
+    return [
+        f"{f.case}: {f.vertices:,} vertices, {f.regions} regions",
+        f"  lights {f.lights} (plain count {f.lights_plain}), uncovered regions {f.uncovered}",
+        f"  plan time {f.plan_s:.2f} s  [{stages}]",
+        f"  memory: RSS {f.rss_before_mb:.0f} MB before planning, peak RSS {f.rss_peak_plan_mb:.0f} MB while planning",
+    ]
+
+
+def grid_report(rows: list[FitErrors]) -> list[str]:
+    """The error grid as ``hlr-lab bench fit`` prints it: a table, then each estimator's summary."""
+    lines = [
+        f"error grid: paper 4.2 set-up (cylinder, directional light, 8-bit, Rd, Rs of the paper), "
+        f"{FIT_PIXELS:,} pixels, θc auto; max relative error over RGB",
+        f"{'σ DN':>5} {'n':>5}  {'method':7} {'Rd err':>8} {'Rs err':>8} {'n err':>8} {'θc°':>6} {'time s':>7}",
+    ]
+    for r in rows:
+        if r.failure:
+            lines.append(f"{r.noise_dn:5.1f} {r.n:5.0f}  {r.method:7} failed: {r.failure}")
+            continue
+        lines.append(
+            f"{r.noise_dn:5.1f} {r.n:5.0f}  {r.method:7} {100 * r.rd_err:7.2f}% {100 * r.rs_err:7.2f}% "
+            f"{100 * r.n_err:7.2f}% {r.theta_c_deg:6.1f} {r.seconds:7.3f}"
+        )
+    for method in ESTIMATORS:
+        mine = [r for r in rows if r.method == method and not r.failure]
+        if mine:
+            lines.append(
+                f"{method}: median errors Rd {100 * np.median([r.rd_err for r in mine]):.2f}%, "
+                f"Rs {100 * np.median([r.rs_err for r in mine]):.2f}%, "
+                f"n {100 * np.median([r.n_err for r in mine]):.2f}%; "
+                f"worst Rd {100 * max(r.rd_err for r in mine):.2f}%, Rs {100 * max(r.rs_err for r in mine):.2f}%, "
+                f"n {100 * max(r.n_err for r in mine):.2f}%; "
+                f"{sum(1 for r in rows if r.method == method and r.failure)} failed; "
+                f"median time per fit {np.median([r.seconds for r in mine]) * 1000:.0f} ms"
+            )
+    return lines
+
+
+def throughput_line(t: Throughput) -> str:
+    n = t.samples
+    return (
+        f"{n:>12,} samples: {t.seconds:6.2f} s, {t.per_second / 1e6:5.2f} M samples/s, inputs "
+        f"{t.inputs_bytes / n:.0f} B/sample + working {t.peak_extra_bytes / n:.0f} B/sample = "
+        f"{t.bytes_per_sample:.0f} B/sample"
+    )
+
+
+def session_fit_report(f: SessionFitFigures, frames: int) -> list[str]:
+    stages = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in f.stages.items())
+    return [
+        f"session: {f.views} poses, {frames} frames of {f.pixels_per_frame:,} pixels",
+        f"fit (target ≤ 30 s, ≤ 1.5 GB): {f.seconds:.1f} s, peak RSS {f.peak_rss_mb:.0f} MB; "
+        f"{f.regions_measured} regions measured",
+        f"  per stage: {stages}",
+    ]

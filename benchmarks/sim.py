@@ -133,3 +133,17 @@ def _rss_mb() -> float:
 
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def round_trip_report(title: str, figures: dict[str, dict[str, float]]) -> list[str]:
+    """A section of ``hlr-lab bench sim``: ``title``, then each transaction's median and p95."""
+    return [title] + [
+        f"  {name:30s} median {f['median_ms']:.3f} ms, p95 {f['p95_ms']:.3f} ms"
+        for name, f in figures.items()
+    ]
+
+
+def render_report(figures: dict[str, float]) -> list[str]:
+    return [
+        "renderer (Mitsuba llvm_ad_rgb, direct integrator; target ≤ 0.3 s per 1280×960 frame, flat memory):"
+    ] + [f"  {name:40s} {value:8.3f}" for name, value in figures.items()]

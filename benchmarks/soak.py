@@ -229,3 +229,27 @@ def _sample(pid: int, since: float) -> Sample:
     if not rss_kb:
         raise ProcessLookupError(pid)
     return Sample(time.monotonic() - since, rss_kb[0] / 1024, len(os.listdir(f"/proc/{pid}/fd")))
+
+
+def passed(f: SoakFigures) -> bool:
+    """Every planned frame journaled once and intact, and no goal outside the limits reached a device."""
+    return f.frames_journaled == f.frames_planned and not (f.duplicates or f.damaged or f.goals_outside)
+
+
+def report(f: SoakFigures, speed_factor: float) -> list[str]:
+    """What ``hlr-lab bench soak`` prints, its verdict last."""
+    child, world = f.longest_child, f.world
+    warm, late = leak_window(child)
+    return [
+        f"{f.poses} poses, {f.frames_planned} planned frames, {f.seconds:.0f} s, motion ×{speed_factor:g}",
+        f"faults injected: {sum(f.faults.values())} ({', '.join(f'{k} {v}' for k, v in f.faults.most_common())})",
+        f"runs: {sum(f.ends.values())} ({', '.join(f'{k} {v}' for k, v in f.ends.most_common())}); "
+        f"retries journaled {f.retries_journaled}",
+        f"planned frames journaled {f.frames_journaled} of {f.frames_planned}, taken twice {f.duplicates}, "
+        f"failing their checksums {f.damaged}; goals outside the limits that reached the devices {f.goals_outside}",
+        f"longest run ({child[-1].t:.0f} s): RSS {warm.rss_mb:.0f} → {late.rss_mb:.0f} MB, "
+        f"descriptors {warm.fds} → {late.fds} (at {warm.t:.0f} s and {late.t:.0f} s)",
+        f"this process (the simulated rig): RSS {world[1].rss_mb:.0f} → {world[-1].rss_mb:.0f} MB, "
+        f"descriptors {world[1].fds} → {world[-1].fds} (after the first run to the end)",
+        "soak: PASS" if passed(f) else "soak: FAIL",
+    ]

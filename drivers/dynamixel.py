@@ -167,6 +167,11 @@ class GantryConfig:
 
 @dataclass
 class DynamixelGantry:
+    """The light gantry's servos as a :class:`drivers.protocols.Positioner` in servo ticks (the
+    module's docstring says how it talks to them). ``connect`` configures and energises them; ``move_to``
+    refuses a goal outside the configured tick limits before anything is sent; ``park`` is the safe
+    state. Device errors are :mod:`drivers.errors` exceptions naming the servo and the port."""
+
     config: GantryConfig
     retried: int = field(default=0, init=False)  # reads that needed a retry
 

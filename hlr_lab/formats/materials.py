@@ -76,6 +76,8 @@ class MaterialsFile(OpenModel):
 
 
 def measured_entry(region: RegionEntry, fit: RegionFit) -> MaterialEntry:
+    """The entry of a region whose highlight was measured: Rd, Rs (3,) linear RGB and n, each with its
+    standard error, θc and the pixel counts of ``fit``."""
     return MaterialEntry(
         id=region.id,
         color=list(region.color),
@@ -105,6 +107,8 @@ def unmeasured_entry(
     residual_rms: float,
     estimator: EstimatorName,
 ) -> MaterialEntry:
+    """The entry of a region whose highlight could not be measured: its diffuse colour ``rd`` ± ``rd_se``
+    ((3,) linear RGB) and the ``reason``, no Rs or n."""
     return MaterialEntry(
         id=region.id,
         color=list(region.color),
@@ -123,6 +127,7 @@ def unmeasured_entry(
 def materials_file(
     entries: list[MaterialEntry], *, mesh: str | None = None, sha256: str | None = None
 ) -> MaterialsFile:
+    """``materials.json`` for ``entries`` (ordered by region id), naming the mesh they belong to."""
     return MaterialsFile(
         format=MATERIALS_FORMAT,
         version=1,
@@ -134,6 +139,7 @@ def materials_file(
 
 
 def write_materials(path: str | Path, materials: MaterialsFile) -> None:
+    """Write ``materials`` to ``path`` in one piece (a crash leaves the old file or the new one)."""
     write_json(path, materials)
 
 

@@ -109,6 +109,10 @@ class Uncovered(OpenModel):
 
 
 class PlanFile(OpenModel):
+    """``plan.json`` (docs/formats.md): the object, the planner's parameters, the poses ``acquire`` runs
+    (turntable angle, light on the gantry sphere, exposures) and the coverage they give each region. Keys
+    another tool adds are kept."""
+
     format: Literal["hlr-lab.plan"]
     version: Literal[1]
     object: PlanObject
@@ -153,6 +157,21 @@ def build_plan(
     exposures_s: tuple[float, ...],
     rig_name: str,
 ) -> PlanFile:
+    """``plan.json`` for the planner's ``result`` on the segmented mesh.
+
+    Parameters
+    ----------
+    mesh_ref, texture_ref
+        The mesh (and texture) as the plan names them: relative to the plan's folder, or ``builtin:…``.
+    sha256
+        The mesh file's checksum, checked wherever the plan's mesh is loaded.
+    mesh_to_turntable
+        (4, 4) placement of the mesh on the plate: its frame and units (``scale``, ``up``) → metres.
+    exposures_s
+        Each pose's exposures, seconds.
+    rig_name
+        The rig planned for, for the summary.
+    """
     mesh_from_tt = np.linalg.inv(mesh_to_turntable)
     s = result.settings
 
@@ -228,6 +247,7 @@ def build_plan(
 
 
 def write_plan(path: str | Path, plan: PlanFile) -> None:
+    """Write ``plan`` to ``path`` in one piece (a crash leaves the old file or the new one)."""
     write_json(path, plan)
 
 

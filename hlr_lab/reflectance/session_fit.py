@@ -92,6 +92,10 @@ class Gaps:
 
 @dataclass(frozen=True, eq=False)
 class Session:
+    """A session folder opened for fitting (:func:`open_session`): its plan and the rig as recorded when
+    it was acquired, the views whose frames checked out (one per pose: its exposures and dark frames),
+    ``record`` (``session.json``), what is missing (``gaps``) and the lamp's measured output (``lamp``)."""
+
     path: Path
     plan: PlanFile
     plan_path: Path
@@ -163,6 +167,9 @@ class FitStep:
 
 @dataclass(frozen=True)
 class FitResult:
+    """What :func:`fit_session` measured: ``materials.json``'s contents, the per-region diagnostics
+    (``fit-diagnostics.json``), each measured region's full fit, and the seconds each stage took."""
+
     materials: MaterialsFile
     diagnostics: dict
     fits: dict[int, RegionFit]  # the regions whose specular was measured
@@ -293,6 +300,18 @@ def fit_session(
     selection: Selection = DEFAULT_SELECTION,
     progress: Callable[[FitStep], None] = lambda _: None,
 ) -> FitResult:
+    """Fit every region of ``session``: each view's frames merged to radiance (HDR), its pixels placed
+    on the mesh and kept or left out (``selection``: grazing light or view, borders, shadows), pooled per
+    region over the views, then ``method``'s Phong fit of (Rd, Rs, n) with ``theta_c_deg`` (or chosen per
+    region, "auto"). A region whose highlight was not measured gets its diffuse colour only, with the
+    reason; one never seen gets a diagnostics line. ``progress`` hears of each pose and region.
+
+    Returns
+    -------
+    FitResult
+        Linear RGB reflectances with standard errors; n dimensionless (docs/formats.md,
+        ``materials.json``).
+    """
     rig, plan = session.rig, session.plan
     mesh = placed_mesh(session)
     caster = RayCaster(mesh)

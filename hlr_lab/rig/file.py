@@ -365,6 +365,9 @@ class _CalibrationSection(StrictModel):
 
 
 class RigFile(StrictModel):
+    """``rig.toml`` as written (docs/rig.example.toml explains every field): strict types, no unknown
+    key, each section checked where it is read. :func:`load_rig` turns it into a :class:`Rig`."""
+
     rig: _Header
     camera: _CameraSection
     gantry: _GantrySection
@@ -392,6 +395,27 @@ class Gantry:
 
 @dataclass(frozen=True, eq=False)
 class Rig:
+    """The rig as planning, acquisition and fitting use it, built from a validated :class:`RigFile`.
+
+    Attributes
+    ----------
+    camera
+        The camera model: intrinsics, distortion and pose in the world frame (metres).
+    exposure_bracket_s
+        The exposures of one pose, seconds, longest first.
+    gantry
+        The reachable light sphere: centre and arm radius (m), angle limits (radians), the keep-out cone
+        about the camera, the servo kinematics and tick limits.
+    turntable_limits_deg
+        (lowest, highest) turntable angle, degrees.
+    turntable_kinematics
+        Degrees ↔ stage steps.
+    source
+        The rig file's path (or ``builtin:…``), for messages.
+    file
+        The validated file itself, for the device links (:mod:`hlr_lab.instrument.devices`).
+    """
+
     name: str
     camera: Camera
     exposure_bracket_s: tuple[float, ...]

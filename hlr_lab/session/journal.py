@@ -55,6 +55,13 @@ class JournalContents:
 
 
 class Journal:
+    """A session's journal opened for appending (the module's docstring says what it guarantees).
+
+    Opening it reads the lines already there into :attr:`events` (damaged ones into :attr:`damaged`, then
+    set aside), cuts a crash's torn last line, and keeps a little disk for the last lines. Use it as a
+    context manager; one process writes a session at a time.
+    """
+
     def __init__(self, path: str | Path):
         self.path = Path(path)
         contents = load_journal(self.path)
@@ -73,6 +80,8 @@ class Journal:
         reserve(self.path.parent)
 
     def append(self, event: dict) -> None:
+        """Write ``event`` as one line and fsync it before returning (safe from the frame writer's thread);
+        a full disk raises :class:`~hlr_lab.errors.DiskFull` with the journal whole."""
         line = (json.dumps(event, ensure_ascii=False, sort_keys=True) + "\n").encode()
         with self._lock:
             try:

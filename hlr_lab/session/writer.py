@@ -37,6 +37,10 @@ class _Job:
 
 
 class FrameWriter:
+    """Stores frames into ``session`` on a background thread, at most ``depth`` waiting (the module's
+    docstring). Use it as a context manager: leaving the block stores every frame submitted, then raises
+    the first storing failure if there was one."""
+
     def __init__(self, session: Path, journal: Journal, *, depth: int = 2):
         self.session, self.journal = session, journal
         self._jobs: queue.Queue[_Job | None] = queue.Queue(maxsize=depth)
