@@ -194,7 +194,7 @@ def radiometric_recovery(calibrated: Rig, truth: TrueRig, watched: list[dict]) -
     s, t, light = calibrated.file.sensor, truth.sensor, calibrated.file.light
     gain = s.conversion_gain_dn_per_e
     true_electrons = t.electrons_per_dn
-    assert gain is not None  # the radiometric calibration wrote it and the power
+    assert gain is not None  # the radiometric calibration wrote the gain and the power
     assert light.power is not None
     assert true_electrons is not None  # the bench's sensor has photon noise
     lamp_then = min(watched, key=lambda w: w["captured_at"])["camera"]["lamp_output"]
