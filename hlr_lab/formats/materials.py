@@ -33,11 +33,16 @@ REFLECTANCE = Annotated[list[Annotated[float, Field(ge=0, le=1.5)]], Field(min_l
 
 
 class PixelCounts(StrictModel):
+    """How many diffuse-only (β > θc) and highlight (β ≤ θc) pixels a region's fit used."""
+
     diffuse: int = Field(ge=0)
     highlight: int = Field(ge=0)
 
 
 class MaterialEntry(OpenModel):
+    """One region's material: Rd (and, when its highlight was measured, Rs and n), linear RGB, each with
+    its standard error; otherwise ``specular = "unmeasured"`` and the ``reason``."""
+
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -66,6 +71,8 @@ class MaterialEntry(OpenModel):
 
 
 class MaterialsFile(OpenModel):
+    """``materials.json`` (docs/formats.md): the reflection model, the mesh, one entry per region."""
+
     format: Literal["hlr-lab.materials"]
     version: Literal[1]
     model: Literal["blinn-phong"]

@@ -34,6 +34,9 @@ Matrix4 = Annotated[
 
 
 class PlanObject(OpenModel):
+    """The object planned for: its mesh (relative to the plan or ``builtin:…``) and checksum, its regions,
+    and how it lies on the plate (``mesh_to_turntable``, 4×4; ``up`` and ``scale`` as given to plan)."""
+
     mesh: str
     sha256: str
     regions: list[RegionEntry]
@@ -44,6 +47,9 @@ class PlanObject(OpenModel):
 
 
 class PlanParameters(OpenModel):
+    """What the plan was made with: θc (degrees), M samples per region (in ``count`` units), the light
+    sphere's radius (m) and where it came from, the criterion; hlr-lab's own settings for the record."""
+
     theta_c_deg: float = Field(gt=0, lt=90)
     min_samples: float = Field(gt=0)
     sphere_radius_m: float = Field(gt=0)
@@ -61,6 +67,8 @@ class PlanParameters(OpenModel):
 
 
 class PlanLight(OpenModel):
+    """A light position: gantry angles (degrees), the world position (m) and the same in the mesh's frame."""
+
     azimuth_deg: Degrees
     elevation_deg: Degrees
     position_m: Vec3
@@ -72,6 +80,9 @@ RESERVED_POSE_IDS = {"lamp-reference"}  # the lamp watch's frames (hlr_lab.acqui
 
 
 class PlanPose(OpenModel):
+    """One pose ``acquire`` takes: the turntable angle (degrees), the light, the exposures (seconds) and
+    the samples each region is expected to get from it."""
+
     id: str
     turntable_deg: Degrees
     light: PlanLight
@@ -84,6 +95,8 @@ class PlanPose(OpenModel):
 
 
 class RegionCoverage(OpenModel):
+    """A region's planned samples over all poses, and whether they reach M."""
+
     samples: float = Field(ge=0)
     satisfied: bool
     needed: float | None = None
@@ -104,6 +117,8 @@ class PlanSummary(OpenModel):
 
 
 class Uncovered(OpenModel):
+    """A region no pose covers, and why (not visible, highlight unreachable, …)."""
+
     region: int
     reason: str
 

@@ -28,6 +28,8 @@ Colour8 = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=
 
 
 class RegionEntry(OpenModel):
+    """One same-colour region: its id, sRGB colour (0–255), size (vertices, faces, m²) and material."""
+
     id: int = Field(ge=0)
     color: Colour8
     vertices: int = Field(ge=0)
@@ -48,6 +50,8 @@ class RegionEntry(OpenModel):
 
 
 class SegmentParameters(StrictModel):
+    """What the segmentation was run with (ΔE, the smallest fragment kept, patches split or not)."""
+
     delta_e: float
     min_fragment: float
     split_connected: bool
@@ -55,6 +59,9 @@ class SegmentParameters(StrictModel):
 
 
 class RegionsFile(StrictModel):
+    """``regions.json`` (docs/formats.md): the mesh it belongs to, the regions, each vertex's and face's
+    region."""
+
     format: Literal["hlr-lab.regions"]
     version: Literal[1]
     mesh: str
@@ -81,6 +88,7 @@ def mesh_reference(mesh_path: Path | str, relative_to: Path) -> str:
 def write_regions(
     path: str | Path, mesh: ColouredMesh, seg: Segmentation, *, mesh_name: str, regions_requested: int | None
 ) -> None:
+    """Write ``regions.json`` for ``seg`` of ``mesh`` (named ``mesh_name`` in the file), in one piece."""
     path = Path(path)
     write_json(
         path,
