@@ -143,7 +143,8 @@ def calibration_figures(
         outcomes[c.procedure] = c
         warmed_s = 60 * c.warmed.minutes if c.warmed else 0.0  # the warm-up's waits are rig time too
         figures.rig_s[c.procedure] = clocks[c.procedure].rig_seconds(speed_factor) + warmed_s
-        figures.wall_s[c.procedure], started = time.perf_counter() - started, time.perf_counter()
+        now = time.perf_counter()
+        figures.wall_s[c.procedure], started = now - started, now
 
     targets = SimulatedTargets(true_rig, speed_factor)
     last = calibrate_all(drawing, folder, folder / "rig-calibrated.toml", targets, settings, done=done,

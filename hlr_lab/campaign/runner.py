@@ -208,8 +208,7 @@ def forecast(campaign: Campaign) -> Forecast:
     upper-bound bytes, and each job's duration; refuses (DiskFull) when the jobs writing to one
     filesystem need more than it has free."""
     frames, needed, duration = {}, {}, {}
-    by_filesystem: dict[int, list[str]] = {}
-    out: dict[str, Path] = {}  # each acquire job's session folder
+    by_filesystem: dict[int, list[AcquireJob]] = {}
     for job in campaign.jobs:
         if not isinstance(job, AcquireJob):
             continue
@@ -221,11 +220,10 @@ def forecast(campaign: Campaign) -> Forecast:
         duration[job.name] = (
             estimate_duration_s(plan, motion_targets(plan, rig, job.plan), rig) / job.speed_factor
         )
-        by_filesystem.setdefault(_device_of(job.out), []).append(job.name)
-        out[job.name] = job.out
-    for names in by_filesystem.values():
-        where = out[names[0]]
-        total, free = sum(needed[n] for n in names), free_bytes(where)
+        by_filesystem.setdefault(_device_of(job.out), []).append(job)
+    for jobs in by_filesystem.values():
+        names = [j.name for j in jobs]
+        total, free = sum(needed[n] for n in names), free_bytes(jobs[0].out)
         if total > free:
             raise DiskFull(
                 f"{campaign.path}: the night's frames need up to {total / 1e6:,.0f} MB where "
