@@ -1,23 +1,22 @@
 """``hlr-lab calibrate`` on the simulated rig while hlr-lab believes the drawing: ``calibrate camera`` on
 builtin:bench-offsets (the calibrated file against the true one, the photographs kept and solved again
-with --from), ``bench calibration`` on builtin:bench-night once for the module (its ``calibrate all``'s
-files, its gantry photographs solved again, its figures), and the refusals."""
+with --from), and the refusals (``bench calibration``'s ``calibrate all`` and ``calibrate gantry`` are in
+test_calibrate_bench.py)."""
 
 from __future__ import annotations
 
-import contextlib
+import hashlib
 import io
 import json
 import re
 import shutil
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from calibration.camera_procedure import FRAMES_PER_VIEW
-from calibration.procedures import Settings, default_folder
+from calibration.procedures import default_folder
 from hlr_lab.cli.main import main
 from hlr_lab.rig.file import load_rig
 from sim.true_rig import load_true_rig
@@ -142,50 +141,12 @@ def test_a_rig_file_without_a_board_or_a_used_folder_is_refused(tmp_path, capsys
     shutil.rmtree(used)
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(
-    2700
-)  # the bench, when this test is the first to ask for it: 330 s beside another worker
-def test_calibrate_gantry_on_the_camera_calibrated_rig(night_bench, tmp_path, capsys):
-    """`calibrate gantry` on the rig file `calibrate camera` wrote, solved again with --from from the
-    photographs the bench's `calibrate all` took of the mirror ball (12 lamp poses, in builtin:bench-night:
-    bench-offsets' geometry): the arm and zero ticks move to the true ones (in the camera-defined world
-    the azimuth zero is the true one turned with it: 2062 + 3 ticks), the azimuth limits narrowed to fit
-    one servo turn about the new zero, a [calibration.gantry] record beside the camera's, the same as the
-    bench's own solve; a rig file without a mirror ball is refused."""
-    folder, _ = night_bench
-    command = ["calibrate", "gantry", "--rig", str(folder / "rig-camera.toml"), "--from", str(folder / "gantry"),
-               "-o", str(tmp_path / "gantry.toml")]  # fmt: skip
-    assert main(command) == 0, capsys.readouterr().err
-    after = load_rig(tmp_path / "gantry.toml")
-    truth = load_true_rig("builtin:bench-night").gantry
-    k = after.gantry.kinematics
-    assert abs(k.arm_radius - truth.arm_radius) < 1.5e-3
-    assert abs(k.zero_ticks[0] - (truth.zero_ticks[0] + 3)) <= 3
-    assert abs(k.zero_ticks[1] - truth.zero_ticks[1]) <= 3
-    assert after.file.gantry.azimuth_limits_deg[1] < 180.0  # the zero moved: ±180° no longer fits one turn
-    assert after.file.calibration.gantry.rays >= 20
-    assert after.file.calibration.camera is not None  # the camera's record is kept
-    bench = load_rig(folder / "rig-gantry.toml").gantry.kinematics
-    assert k.arm_radius == pytest.approx(bench.arm_radius, rel=1e-6)  # solver noise only
-    page = (folder / "gantry" / "summary.html").read_text()  # both outlines, every highlight used
-    assert page.count("<img ") == 2 + after.file.calibration.gantry.rays
-    assert "the ball where the fit puts it" in page
-    text = SIM_RIG.read_text()
-    bare = tmp_path / "bare.toml"
-    bare.write_text(text[: text.index("[calibration.mirror_ball]")])
-    assert main(["calibrate", "gantry", "--rig", str(bare), "--sim", "-o", str(tmp_path / "x.toml")]) == 1
-    assert "no [calibration.mirror_ball]" in capsys.readouterr().err
-
-
 def test_photographs_go_to_the_current_folder_and_a_failed_run_leaves_no_folder(
     tmp_path, monkeypatch, capsys
 ):
     """Without --out the photographs' folder is calibration/DATE-PROCEDURE in the current folder (never
     beside the rig file, which may be the installed package's); a run that fails before its first
     photograph (here: no device answers on the example rig file's links) leaves no folder behind."""
-    import io
-
     rig = tmp_path / "rig.toml"
     example = Path(__file__).resolve().parents[1] / "docs" / "rig.example.toml"
     port = "/dev/serial/by-id/usb-FTDI_USB__-__Serial_Converter_FT4TFSV1-if00-port0"
@@ -202,107 +163,10 @@ def test_photographs_go_to_the_current_folder_and_a_failed_run_leaves_no_folder(
     assert default_folder("camera", "2026-12-01-093000") == Path("calibration/2026-12-01-093000-camera")
 
 
-@pytest.fixture(scope="module")
-def night_bench(tmp_path_factory) -> tuple[Path, str]:
-    """``hlr-lab bench calibration`` at its smallest (16 views, 12 lamp poses, 4-pose runs) on
-    builtin:bench-night, once for the module: its folder (what ``calibrate all`` leaves, then the runs)
-    and what it printed. Its first part is ``calibrate all --board-along-zero`` with a 30-minute warm-up,
-    through the same library function as the command."""
-    folder = tmp_path_factory.mktemp("bench") / "b"
-    printed = io.StringIO()
-    command = [
-        "bench",
-        "calibration",
-        "--views",
-        "16",
-        "--poses",
-        "12",
-        "--run-poses",
-        "4",
-        "--out",
-        str(folder),
-    ]
-    with contextlib.redirect_stdout(printed):
-        assert main(command) == 0
-    return folder, printed.getvalue()
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(
-    2700
-)  # the bench, when this test is the first to ask for it: 330 s beside another worker
-def test_calibrate_all_writes_one_file_with_all_three_records(night_bench):
-    """Camera, gantry, then radiometry on the simulated bench whose sensor and lamp are off too
-    (builtin:bench-night), short runs: one rig file carrying all three calibrations, the intermediate
-    files and every set of photographs kept in the folder. (S·Φ is that of the lamp after its warm-up:
-    the drawing's sensitivity times the lamp's 88 % of nominal power, within 5 %.)"""
-    folder, _ = night_bench
-    after = load_rig(folder / "rig-calibrated.toml")
-    assert after.file.calibration.camera is not None
-    assert after.file.calibration.gantry is not None
-    assert after.file.calibration.radiometric is not None
-    truth = load_true_rig("builtin:bench-night")
-    assert abs(after.camera.matrix[0, 0] / truth.camera.matrix[0, 0] - 1) < 0.002
-    assert abs(after.gantry.kinematics.arm_radius - truth.gantry.arm_radius) < 1.5e-3
-    assert abs(after.file.sensor.black_level_dn - 64.0) < 0.5
-    assert after.file.sensor.conversion_gain_dn_per_e == pytest.approx(0.31, rel=0.05)
-    assert after.file.sensor.sensitivity == pytest.approx(3600 * 0.88, rel=0.05)
-    assert (folder / "rig-camera.toml").is_file()
-    assert (folder / "rig-gantry.toml").is_file()
-    assert len(list((folder / "camera" / "frames").glob("*.png"))) == 16 * FRAMES_PER_VIEW
-    assert len(list((folder / "gantry" / "frames").glob("*.png"))) >= 20
-    assert (folder / "camera" / "summary.html").is_file()
-    assert (folder / "gantry" / "summary.html").is_file()
-    positions, levels = Settings().positions, Settings().levels
-    frames = folder / "radiometric" / "frames"
-    kinds = Counter(json.loads(p.with_suffix(".json").read_text())["kind"] for p in frames.glob("*.png"))
-    # darks at the bracket's three exposures twice, the transfer, the whites, the lamp from above twice
-    assert kinds["dark"] + kinds["flat"] + kinds["reference"] + kinds["white"] + kinds["lamp"] == (
-        2 * 3 + 3 * levels + positions + 2
-    )
-    assert kinds["warm_up"] >= 1  # and the lamp watched while it warmed up
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(
-    2700
-)  # the bench, when this test is the first to ask for it: 330 s beside another worker
-def test_bench_calibration_prints_what_calibration_is_worth(night_bench):
-    """Every figure printed; the recovery within the issue's targets that a short run still reaches; the
-    end-to-end error far smaller with the calibrated file than with the drawing (measured here: worst Rd
-    388 % → 0.43 %, the drawing's sensor 22.6 % off and its black level 64 DN short), and with a white
-    reference beside the object; camera and gantry within 5 minutes of simulated-rig time."""
-    folder, printed = night_bench
-    rig_s = dict(re.findall(r"(camera|gantry|radiometric) (\d+) s", printed))
-    assert int(rig_s["camera"]) + int(rig_s["gantry"]) < 300
-    names = ("focal length|camera position|arm radius|azimuth axis|lamp worst|black level|read noise|"
-             "conversion gain|power")  # fmt: skip
-    figures = dict(re.findall(rf"({names}) ([\d.]+)", printed))
-    assert float(figures["focal length"]) < 0.2
-    assert float(figures["camera position"]) < 1.0
-    # 12 lamp poses: the arm comes out 0.9–1.04 mm off (the lamp's flicker follows the machine's pace); the
-    # 1 mm target is the default 30 poses' (0.09 mm, docs/calibration.md). The short run's bound, as above
-    assert float(figures["arm radius"]) < 1.5
-    assert float(figures["azimuth axis"]) < 0.1
-    assert float(figures["lamp worst"]) < 2.0
-    assert float(figures["black level"]) < 0.5
-    assert float(figures["read noise"]) < 5.0
-    assert float(figures["conversion gain"]) < 3.0
-    assert float(figures["power"]) < 1.0
-    worst = dict(re.findall(r"(drawing|calibrated|white ref\.)\s*: worst Rd ([\d.]+)", printed))
-    assert float(worst["drawing"]) > 5.0
-    assert float(worst["calibrated"]) < 1.0
-    assert float(worst["white ref."]) < 1.0  # the lamp measured on a white reference beside the object
-    assert (folder / "rig-calibrated.toml").is_file()
-
-
 @pytest.mark.slow
 def test_a_view_whose_photographs_disagree_on_where_it_was_is_refused(calibrated, tmp_path, capsys):
     """The photographs of one view are averaged: one of them journaled at other turntable steps (a careless
     hand, checksums made good) is refused naming the view, and nothing is written."""
-    import hashlib
-    import json
-
     images = tmp_path / "images"
     shutil.copytree(calibrated / "images", images)
     journal = images / "journal.jsonl"

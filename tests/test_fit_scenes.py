@@ -187,6 +187,7 @@ PAPER_CYLINDER = Truth(
 )
 
 
+@pytest.mark.slow
 def test_the_papers_cylinder_under_a_distant_lamp_8_bit(tmp_path):
     """Paper §4.2: a 4 cm × 12 cm cylinder with sharp rims, Rd = (230, 223, 205)/255, Rs = (27, 18, 28)/255,
     n = 59, a directional light and an 8-bit sensor. hlr-lab welds the mesh's rim vertices on loading, so
@@ -215,6 +216,7 @@ MULTI = [
 ]
 
 
+@pytest.mark.slow
 def test_a_multi_region_object_with_shadows_under_a_point_lamp_8_bit(tmp_path):
     """The built-in pebble's four regions plus a grey post standing in it that throws shadows on them;
     a point lamp and an 8-bit sensor whose longest exposure clips most of the object, so every radiance
@@ -263,6 +265,7 @@ def truths_for(colours: list[tuple[int, int, int]]) -> list[Truth]:
     return out
 
 
+@pytest.mark.slow
 def test_spot_textured_regions(tmp_path, spot_paths):
     """Spot (../shared/assets): regions come from its texture, so region borders cross faces; the world
     takes its materials per texel as well."""
@@ -277,6 +280,7 @@ def test_spot_textured_regions(tmp_path, spot_paths):
     check(plan, fitted, truths, psnr, min_measured=3)
 
 
+@pytest.mark.slow
 def test_a_textured_mesh_without_a_scene_file_gets_the_default_world(tmp_path, spot_paths, capsys):
     """`acquire --sim` on Spot's plan with no --scene: the world is built from the texture's regions (per
     texel, as the fit reads them) with the default materials, and the fit finds them: Rd within 2 %
@@ -307,6 +311,7 @@ def test_a_textured_mesh_without_a_scene_file_gets_the_default_world(tmp_path, s
         assert e.n == pytest.approx(t.n, rel=0.05)
 
 
+@pytest.mark.slow
 def test_the_bunny_painted_in_four_patches(tmp_path, bunny_path):
     """The Stanford bunny (../shared/assets) painted in four compact patches of distinct colours."""
     from hlr_lab.object.procedural import paint_patches
