@@ -222,8 +222,8 @@ def leak_window(samples: list[Sample]) -> tuple[Sample, Sample]:
     took a fifth of a run on a loaded machine) and over the tenth from 80 % (before it closes its files on
     the way out). A floor, not one reading: at any instant a run may hold a frame's temporary file or a
     reconnecting link open (one reading 3 descriptors above another without a leak, on a loaded machine),
-    while a leak raises the floor itself: one descriptor or one frame (7.4 MB) a pose shows as 12 over a
-    30-pose run's 40 %."""
+    while a leak raises the floor itself: one descriptor or one frame (7.4 MB) a pose shows as 8 over a
+    20-pose run's 40 %."""
 
     def floor(start: float) -> Sample:
         n = len(samples)
