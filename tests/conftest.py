@@ -40,16 +40,11 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     in this order, and a long module begun last keeps the suite waiting on one worker while the others
     idle. First the modules with a test marked with its own (longer) timeout, then those with a ``slow``
     test, then the rest; each module's tests, and the modules within a group, in their order."""
-
-    def group(item: pytest.Item) -> int:
-        return rank[item.nodeid.split("::")[0]]
-
     rank: dict[str, int] = {}
     for item in items:
-        module = item.nodeid.split("::")[0]
         here = 0 if item.get_closest_marker("timeout") else 1 if item.get_closest_marker("slow") else 2
-        rank[module] = min(rank.get(module, 2), here)
-    items.sort(key=group)
+        rank[item.location[0]] = min(rank.get(item.location[0], 2), here)
+    items.sort(key=lambda item: rank[item.location[0]])
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
