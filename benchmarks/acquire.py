@@ -7,7 +7,7 @@ clipping checks, handing frames to the writer. Motion runs at a high speed facto
 not hide anything. Transactions are counted where they arrive: instruction packets at the simulated
 servo bus, requests at the Modbus server.
 
-Composition root code (it builds the simulator), hence under ``hlr_lab.cli``.
+It builds the simulator: only the command line imports it (the composition root).
 """
 
 from __future__ import annotations
@@ -17,9 +17,11 @@ import resource
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmarks.numerical import SessionFitFigures, run_session_fit_case
 from drivers.protocols import Camera, Positioner, RawFrame
 from hlr_lab.acquisition.poses import Step, acquire
 from hlr_lab.formats.plan import PlanFile, write_plan
@@ -210,3 +212,15 @@ def report(f: AcquireFigures, speed_factor: float) -> list[str]:
         f"storing the frames still queued after the last pose: {f.drain_s * 1e3:.0f} ms",
         f"peak RSS {f.peak_rss_mb:.0f} MB",
     ]
+
+
+def session_fit_figures(
+    poses: int, progress: Callable[[str], None] = lambda _: None
+) -> tuple[SessionFitFigures, int]:
+    """``hlr-lab bench session-fit``: acquire ``poses`` poses (as :func:`acquire_figures`, at a speed
+    factor of 1000) into a scratch session, fit it in a fresh process; the fit's figures and the frames."""
+    with tempfile.TemporaryDirectory(prefix="hlr-bench-fit-") as scratch:
+        progress(f"acquiring {poses} poses on the simulated rig…")
+        acquired = acquire_figures(poses=poses, speed_factor=1000.0, keep=Path(scratch))
+        progress("fitting (fresh process)…")
+        return run_session_fit_case(Path(scratch) / "session"), acquired.frames

@@ -19,8 +19,10 @@ believes the drawing, then measure what the calibration is worth.
 
 from __future__ import annotations
 
+import contextlib
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +33,7 @@ from benchmarks.acquire import Stopwatch, TimedCamera, TimedPositioner, repeated
 from calibration.camera_procedure import CameraCalibration
 from calibration.images import journaled_sidecars
 from calibration.procedures import Calibrated, ProcedureName, Settings, calibrate_all, check_targets
+from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_text
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.geometry.sphere import rotation_z
@@ -112,6 +115,19 @@ class CalibrationFigures:
 
 
 WARM_UP = 30.0  # minutes at most, for the radiometric procedure and the calibrated run alike
+
+
+@contextlib.contextmanager
+def bench_folder(out: Path | None) -> Iterator[Path]:
+    """``out`` (new or empty: the photographs, rig files and sessions are kept there), or with None a
+    scratch folder removed afterwards."""
+    if out is None:
+        with tempfile.TemporaryDirectory(prefix="hlr-bench-calibration-") as scratch:
+            yield Path(scratch)
+    elif out.exists() and any(out.iterdir()):
+        raise InputError("the folder is not empty; give a new --out", path=out, field="--out")
+    else:
+        yield out
 
 
 def calibration_figures(

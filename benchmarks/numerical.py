@@ -19,6 +19,7 @@ import trimesh
 from hlr_lab.errors import HlrLabError
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName, fit_region
 from hlr_lab.fitting.synthetic import PAPER_42, Truth, synthetic_region
+from hlr_lab.geometry.sphere import directions_with_spacing
 from hlr_lab.object.mesh import ColouredMesh, load_mesh
 from hlr_lab.object.procedural import paint_patches, pebble
 from hlr_lab.object.raycast import RayCaster, visible_vertices
@@ -238,8 +239,27 @@ def run_throughput_case(samples: int, method: EstimatorName = DEFAULT_ESTIMATOR)
     return in_fresh_process(_throughput_case, samples, method)
 
 
-def mesh_label(mesh_path: str | None) -> str:
-    return Path(mesh_path).stem if mesh_path else "builtin:pebble"
+def spacing_line() -> str:
+    """The line ``hlr-lab bench plan`` prints first: the candidate grid's real spacing."""
+    spacing = nearest_neighbour_spacing_deg(directions_with_spacing(PAPER_SETTINGS.spacing_deg))
+    return f"candidate spacing: requested {PAPER_SETTINGS.spacing_deg}°, measured max nearest-neighbour {spacing:.3f}°"
+
+
+def throughput_header() -> str:
+    """The line ``hlr-lab bench fit`` prints before its throughput figures."""
+    return (
+        "throughput and memory (robust, θc 20°, one region, sphere, point light, photon + read noise; "
+        "fresh process per size)"
+    )
+
+
+def plan_cases(mesh_path: Path | None, up: str, scale: float, min_vertices: int) -> list[tuple]:
+    """``hlr-lab bench plan``'s cases (:func:`run_plan_case`'s arguments): the mesh (None: builtin:pebble),
+    and unless ``min_vertices`` is 0 the mesh subdivided to at least that many vertices."""
+    name = Path(mesh_path).stem if mesh_path else "builtin:pebble"
+    path = None if mesh_path is None else str(mesh_path)
+    cases = [(name, path, up, scale, 0)]
+    return [*cases, (f"{name} subdivided", path, up, scale, min_vertices)] if min_vertices else cases
 
 
 def nearest_neighbour_spacing_deg(directions: np.ndarray) -> float:

@@ -147,3 +147,15 @@ def render_report(figures: dict[str, float]) -> list[str]:
     return [
         "renderer (Mitsuba llvm_ad_rgb, direct integrator; target ≤ 0.3 s per 1280×960 frame, flat memory):"
     ] + [f"  {name:40s} {value:8.3f}" for name, value in figures.items()]
+
+
+def transactions_report(n: int, progress: Callable[[str], None] = lambda _: None) -> list[str]:
+    """``hlr-lab bench sim``'s first part: ``n`` servo and ``n`` Modbus round trips, timed, as lines."""
+    progress("timing servo transactions…")
+    servo = servo_round_trips(n)
+    progress("timing Modbus transactions…")
+    modbus = modbus_round_trips(n)
+    return [
+        *round_trip_report(f"servo transactions over a pty, dynamixel-sdk, {n} each (target ≤ 1 ms):", servo),
+        *round_trip_report(f"Modbus transactions, pymodbus, {n} each (target ≤ 3 ms):", modbus),
+    ]

@@ -25,7 +25,7 @@ import numpy as np
 from calibration.camera_pose import CameraPose, refine_pose
 from calibration.charuco import BoardSpec, CalibrationError, Detection, calibrate_intrinsics, detect
 from calibration.exposure import ExposureGoal, exposed
-from calibration.images import journaled_images
+from calibration.images import PhotographFields, journaled_images, photograph_line
 from hlr_lab.errors import InputError
 from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.rig.file import Rig
@@ -57,6 +57,9 @@ class BoardFrame:
 
 @dataclass(frozen=True)
 class CameraCalibration:
+    """The camera procedure's result: the camera's pose and intrinsics, the board's detections and the
+    frames they came from, OpenCV's first calibration's RMS (px)."""
+
     pose: CameraPose
     detections: list[Detection]
     frames: list[BoardFrame]
@@ -162,16 +165,13 @@ def capture_board_frames(
             exposure = frame.exposure_s
             for k in range(FRAMES_PER_VIEW):  # the first is the exposure's accepted frame
                 frame = frame if k == 0 else instruments.camera.capture()
-                fields = {
-                    "pose": f"v{i:02d}",
-                    "exposure_index": k,
-                    "dark": False,
-                    "exposure_s": frame.exposure_s,
-                }
+                fields = PhotographFields(
+                    pose=f"v{i:02d}", exposure_index=k, dark=False, exposure_s=frame.exposure_s
+                )
                 sidecar = {**fields, "turntable_steps": int(steps), "placement": face, "gain_db": frame.gain_db,
                            "bits": frame.bits, "lamp_ticks": list(lamp_ticks)}  # fmt: skip
                 stored = store_frame(out, f"v{i:02d}_{k}", frame.pixels, sidecar)
-                journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
+                journal.append(photograph_line(stored, **fields))
         instruments.lamp.set(False)
         journal.append({"event": "run_end", "at": time.time(), "frames_taken": len(plan) * FRAMES_PER_VIEW})
 

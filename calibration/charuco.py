@@ -28,6 +28,8 @@ class CalibrationError(HlrLabError):
 
 @dataclass(frozen=True)
 class BoardSpec:
+    """A ChArUco board: squares across and down, square and marker sides (m), the ArUco dictionary."""
+
     squares: tuple[int, int]  # across (x), down (y)
     square_m: float
     marker_m: float
@@ -72,6 +74,8 @@ def detect(image: np.ndarray, spec: BoardSpec) -> Detection:
 
 @dataclass(frozen=True)
 class Intrinsics:
+    """A camera matrix (3, 3) and distortion (5,), with the reprojection RMS (px) they reach."""
+
     matrix: np.ndarray  # (3, 3)
     distortion: np.ndarray  # (5,) k1 k2 p1 p2 k3
     rms_px: float  # over every corner of every view used

@@ -20,7 +20,7 @@ import numpy as np
 
 from calibration.charuco import CalibrationError
 from calibration.exposure import ExposureGoal, exposed
-from calibration.images import journaled_images
+from calibration.images import PhotographFields, journaled_images, photograph_line
 from calibration.mirror_ball import (
     GantryFit,
     Highlights,
@@ -46,6 +46,9 @@ BALL_FIELDS = ("kind", "turntable_steps", "gantry_ticks", "bits")  # what the so
 
 @dataclass(frozen=True)
 class BallFrame:
+    """A photograph of the mirror ball: its pixels, what it is for (outline or highlight), and where the
+    axes stood (steps, ticks)."""
+
     pixels: np.ndarray
     kind: str  # "outline" or "highlight"
     turntable_steps: int
@@ -54,6 +57,8 @@ class BallFrame:
 
 
 def ball_spec(rig: Rig) -> tuple[float, tuple[float, float]]:
+    """The mirror ball of the rig file: its radius (m) and where it rests on the plate (x, y in m);
+    :class:`InputError` when the rig file has no ``[calibration.mirror_ball]``."""
     ball = rig.file.calibration.mirror_ball
     if ball is None:
         raise InputError(
@@ -118,16 +123,13 @@ def capture_ball_frames(
                 frame = exposed(instruments.camera, start[kind], GOALS[kind])
                 start[kind] = frame.exposure_s
                 instruments.lamp.set(False)
-                fields = {
-                    "pose": f"g{n:03d}",
-                    "exposure_index": 0,
-                    "dark": False,
-                    "exposure_s": frame.exposure_s,
-                }
+                fields = PhotographFields(
+                    pose=f"g{n:03d}", exposure_index=0, dark=False, exposure_s=frame.exposure_s
+                )
                 sidecar = {**fields, "kind": kind, "turntable_steps": int(steps), "gantry_ticks": list(ticks),
                            "gain_db": frame.gain_db, "bits": frame.bits}  # fmt: skip
                 stored = store_frame(out, f"g{n:03d}", frame.pixels, sidecar)
-                journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
+                journal.append(photograph_line(stored, **fields))
                 n += 1
         journal.append({"event": "run_end", "at": time.time(), "frames_taken": n})
 
@@ -150,6 +152,9 @@ def load_ball_frames(folder: Path) -> list[BallFrame]:
 
 @dataclass(frozen=True)
 class GantryCalibration:
+    """The gantry procedure's result: the fit, the highlight rays it fitted, the frame of each ray, and how
+    many highlights were refused."""
+
     fit: GantryFit
     highlights: Highlights  # the rays fitted
     frames_used: tuple[int, ...]  # (N,) the frame each ray came from

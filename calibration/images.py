@@ -5,12 +5,31 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 
 from hlr_lab.errors import InputError
-from hlr_lab.session.frames import checked_sidecar, load_frame
+from hlr_lab.session.events import FrameLine
+from hlr_lab.session.frames import StoredFrame, checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, read_journal
+
+
+class PhotographFields(TypedDict):
+    """What a calibration photograph's journal line and its sidecar both say of it."""
+
+    pose: str
+    exposure_index: int
+    dark: bool
+    exposure_s: float
+
+
+def photograph_line(
+    stored: StoredFrame, pose: str, exposure_index: int, exposure_s: float, dark: bool
+) -> FrameLine:
+    """The journal line of a calibration photograph (never adaptive; clipping is the solve's business)."""
+    return FrameLine(event="frame", pose=pose, exposure_index=exposure_index, exposure_s=exposure_s, dark=dark,
+                     adaptive=False, clipped_pixels=0, **stored.files())  # fmt: skip
 
 
 def journaled_images(

@@ -184,6 +184,9 @@ class Highlights:
 
 @dataclass(frozen=True)
 class GantryFit:
+    """The gantry's kinematics fitted to the lamp's rays, the ball's place, each ray's miss (mm) and the
+    standard errors."""
+
     kinematics: GantryKinematics
     place_xy_m: np.ndarray  # (2,) where the ball rests on the plate at turntable 0, as the fit puts it
     miss_mm: np.ndarray  # (N,) each lamp's distance from its ray at the fit

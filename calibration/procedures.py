@@ -11,6 +11,7 @@ Conventions and figures: docs/calibration.md.
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,7 @@ from calibration.radiometric_procedure import (
     white_spec,
 )
 from calibration.summary import camera_summary, gantry_summary
+from hlr_lab.campaign.runner import CalibrateJob, job_rig
 from hlr_lab.errors import InputError
 from hlr_lab.instrument.control import open_rig
 from hlr_lab.instrument.devices import Links
@@ -85,6 +87,15 @@ class Settings:
     levels: int = 8  # exposures of the photon transfer
     warm_up_min: float = 0.0  # keep the lamp on (at most this long) until stable, before the white frames
     warm_up_within: float = 0.2  # stable: the lamp changes by less than this many per cent a minute
+
+
+# how many of each a procedure may be asked for: the ranges of the commands' and the benchmark's options
+COUNT_RANGES: dict[str, tuple[int, int]] = {
+    "views": (16, 200),  # the solve needs both faces of the wedge well spread
+    "poses": (12, 200),  # the gantry's kinematics have 9 parameters
+    "positions": (3, 60),  # 1/d² needs three distances
+    "levels": (4, 40),  # a photon transfer line needs a few points above the read noise
+}
 
 
 @dataclass(frozen=True)
@@ -217,6 +228,21 @@ def calibrate_all(
             rig = outcome.rig
     assert outcome is not None  # the order is never empty
     return outcome
+
+
+def calibrate_job(
+    job: CalibrateJob, targets: Targets, *, done: Callable[[Calibrated], None] = lambda _: None
+) -> None:
+    """A campaign's calibrate job as ``hlr-lab calibrate PROCEDURE`` runs it, on the job's rig file (or the
+    built-in rig), its photographs beside the output in calibration/DATE-NAME; ``done`` is called after
+    each procedure."""
+    rig = job_rig(job)
+    folder = job.output.parent / "calibration" / f"{time.strftime('%Y-%m-%d-%H%M%S')}-{job.name}"
+    settings = Settings(warm_up_min=job.warm_up_min, warm_up_within=job.warm_up_within)
+    if job.procedure == "all":
+        calibrate_all(rig, folder, job.output, targets, settings, done=done)
+    else:
+        done(run_procedure(job.procedure, rig, folder, job.output, targets, settings))
 
 
 def _capture(

@@ -31,7 +31,7 @@ import numpy as np
 
 from calibration.charuco import CalibrationError
 from calibration.exposure import ExposureGoal, exposed
-from calibration.images import journaled_images
+from calibration.images import PhotographFields, journaled_images, photograph_line
 from calibration.radiometry import (
     Dark,
     LampSensitivity,
@@ -57,6 +57,8 @@ FIELDS = ("kind", "level", "exposure_s", "gain_db", "gantry_ticks", "turntable_s
 
 @dataclass(frozen=True)
 class WhiteReference:
+    """The white reference of the rig file: reflectance (3,), side and thickness (m), place on the plate (m)."""
+
     reflectance: np.ndarray  # (3,)
     size_m: float
     place_m: tuple[float, float]
@@ -64,6 +66,7 @@ class WhiteReference:
 
 
 def white_spec(rig: Rig) -> WhiteReference:
+    """The rig file's white reference; :class:`InputError` when it has no ``[calibration.white_reference]``."""
     w = rig.file.calibration.white_reference
     if w is None:
         raise InputError(
@@ -150,17 +153,14 @@ def capture_radiometric_frames(
             progress(n, total, f"{kind} frame, {exposure_s * 1e3:.2f} ms")
             instruments.camera.set_exposure(exposure_s)
             frame = instruments.camera.capture()
-            fields = {
-                "pose": f"r{n:03d}",
-                "exposure_index": 0,
-                "dark": kind == "dark",
-                "exposure_s": frame.exposure_s,
-            }
+            fields = PhotographFields(
+                pose=f"r{n:03d}", exposure_index=0, dark=kind == "dark", exposure_s=frame.exposure_s
+            )
             sidecar = {**fields, "kind": kind, "level": level, "gain_db": frame.gain_db, "bits": frame.bits,
                        "gantry_ticks": list(ticks), "turntable_steps": int(steps), "captured_at": frame.captured_at,
                        "camera": frame.meta}  # fmt: skip
             stored = store_frame(out, f"r{n:03d}", frame.pixels, sidecar)
-            journal.append(stored.as_event(**fields, adaptive=False, clipped_pixels=0))
+            journal.append(photograph_line(stored, **fields))
             n += 1
             return float(_mean(frame.pixels, rows_cols))
 
@@ -221,6 +221,9 @@ def _exposure_for(instruments: Instruments, exposure: float, rows_cols: np.ndarr
 
 @dataclass(frozen=True)
 class RadiometricFrame:
+    """A photograph of the radiometric procedure: its pixels, its kind and level, its exposure (s) and
+    gain (dB), where the lamp stood (ticks), the sensor's depth (bits)."""
+
     pixels: np.ndarray
     kind: str  # "dark", "reference", "flat" or "white"
     level: int  # which exposure (dark: of the bracket; reference and flat: of the transfer; white: position)
@@ -253,6 +256,9 @@ def load_radiometric_frames(folder: Path) -> list[RadiometricFrame]:
 
 @dataclass(frozen=True)
 class RadiometricCalibration:
+    """The radiometric procedure's result: dark statistics, photon transfer, the lamp's sensitivity × power,
+    and the lamp's drift over the white frames."""
+
     dark: Dark
     transfer: PhotonTransfer
     lamp: LampSensitivity

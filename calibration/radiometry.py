@@ -40,6 +40,8 @@ def _channels(frame: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Dark:
+    """Dark statistics: black level per channel (C,) and read noise, in DN."""
+
     black_level_dn: np.ndarray  # (C,) per channel
     read_noise_dn: float
 
@@ -56,6 +58,8 @@ def dark_statistics(pairs: list[tuple[np.ndarray, np.ndarray]]) -> Dark:
 
 @dataclass(frozen=True)
 class PhotonTransfer:
+    """The photon transfer: conversion gain (DN per electron) and the pairs' signal and variance it came from."""
+
     conversion_gain_dn_per_e: float
     signal_dn: np.ndarray  # (N,) mean signal of each pair (black off), all channels pooled
     variance_dn2: np.ndarray  # (N,) photon variance of each pair (read noise off)
@@ -104,6 +108,8 @@ def photon_transfer(
 
 @dataclass(frozen=True)
 class LampSensitivity:
+    """Sensitivity × lamp power S · Φ per channel, from every lamp position, and how well 1/d² held."""
+
     sensitivity_times_power: np.ndarray  # (C,) S · Φ per channel, over all positions
     per_position: np.ndarray  # (K, C) S · Φ from each lamp position
     inverse_square_residual: float  # max |per position / overall − 1|

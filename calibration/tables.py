@@ -1,10 +1,12 @@
-"""What a calibration changed, as the rows of a table (label, the rig file before, calibrated): the
-command line prints them, the figures come from the procedure's outcome."""
+"""What a calibration changed, as a table (label, the rig file before, calibrated) and the lines around
+it: the command line and campaigns print them, the figures come from the procedure's outcome."""
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
+from rich.markup import escape
+from rich.table import Table
 
 from calibration.camera_procedure import CameraCalibration
 from calibration.gantry_procedure import GantryCalibration
@@ -17,6 +19,35 @@ TITLES = {
     "gantry": "gantry calibration",
     "radiometric": "radiometric calibration",
 }
+
+
+def table(c: Calibrated) -> Table:
+    """``c``'s figures: one row per calibrated field, the rig file's value beside the calibrated one."""
+    t = Table(title=TITLES[c.procedure], title_justify="left")
+    for column in ("", "rig file before", "calibrated"):
+        t.add_column(column, justify="right", overflow="fold")
+    for row in rows(c):
+        t.add_row(*row)
+    return t
+
+
+def before_table(c: Calibrated) -> list[str]:
+    """The line printed before ``c``'s table (rich markup): how the lamp's warm-up ended, if it had one."""
+    if c.warmed is None:
+        return []
+    state = "stable" if c.warmed.stable else "[yellow]NOT stable[/]"
+    return [
+        f"lamp {state} after {c.warmed.minutes:.1f} min of warm-up ({100 * c.warmed.per_minute:.2f} % per minute)"
+    ]
+
+
+def after_table(c: Calibrated) -> list[str]:
+    """The lines printed after ``c``'s table (rich markup): its warnings, then where everything went."""
+    summary = f"; summary {escape(str(c.summary))}" if c.summary else ""
+    if c.summary_problem:
+        summary = f"; [yellow]no summary page ({escape(c.summary_problem)})[/]"
+    where = f"photographs in {escape(str(c.images))}{summary}; wrote {escape(str(c.output))}"
+    return [f"[yellow]{escape(w)}[/]" for w in warnings(c)] + [where]
 
 
 def rows(c: Calibrated) -> list[Row]:

@@ -140,6 +140,8 @@ class UrlPortHandler(PortHandler):
 
 @dataclass(frozen=True)
 class Axis:
+    """One servo of the gantry: its Dynamixel ID, the travel allowed in ticks, and a name for messages."""
+
     servo_id: int
     min_ticks: int
     max_ticks: int
@@ -152,6 +154,9 @@ class Axis:
 
 @dataclass(frozen=True)
 class GantryConfig:
+    """How to reach and drive the gantry: its bus (port, baud rate), its axes, the motion profile
+    (Dynamixel units), and when an axis counts as arrived (ticks off the goal, seconds held)."""
+
     port: str
     axes: tuple[Axis, ...]
     baudrate: int = 1_000_000

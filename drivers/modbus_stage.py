@@ -69,6 +69,8 @@ class StageMap:
 
 @dataclass(frozen=True)
 class DriveReport:
+    """What the turntable drive says of itself: ready, in position, its alarm code and position (steps)."""
+
     ready: bool
     in_position: bool
     alarm: int  # the drive's alarm code, 0 when none
@@ -77,6 +79,9 @@ class DriveReport:
 
 @dataclass(frozen=True)
 class StageConfig:
+    """How to reach and drive the turntable: its Modbus address, the travel allowed (steps), its
+    register map, speed (steps/s) and acceleration (steps/s²)."""
+
     address: str  # "host:port" (TCP) or a serial device path (RTU)
     min_steps: int
     max_steps: int
@@ -101,6 +106,10 @@ def _client(address: str, baudrate: int, timeout: float):
 
 @dataclass
 class ModbusStage:
+    """The turntable's drive over Modbus (TCP or RTU): a :class:`~drivers.protocols.Positioner` of one
+    axis in steps. Every exchange is retried by the retry policy; one that keeps failing raises
+    :class:`~drivers.errors.DeviceTimeout` naming the drive."""
+
     config: StageConfig
     retried: int = field(default=0, init=False)
 

@@ -19,6 +19,9 @@ from drivers.protocols import RawFrame
 
 
 class NetworkCamera:
+    """A camera served over TCP by ``hlr-lab sim serve`` (the simulated rig's): a
+    :class:`~drivers.protocols.Camera`. Its protocol is ``sim/camera_server.py``'s."""
+
     def __init__(self, address: str, *, reply_timeout_s: float = 20.0, max_gain_db: float = 24.0):
         """reply_timeout_s: how long after its exposure a frame may take to arrive (reading out,
         transferring; a simulated camera renders); past that the camera is taken as hung."""

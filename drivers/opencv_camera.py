@@ -33,6 +33,9 @@ RAW_FOURCCS = ("Y16 ", "GREY", "Y10 ", "Y12 ", "Y8  ")
 
 @dataclass(frozen=True)
 class OpenCVCameraConfig:
+    """A V4L2/UVC camera (or an image sequence) through OpenCV: the device, the size and pixel format to
+    ask for, and how its values are packed."""
+
     device: str  # "/dev/video0", a camera index "0", or (backend "images") a sequence pattern
     backend: Literal["v4l2", "images", "any"] = "v4l2"
     width: int | None = None
@@ -52,6 +55,9 @@ QUIET_LOG_LEVEL = cv2.utils.logging.LOG_LEVEL_ERROR
 
 
 class OpenCVCamera:
+    """A :class:`~drivers.protocols.Camera` through OpenCV's VideoCapture (webcams: exposure control and
+    raw data only as far as the device gives them)."""
+
     def __init__(self, config: OpenCVCameraConfig):
         if config.bits not in (8, 10, 12, 16):
             raise ValueError(f"bits must be 8, 10, 12 or 16, not {config.bits}")

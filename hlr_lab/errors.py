@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 from drivers.errors import HlrLabError
 
-__all__ = ["DiskFull", "HlrLabError", "InputError", "PlanningError", "RigNotReady"]
+__all__ = ["DiskFull", "HlrLabError", "InputError", "PlanningError", "RigNotReady", "os_error_line"]
 
 
 class InputError(HlrLabError):
@@ -33,3 +34,17 @@ class RigNotReady(HlrLabError):
 
 class DiskFull(HlrLabError):
     """A file could not be written for want of space; the message names it and says how much is free."""
+
+
+def os_error_line(exc: OSError) -> str:
+    """One line for an operating-system refusal: the file, what the system said, what to do."""
+    where = exc.filename if exc.filename is not None else "a file"
+    advice = {
+        errno.EACCES: "check the folder's permissions, or give another output path",
+        errno.EROFS: "the file system is read-only: give an output path elsewhere",
+        errno.EISDIR: "that is a folder: give a file name",
+        errno.ENOTDIR: "a part of that path is a file, not a folder",
+        errno.ENOENT: "no such file or folder: check the path",
+        errno.ENOSPC: "the disk is full: free space, or write elsewhere",
+    }.get(exc.errno or 0, "check the path")  # (errno 0 is no error: not a key)
+    return f"{where}: {exc.strerror or exc}; {advice}"

@@ -129,6 +129,7 @@ def dumps(data: object) -> str:
 
 
 def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
+    """Write ``model`` as JSON to ``path`` atomically (a reader sees the old file or the new one)."""
     atomic_write_text(path, dumps(model.model_dump(mode="json", exclude_none=True)) + "\n")
 
 
@@ -151,6 +152,7 @@ def non_finite(data: object, at: str = "") -> str | None:
 
 
 def read_toml(path: str | Path) -> dict:
+    """A TOML file as a table; a missing or malformed file is an :class:`InputError` naming it."""
     return _parse(Path(path), tomllib.loads, tomllib.TOMLDecodeError, "TOML")
 
 

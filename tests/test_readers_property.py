@@ -318,7 +318,7 @@ def test_a_broken_journal_and_sidecar_are_set_aside_with_a_reason(examples, data
     stored = store_frame(
         session, f"f{data.draw(st.integers(0, 10**9))}", np.zeros((4, 5, 3), np.uint16), sidecar
     )
-    event = stored.as_event(**fields, adaptive=False, clipped_pixels=0)
+    event = {"event": "frame", **fields, "adaptive": False, "clipped_pixels": 0, **stored.files()}
     on_disk = json.loads((session / event["sidecar"]).read_text())
     rewritten = data.draw(mutated_json(on_disk))
     (session / event["sidecar"]).write_bytes(rewritten)

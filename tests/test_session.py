@@ -27,7 +27,8 @@ def frame_fields(pose: str = "p000", k: int = 0, exposure_s: float = 0.01) -> di
 def stored_event(session, name, pixels, **fields) -> dict:
     """A frame stored and described as acquisition does: the journal line for it."""
     f = frame_fields(**fields)
-    return store_frame(session, name, pixels, f).as_event(**f, adaptive=False, clipped_pixels=0)
+    stored = store_frame(session, name, pixels, f)
+    return {"event": "frame", **f, "adaptive": False, "clipped_pixels": 0, **stored.files()}
 
 
 @pytest.mark.parametrize(
@@ -114,7 +115,8 @@ CHILD = textwrap.dedent(
             pixels = rng.integers(0, 4096, size=(120, 160, 3)).astype(np.uint16)
             fields = {"pose": f"f{i:05d}", "exposure_index": 0, "dark": False, "exposure_s": 0.01}
             stored = store_frame(session, f"f{i:05d}", pixels, fields)
-            journal.append(stored.as_event(i=i, **fields, adaptive=False, clipped_pixels=0))
+            journal.append({"event": "frame", "i": i, **fields, "adaptive": False, "clipped_pixels": 0,
+                            **stored.files()})
     """
 )
 
@@ -156,7 +158,7 @@ def test_the_frame_writer_stores_every_queued_frame_and_journals_it(tmp_path):
     with Journal(tmp_path / "journal.jsonl") as journal, FrameWriter(tmp_path, journal, depth=1) as writer:
         for name, pixels in frames.items():
             fields = frame_fields(pose=name)
-            writer.submit(name, pixels, fields, **fields, adaptive=False, clipped_pixels=0)
+            writer.submit(name, pixels, fields, {**fields, "adaptive": False, "clipped_pixels": 0})
     events = read_journal(tmp_path / "journal.jsonl")
     assert [e["pose"] for e in events] == list(frames)
     assert writer.stored == len(frames)
@@ -180,7 +182,10 @@ def _submit_then_close(writer, names):
     """The failure surfaces at the second submit or at close (a race between the threads): both right."""
     try:
         for name in names:
-            writer.submit(name, np.ones((2, 2), np.uint16), {})
+            fields = frame_fields(pose=name)
+            writer.submit(
+                name, np.ones((2, 2), np.uint16), fields, {**fields, "adaptive": False, "clipped_pixels": 0}
+            )
     finally:
         writer.close()
 

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from hlr_lab.campaign.runner import AcquireJob, job_rig
 from hlr_lab.errors import InputError
 from hlr_lab.files import as_triple
-from hlr_lab.formats.plan import PlanFile
+from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.formats.planned_object import (
     face_regions,
     load_planned_mesh,
@@ -63,6 +64,16 @@ def sim_links(
     return world_links(world)
 
 
+def job_links(job: AcquireJob, stack: contextlib.ExitStack) -> Links:
+    """A campaign's acquire job's links: its rig file's own, or with ``sim`` a simulated world for it
+    (kept open by ``stack`` for the job's attempts)."""
+    if not job.sim:
+        return Links()
+    return sim_links(
+        stack, job_rig(job), read_plan(job.plan), job.plan, job.scene, job.true_rig, job.speed_factor
+    )
+
+
 def world_geometry(rig: Rig, true_rig: str | Path | None = None, *, runs: bool = True) -> dict:
     """The simulated world's camera, gantry, turntable, servo ids, sensor and lamp, as :class:`sim.rig.SimRig` takes
     them: from ``true_rig`` (a rig file or ``builtin:NAME``: the world as it really is, while hlr-lab
@@ -95,6 +106,8 @@ def world_geometry(rig: Rig, true_rig: str | Path | None = None, *, runs: bool =
 
 
 def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> SceneSpec:
+    """The simulated world for ``plan``: the scene file's (its materials, the plan's placement), or the
+    plan's mesh with a default material per planned region."""
     placement = mesh_to_turntable(plan)
     if scene_path is not None:
         return replace(_scene_file(plan, scene_path), mesh_to_turntable=placement)
@@ -137,6 +150,7 @@ class SceneFileObject:
 
 
 def scene_file_object(scene_path: Path) -> SceneFileObject:
+    """A scene file's object: its mesh path and its regions' colours; :class:`InputError` naming the file."""
     try:
         data = tomllib.loads(scene_path.read_text(encoding="utf-8"))
         mesh = scene_path.parent / data["object"]["mesh"]

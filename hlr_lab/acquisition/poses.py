@@ -32,6 +32,21 @@ from hlr_lab.geometry.clipping import clip_level, clipped
 from hlr_lab.instrument.devices import SafeState
 from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.instrument.motion import PoseTarget
+from hlr_lab.session.events import (
+    Axes,
+    FrameFields,
+    LampLine,
+    LampReferenceFields,
+    LampReferenceLine,
+    OnReference,
+    PoseLine,
+    PoseState,
+    RetryLine,
+    RunEndLine,
+    RunStartLine,
+    RunSummary,
+    Sidecar,
+)
 from hlr_lab.session.frames import FRAMES, frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 from hlr_lab.session.lamp import (
@@ -62,18 +77,21 @@ class Outcome:
     reference_measured: int = 0
     safe: SafeState | None = None  # what the devices confirmed when the run ended (set by the run's owner)
 
-    def summary(self) -> dict:
-        on_reference = {"poses": self.reference_poses, "measured": self.reference_measured}
-        lamp = {} if self.reference_poses is None else {"lamp_on_reference": on_reference}
-        return {
-            "frames_taken": self.taken,
-            "frames_already_done": self.already_done,
-            "frames_retaken": len(self.retaken),
-            "poses_moved": self.poses_moved,
-            "retries": self.retries,
-            "duration_s": round(self.duration_s, 3),
-            **lamp,
-        }
+    def summary(self) -> RunSummary:
+        """The figures of the journal's ``run_end`` / ``stopped`` line."""
+        summary = RunSummary(
+            frames_taken=self.taken,
+            frames_already_done=self.already_done,
+            frames_retaken=len(self.retaken),
+            poses_moved=self.poses_moved,
+            retries=self.retries,
+            duration_s=round(self.duration_s, 3),
+        )
+        if self.reference_poses is not None:
+            summary["lamp_on_reference"] = OnReference(
+                poses=self.reference_poses, measured=self.reference_measured
+            )
+        return summary
 
 
 @dataclass(frozen=True)
@@ -151,7 +169,9 @@ def acquire(
                 "%s: %s; set aside in journal.damaged, its frame is taken again", JOURNAL, damage.describe()
             )
         done = _intact_frames(session, journal.events, outcome.retaken)
-        journal.append({"event": "run_start", "at": time.time(), "frames_done": sum(map(len, done.values()))})
+        journal.append(
+            RunStartLine(event="run_start", at=time.time(), frames_done=sum(map(len, done.values())))
+        )
         writer = FrameWriter(session, journal)
         try:
             with writer:
@@ -182,7 +202,7 @@ def acquire(
             _finish(outcome, started, retries.count, writer.stored)
             reason = str(exc) or type(exc).__name__
             journal.append_last(
-                {"event": "stopped", "at": time.time(), "reason": reason, **outcome.summary()}
+                RunEndLine(event="stopped", at=time.time(), reason=reason, **outcome.summary())
             )
             raise
         _finish(outcome, started, retries.count, writer.stored)
@@ -192,7 +212,7 @@ def acquire(
                 "run_place_m (in view, beside the object, not under it)",
                 outcome.reference_poses,
             )
-        journal.append_last({"event": "run_end", "at": time.time(), **outcome.summary()})
+        journal.append_last(RunEndLine(event="run_end", at=time.time(), **outcome.summary()))
     return outcome
 
 
@@ -231,8 +251,8 @@ class _RetryJournal(logging.Handler):
         if getattr(record, "retry", False):
             self.count += 1
             self.journal.append(
-                {"event": "retry", "at": record.created, "pose": self.pose, "source": record.name,
-                 "error": record.getMessage()}
+                RetryLine(event="retry", at=record.created, pose=self.pose, source=record.name,
+                          error=record.getMessage())
             )  # fmt: skip
 
     def __enter__(self) -> _RetryJournal:
@@ -338,31 +358,33 @@ class _Run:
             retakes += 1
         clipped = _clipped(frame.pixels, frame.bits, window)
         state = place.state
-        sidecar = {
-            "pose": pose.id,
-            "exposure_index": k,
-            "adaptive": adaptive,
-            "dark": dark,
-            "exposure_s": frame.exposure_s,
-            "gain_db": frame.gain_db,
-            "bits": frame.bits,
-            "captured_at": frame.captured_at,
-            "clipped_pixels": clipped,
-            "clipped_counted_in": "frame" if window is None else "object window",
+        sidecar = Sidecar(
+            pose=pose.id,
+            exposure_index=k,
+            adaptive=adaptive,
+            dark=dark,
+            exposure_s=frame.exposure_s,
+            gain_db=frame.gain_db,
+            bits=frame.bits,
+            captured_at=frame.captured_at,
+            clipped_pixels=clipped,
+            clipped_counted_in="frame" if window is None else "object window",
             **state,
-            "camera": frame.meta,
-        }
+            camera=frame.meta,
+        )
         name = _free_name(self.session, f"{pose.id}_e{k}" + ("_dark" if dark else ""))
         self.writer.submit(
             name,
             frame.pixels,
             sidecar,
-            pose=pose.id,
-            exposure_index=k,
-            exposure_s=frame.exposure_s,
-            adaptive=adaptive,
-            dark=dark,
-            clipped_pixels=clipped,  # a resumed run decides on shorter exposures without reading frames
+            FrameFields(  # clipped_pixels: a resumed run decides on shorter exposures without reading frames
+                pose=pose.id,
+                exposure_index=k,
+                exposure_s=frame.exposure_s,
+                adaptive=adaptive,
+                dark=dark,
+                clipped_pixels=clipped,
+            ),
         )
         if kept is not None:
             kept.append(frame)
@@ -380,7 +402,7 @@ class LampMeter(Protocol):
 
     expected: float
 
-    def __call__(self, measured: dict, frames: list[RawFrame]) -> Reading | None: ...
+    def __call__(self, measured: Axes, frames: list[RawFrame]) -> Reading | None: ...
 
 
 class _LampOnReference:
@@ -391,7 +413,7 @@ class _LampOnReference:
         self.journal, self.meter, self.outcome = journal, meter, outcome
         outcome.reference_poses = 0
 
-    def measure(self, pose_id: str, measured: dict, frames: list[RawFrame]) -> None:
+    def measure(self, pose_id: str, measured: Axes, frames: list[RawFrame]) -> None:
         self.outcome.reference_poses = (self.outcome.reference_poses or 0) + 1
         reading = self.meter(measured, frames)
         if reading is None:
@@ -399,8 +421,8 @@ class _LampOnReference:
             return
         self.outcome.reference_measured += 1
         output = reading.brightness / self.meter.expected
-        self.journal.append({"event": "lamp", "at": reading.at, "output": output, "baseline": WHITE_REFERENCE,
-                             "brightness": reading.brightness, "pose": pose_id})  # fmt: skip
+        self.journal.append(LampLine(event="lamp", at=reading.at, output=output, baseline=WHITE_REFERENCE,
+                                     brightness=reading.brightness, pose=pose_id))  # fmt: skip
         log.info("lamp: %.4f of the rig file's sensitivity × power (white reference, %s)", output, pose_id)
 
 
@@ -442,8 +464,9 @@ class _LampReference:
         assert self.first is not None  # _set_baseline sets first and compared
         assert self.compared is not None
         output = relative_output(frame.pixels, self.first, self.compared, self.watch.black_level_dn)
-        self.run.journal.append({"event": "lamp", "at": frame.captured_at, "output": output,
-                                 "baseline": self.baseline})  # fmt: skip
+        self.run.journal.append(
+            LampLine(event="lamp", at=frame.captured_at, output=output, baseline=self.baseline)
+        )
         log.info("lamp: %.4f of the baseline (%s)", output, self.baseline)
         return output
 
@@ -484,13 +507,14 @@ class _LampReference:
             i.lamp.set(False)
         name = _free_name(self.run.session, f"lamp_{self.count:03d}")
         self.count += 1
-        sidecar = {"pose": LAMP_REFERENCE, "exposure_index": 0, "dark": False, "exposure_s": frame.exposure_s,
-                   "gain_db": frame.gain_db, "bits": frame.bits, "captured_at": frame.captured_at,
-                   **place.state, "camera": frame.meta}  # fmt: skip
+        sidecar = Sidecar(pose=LAMP_REFERENCE, exposure_index=0, dark=False, exposure_s=frame.exposure_s,
+                          gain_db=frame.gain_db, bits=frame.bits, captured_at=frame.captured_at, **place.state,
+                          camera=frame.meta)  # fmt: skip
         stored = store_frame(self.run.session, name, frame.pixels, sidecar)
-        fields = {"pose": LAMP_REFERENCE, "exposure_index": 0, "exposure_s": frame.exposure_s, "dark": False,
-                  "bits": frame.bits, "baseline": self.first is None and not warming, "warm_up": warming}  # fmt: skip
-        self.run.journal.append(stored.as_event(**fields, event="lamp_reference"))
+        fields = LampReferenceFields(pose=LAMP_REFERENCE, exposure_index=0, exposure_s=frame.exposure_s,
+                                     dark=False, bits=frame.bits, baseline=self.first is None and not warming,
+                                     warm_up=warming)  # fmt: skip
+        self.run.journal.append(LampReferenceLine(event="lamp_reference", **fields, **stored.files()))
         return frame, stored.file
 
 
@@ -531,7 +555,7 @@ class _Place:
 
     def __init__(self, run: _Run, pose: PlanPose, target: PoseTarget):
         self.run, self.pose, self.target = run, pose, target
-        self.state: dict = {}
+        self.state: PoseState
         self.settle(lamp=False)
 
     def settle(self, *, lamp: bool) -> None:
@@ -541,8 +565,11 @@ class _Place:
             i.lamp.set(False)
         measured = _move(i, self.target, self.run.settle_timeout_s)
         temperatures = {k: v for t in i.thermometers for k, v in t.temperatures().items()}
-        self.state = {**_positions(self.target, measured), "temperatures_c": temperatures}
-        self.run.journal.append({"event": "pose", "pose": self.pose.id, **self.state})
+        commanded = Axes(
+            turntable_steps=self.target.turntable_steps, gantry_ticks=list(self.target.gantry_ticks)
+        )
+        self.state = PoseState(commanded=commanded, measured=measured, temperatures_c=temperatures)
+        self.run.journal.append(PoseLine(event="pose", pose=self.pose.id, **self.state))
         log.info("%s: settled at %s, %s", self.pose.id, measured, temperatures)
         if lamp:
             i.lamp.set(True)
@@ -561,17 +588,12 @@ class _Place:
         return ", ".join(off) or None
 
 
-def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> dict:
+def _move(instruments: Instruments, target: PoseTarget, timeout_s: float) -> Axes:
     instruments.turntable.move_to((target.turntable_steps,))
     instruments.gantry.move_to(target.gantry_ticks)  # both travel at once; wait for the slower
     (steps,) = instruments.turntable.wait_settled(timeout_s)
     ticks = instruments.gantry.wait_settled(timeout_s)
-    return {"turntable_steps": int(steps), "gantry_ticks": [int(t) for t in ticks]}
-
-
-def _positions(target: PoseTarget, measured: dict) -> dict:
-    commanded = {"turntable_steps": target.turntable_steps, "gantry_ticks": list(target.gantry_ticks)}
-    return {"commanded": commanded, "measured": measured}
+    return Axes(turntable_steps=int(steps), gantry_ticks=[int(t) for t in ticks])
 
 
 def _intact_frames(

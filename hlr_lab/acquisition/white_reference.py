@@ -33,6 +33,7 @@ from hlr_lab.files import as_pair
 from hlr_lab.geometry.camera import Camera
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.rig.file import Rig
+from hlr_lab.session.events import Axes
 from hlr_lab.session.lamp import WELL_EXPOSED
 
 MIDDLE = 0.6  # of the reference's side: what is measured (its edges left out, as calibrate radiometric does)
@@ -186,11 +187,12 @@ class ReferenceMeter:
         self.rig, self.reference = rig, reference
         self.expected = rig.file.sensor.sensitivity * rig.file.light.power
 
-    def __call__(self, measured: dict, frames: list[RawFrame]) -> Reading | None:
+    def __call__(self, measured: Axes, frames: list[RawFrame]) -> Reading | None:
         rig = self.rig
+        azimuth, elevation = measured["gantry_ticks"]
         sight = self.reference.sight(
             rig.turntable_kinematics.degrees_for(measured["turntable_steps"]),
-            rig.gantry.kinematics.light_position(tuple(measured["gantry_ticks"])),
+            rig.gantry.kinematics.light_position((azimuth, elevation)),
         )
         if sight is None:
             return None

@@ -31,6 +31,18 @@ from pydantic import AfterValidator, Field
 
 from drivers.errors import DeviceError
 from hlr_lab.acquisition.poses import AxisMoved, Step
+from hlr_lab.campaign.events import (
+    CampaignEndLine,
+    CampaignStartLine,
+    CampaignStoppedLine,
+    JobEndLine,
+    JobEndNotice,
+    JobOutcome,
+    JobRetryLine,
+    JobStartLine,
+    NightNotice,
+    RegionFigures,
+)
 from hlr_lab.errors import DiskFull, HlrLabError, InputError
 from hlr_lab.files import StrictModel, atomic_write_text, free_bytes, read_toml, validate
 from hlr_lab.formats.plan import read_plan
@@ -103,12 +115,16 @@ class _Header(StrictModel):
 
 @dataclass(frozen=True)
 class CampaignFile:
+    """A campaign file as read: its ``[campaign]`` header and its jobs, in order."""
+
     campaign: _Header
     job: list[AcquireJob | CalibrateJob]
 
 
 @dataclass(frozen=True)
 class Campaign:
+    """A checked campaign: the file it came from, what it says, and the folder its night writes."""
+
     path: Path  # the campaign file
     file: CampaignFile
     folder: Path  # where campaign.jsonl and index.html go: NAME-campaign beside the file
@@ -175,6 +191,7 @@ def load_campaign(path: Path) -> Campaign:
 
 
 def job_rig(job: AcquireJob | CalibrateJob) -> Rig:
+    """The rig a job runs on as hlr-lab believes it: its rig file, else the built-in simulated rig."""
     return load_rig(job.rig) if job.rig is not None else sim_rig()
 
 
@@ -242,15 +259,19 @@ def _device_of(path: Path) -> int:
 
 @dataclass
 class JobResult:
+    """How one job of the night ended, its report and (an acquire job's) fitted materials."""
+
     name: str
     status: str  # "done", "skipped", "stopped" (the campaign stopped there), "failed" (not a device fault)
     attempts: int = 0
     detail: str = ""
     report: str | None = None  # the job's report
-    materials: list[dict] = field(default_factory=list)  # per region: id, rd, rs, n
+    materials: list[RegionFigures] = field(default_factory=list)
 
-    def as_dict(self) -> dict:
-        return {k: v for k, v in self.__dict__.items()}
+    def as_dict(self) -> JobOutcome:
+        """The result as the journal's ``job_end`` line and the notices carry it."""
+        return JobOutcome(name=self.name, status=self.status, attempts=self.attempts, detail=self.detail,
+                          report=self.report, materials=self.materials)  # fmt: skip
 
 
 class CampaignStopped(HlrLabError):
@@ -259,6 +280,17 @@ class CampaignStopped(HlrLabError):
     def __init__(self, message: str, exit_status: int):
         super().__init__(message)
         self.exit_status = exit_status
+
+
+def raise_if_unfinished(results: list[JobResult]) -> None:
+    """Raise :class:`HlrLabError` naming every job of the night that did not complete (a night with a
+    failed job says so in the command's exit status)."""
+    unfinished = [r for r in results if r.status != "done"]
+    if unfinished:
+        names = ", ".join(f"{r.name} ({r.status})" for r in unfinished)
+        raise HlrLabError(
+            f"{len(unfinished)} of {len(results)} jobs did not complete: {names}; see the table above"
+        )
 
 
 @dataclass(frozen=True)
@@ -289,9 +321,9 @@ def run_campaign(
     results: list[JobResult] = []
     left = dict(night.duration_s)
     with Journal(campaign.folder / CAMPAIGN_JOURNAL) as journal:
-        journal.append({"event": "campaign_start", "at": time.time(), "file": str(campaign.path),
-                        "jobs": [j.name for j in campaign.jobs], "forecast_s": night.duration_s,
-                        "forecast_bytes": night.bytes_needed})  # fmt: skip
+        journal.append(CampaignStartLine(event="campaign_start", at=time.time(), file=str(campaign.path),
+                                         jobs=[j.name for j in campaign.jobs], forecast_s=night.duration_s,
+                                         forecast_bytes=night.bytes_needed))  # fmt: skip
         try:
             for i, job in enumerate(campaign.jobs):
 
@@ -300,7 +332,7 @@ def run_campaign(
                     eta = sum(left.values()) - done * left.get(job.name, 0.0)
                     progress(CampaignStep(i, len(campaign.jobs), job.name, what, eta))
 
-                journal.append({"event": "job_start", "at": time.time(), "job": job.name, "kind": job.kind})
+                journal.append(JobStartLine(event="job_start", at=time.time(), job=job.name, kind=job.kind))
                 try:
                     result = _run_job(job, links_for, calibrate, say, journal)
                 except KeyboardInterrupt:  # between a job's steps (its run turns it into a RunStopped)
@@ -308,22 +340,25 @@ def run_campaign(
                 left.pop(job.name, None)
                 results.append(result)
                 journal.append(
-                    {"event": "job_end", "at": time.time(), "job": result.name, **result.as_dict()}
+                    JobEndLine(event="job_end", at=time.time(), job=result.name, **result.as_dict())
                 )
                 write_index(campaign, results)
                 _notify(
-                    notify, {"event": "job_end", "campaign": campaign.file.campaign.name, **result.as_dict()}
+                    notify,
+                    JobEndNotice(event="job_end", campaign=campaign.file.campaign.name, **result.as_dict()),
                 )
         except CampaignStopped as exc:
-            journal.append_last({"event": "campaign_stopped", "at": time.time(), "reason": str(exc)})
+            journal.append_last(
+                CampaignStoppedLine(event="campaign_stopped", at=time.time(), reason=str(exc))
+            )
             write_index(campaign, results)
-            _notify(notify, {"event": "campaign_stopped", "campaign": campaign.file.campaign.name,
-                             "reason": str(exc), "jobs": [r.as_dict() for r in results]})  # fmt: skip
+            _notify(notify, NightNotice(event="campaign_stopped", campaign=campaign.file.campaign.name,
+                                        reason=str(exc), jobs=[r.as_dict() for r in results]))  # fmt: skip
             raise
-        journal.append_last({"event": "campaign_end", "at": time.time(),
-                             "jobs": {r.name: r.status for r in results}})  # fmt: skip
-    _notify(notify, {"event": "campaign_end", "campaign": campaign.file.campaign.name,
-                     "jobs": [r.as_dict() for r in results]})  # fmt: skip
+        journal.append_last(CampaignEndLine(event="campaign_end", at=time.time(),
+                                            jobs={r.name: r.status for r in results}))  # fmt: skip
+    _notify(notify, NightNotice(event="campaign_end", campaign=campaign.file.campaign.name,
+                                jobs=[r.as_dict() for r in results]))  # fmt: skip
     return results
 
 
@@ -373,8 +408,8 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
                 if not stop.safe.ok or isinstance(stop.cause, AxisMoved):
                     raise CampaignStopped(f"job {job.name!r}: {stop} — the campaign stops: further motion is not "
                                           "safe until the rig is checked", 1) from None  # fmt: skip
-                journal.append({"event": "job_retry" if attempt < ATTEMPTS else "job_skip", "at": time.time(),
-                                "job": job.name, "attempt": attempt, "error": str(stop.cause)})  # fmt: skip
+                journal.append(JobRetryLine(event="job_retry" if attempt < ATTEMPTS else "job_skip", at=time.time(),
+                                            job=job.name, attempt=attempt, error=str(stop.cause)))  # fmt: skip
                 log.warning("job %s, attempt %d: %s", job.name, attempt, stop)
                 if attempt == ATTEMPTS or not isinstance(stop.cause, DeviceError | HlrLabError):
                     return JobResult(job.name, "skipped", attempt, str(stop))
@@ -387,12 +422,12 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
         report, _, _ = report_into(job.out)
     except HlrLabError as exc:
         return JobResult(job.name, "failed", attempt, f"acquired; fit or report failed: {exc}")
-    materials = [{"id": e.id, "rd": list(e.rd), "rs": list(e.rs) if e.rs else None, "n": e.n}
+    materials = [RegionFigures(id=e.id, rd=list(e.rd), rs=list(e.rs) if e.rs else None, n=e.n)
                  for e in fitted.materials.regions]  # fmt: skip
     return JobResult(job.name, "done", attempt, f"{job.out}", str(report), materials)
 
 
-def _notify(command: str | None, summary: dict) -> None:
+def _notify(command: str | None, summary: JobEndNotice | NightNotice) -> None:
     """Run ``command`` (a shell command line) with ``summary`` as JSON on stdin, for at most
     :data:`NOTIFY_TIMEOUT_S`; a failing or hanging hook is logged, never fatal."""
     if not command:

@@ -3,32 +3,32 @@
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
-from pathlib import Path
 
 import click
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
 
-from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
-from hlr_lab.cli.common import Finite, believed_rig, speed_factor_option, true_rig_option
+from hlr_lab.acquisition.poses import Bracketing
+from hlr_lab.cli.common import (
+    FILE,
+    FOLDER,
+    believed_rig,
+    speed_factor_option,
+    true_rig_option,
+    warm_up_options,
+)
 from hlr_lab.cli.console import console
+from hlr_lab.display.acquire import motion_table, pose_progress, run_table
 from hlr_lab.errors import InputError
-from hlr_lab.formats.plan import PlanFile, read_plan
+from hlr_lab.formats.plan import read_plan
 from hlr_lab.instrument.devices import Links
-from hlr_lab.instrument.motion import PoseTarget, estimate_duration_s, motion_targets
+from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
 from hlr_lab.session.lamp import LampWatch
 
 
 @click.command("acquire")
-@click.option(
-    "--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="plan.json."
-)
-@click.option(
-    "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
-)
+@click.option("--plan", "plan_path", type=FILE, required=True, help="plan.json.")
+@click.option("--rig", "rig_path", type=FILE, help="Rig file (rig.toml).")
 @click.option(
     "--sim",
     is_flag=True,
@@ -39,14 +39,14 @@ from hlr_lab.session.lamp import LampWatch
 @click.option(
     "--scene",
     "scene_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=FILE,
     help="With --sim: the simulated world (sim scene file; its mesh must be the plan's). Default: the "
     "plan's mesh with a default material per region.",
 )
 @click.option(
     "--out",
     "out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=FOLDER,
     help="Session directory (default: PLAN-session beside the plan). Given again, the run resumes.",
 )
 @click.option(
@@ -58,50 +58,17 @@ from hlr_lab.session.lamp import LampWatch
     "--lamp-every",
     type=click.IntRange(min=0),
     default=0,
-    show_default=True,
     metavar="N",
     help="Watch the lamp: photograph the plan's first pose again before the first pose, every N poses and "
     "at the end; fit divides each pose's light by the lamp's output then (0: do not watch). A rig whose "
     "white reference lies beside the object (run_place_m) watches it in every pose without this.",
 )
-@click.option(
-    "--warm-up",
-    "warm_up_min",
-    type=Finite(min=0),
-    default=0.0,
-    show_default=True,
-    metavar="MINUTES",
-    help="Before the first pose, keep the lamp on until its output is stable (--warm-up-within), "
-    "for at most MINUTES (0: no wait). A resumed run does not wait again.",
-)
-@click.option(
-    "--warm-up-within",
-    "warm_up_within",
-    type=Finite(min=0.01, max=10),
-    default=0.2,
-    show_default=True,
-    metavar="PERCENT",
-    help="The warm-up ends when the lamp's output changes by less than this per minute; use the same as for "
-    "calibrate radiometric (a tighter figure waits longer and leaves the lamp nearer its warm output).",
-)
+@warm_up_options("Before the first pose", "; a resumed run does not wait again")
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
-def acquire_cmd(
-    plan_path,
-    rig_path,
-    sim,
-    true_rig,
-    scene_path,
-    out,
-    dark_frames,
-    lamp_every,
-    warm_up_min,
-    warm_up_within,
-    dry_run,
-    force,
-    speed_factor,
-):
+def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames, lamp_every, warm_up_min,
+                warm_up_within, dry_run, force, speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
@@ -125,7 +92,7 @@ def acquire_cmd(
     rig = believed_rig(rig_path, sim, true_rig)
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
-    console.print(_motion_table(plan, targets))
+    console.print(motion_table(plan, targets))
     if dry_run:
         frames = sum(len(p.exposures_s) for p in plan.poses)
         duration = estimate_duration_s(plan, targets, rig)
@@ -140,7 +107,7 @@ def acquire_cmd(
             from worlds.plan_world import sim_links
 
             links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor)
-        with _progress_bar(len(targets)) as show:
+        with pose_progress(console, len(targets)) as show:
             outcome = acquire_plan(
                 plan_path,
                 rig,
@@ -158,63 +125,7 @@ def acquire_cmd(
                     f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
                 ),
             )
-    console.print(_summary_table(outcome, session))
-    if (
-        outcome.safe is not None
-    ):  # the last line: what the devices confirmed (a run that stops says it in its error)
+    console.print(run_table(outcome, session))
+    # the last line: what the devices confirmed (a run that stops says it in its error)
+    if outcome.safe is not None:
         console.print(f"the rig is safe: {escape(outcome.safe.sentence())}", soft_wrap=True)
-
-
-@contextlib.contextmanager
-def _progress_bar(poses: int) -> Iterator[Callable[[Step], None]]:
-    """A bar over the poses with the count, the time left and the current action."""
-    columns = (
-        TextColumn("pose {task.completed}/{task.total}"),
-        BarColumn(),
-        TimeRemainingColumn(),
-        TextColumn("{task.description}"),
-    )
-    with Progress(*columns, console=console, transient=True) as bar:
-        task = bar.add_task("starting", total=poses)
-
-        def show(step: Step) -> None:
-            done = step.index + (step.action == "done")
-            bar.update(task, completed=done, description=escape(f"{step.pose}: {step.action}"))
-
-        yield show
-
-
-def _summary_table(outcome: Outcome, session: Path) -> Table:
-    t = Table(title=f"session {escape(str(session))}", title_justify="left", show_header=False)
-    t.add_column(justify="left")
-    t.add_column(justify="right")
-    for label, value in (
-        ("frames taken", outcome.taken),
-        ("frames already done", outcome.already_done),
-        ("frames retaken (missing or changed)", len(outcome.retaken)),
-        ("poses moved to", outcome.poses_moved),
-        ("device retries", outcome.retries),
-        ("duration", f"{outcome.duration_s:.1f} s"),
-    ):
-        t.add_row(label, str(value))
-    if outcome.reference_poses is not None:  # the lamp watched on the white reference beside the object
-        measured = f"{outcome.reference_measured} of {outcome.reference_poses} poses"
-        t.add_row("lamp measured on the white reference", measured)
-    return t
-
-
-def _motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:
-    t = Table(title="motion sequence", title_justify="left")
-    for column in ("pose", "turntable", "azimuth", "elevation", "stage steps", "servo ticks", "exposures"):
-        t.add_column(column, justify="right")
-    for pose, target in zip(plan.poses, targets, strict=True):
-        t.add_row(
-            pose.id,
-            f"{target.turntable_deg:g}°",
-            f"{target.gantry_deg[0]:.2f}°",
-            f"{target.gantry_deg[1]:.2f}°",
-            str(target.turntable_steps),
-            ", ".join(map(str, target.gantry_ticks)),
-            ", ".join(f"{e:g}" for e in pose.exposures_s) + " s",
-        )
-    return t

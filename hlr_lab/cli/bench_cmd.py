@@ -2,25 +2,24 @@
 
 from __future__ import annotations
 
-import contextlib
 from pathlib import Path
 
 import click
 
 from benchmarks.numerical import (
-    PAPER_SETTINGS,
     fit_error_grid,
     grid_report,
-    mesh_label,
-    nearest_neighbour_spacing_deg,
+    plan_cases,
     plan_report,
     run_plan_case,
     run_throughput_case,
+    spacing_line,
+    throughput_header,
     throughput_line,
 )
-from hlr_lab.cli.common import Finite, speed_factor_option
+from hlr_lab.cli.calibrate_cmd import count_option
+from hlr_lab.cli.common import FOLDER, Finite, placement_options, speed_factor_option
 from hlr_lab.cli.console import console, out
-from hlr_lab.geometry.sphere import directions_with_spacing
 
 
 def _print(lines: list[str]) -> None:
@@ -40,16 +39,12 @@ def bench() -> None:
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="Mesh to plan on (default: the built-in pebble). The paper's: the Stanford bunny.",
 )
-@click.option("--up", default="z", show_default=True, help="Mesh axis that points up (y for the bunny).")
-@click.option(
-    "--scale", type=Finite(min=0, min_open=True), default=1.0, show_default=True, help="Mesh units → metres."
-)
+@placement_options
 @click.option(
     "--large",
     "min_vertices",
     type=click.IntRange(min=0),
     default=1_000_000,
-    show_default=True,
     help="Also plan on the mesh subdivided to at least this many vertices (0: skip).",
 )
 def bench_plan(mesh_path, up, scale, min_vertices) -> None:
@@ -60,19 +55,9 @@ def bench_plan(mesh_path, up, scale, min_vertices) -> None:
     Example:
       hlr-lab bench plan --mesh ../shared/assets/stanford-bunny.obj --up y
     """
-    spacing = nearest_neighbour_spacing_deg(directions_with_spacing(PAPER_SETTINGS.spacing_deg))
-    console.print(
-        f"candidate spacing: requested {PAPER_SETTINGS.spacing_deg}°, measured max nearest-neighbour "
-        f"{spacing:.3f}°"
-    )
-    name = mesh_label(str(mesh_path) if mesh_path else None)
-    cases = [(name, None if mesh_path is None else str(mesh_path), up, scale, 0)]
-    if min_vertices:
-        cases.append(
-            (f"{name} subdivided", None if mesh_path is None else str(mesh_path), up, scale, min_vertices)
-        )
+    console.print(spacing_line())
     out.print("plan benchmark: one fresh process per case; mesh loading and segmentation excluded")
-    for case in cases:
+    for case in plan_cases(mesh_path, up, scale, min_vertices):
         with console.status(f"planning {case[0]}…"):
             _print(plan_report(run_plan_case(*case)))
 
@@ -81,7 +66,6 @@ def bench_plan(mesh_path, up, scale, min_vertices) -> None:
 @click.option(
     "--sizes",
     default="1000000,3000000,10000000",
-    show_default=True,
     help="Sample counts for the throughput and memory figures (comma-separated).",
 )
 @click.option("--no-grid", is_flag=True, help="Skip the error grid (only throughput and memory).")
@@ -97,23 +81,18 @@ def bench_fit(sizes, no_grid) -> None:
         with console.status("fitting the grid…"):
             rows = fit_error_grid()
         _print(grid_report(rows))
-    out.print(
-        "throughput and memory (robust, θc 20°, one region, sphere, point light, photon + read noise; "
-        "fresh process per size)",
-        markup=False,
-    )
+    _print([throughput_header()])
     for n in (int(x) for x in sizes.split(",") if x.strip()):
         with console.status(f"fitting {n:,} samples…"):
             _print([throughput_line(run_throughput_case(n))])
 
 
 @bench.command("sim")
-@click.option("-n", "transactions", type=click.IntRange(10, 100_000), default=1000, show_default=True)
+@click.option("-n", "transactions", type=click.IntRange(10, 100_000), default=1000)
 @click.option(
     "--frames",
     type=click.IntRange(0, 100_000),
     default=1000,
-    show_default=True,
     help="Re-renders for the memory figure (0: skip the renderer).",
 )
 def bench_sim(transactions, frames) -> None:
@@ -124,31 +103,17 @@ def bench_sim(transactions, frames) -> None:
     Example:
       hlr-lab bench sim -n 2000
     """
-    from benchmarks.sim import (  # the simulator: CLI only
-        modbus_round_trips,
-        render_figures,
-        render_report,
-        round_trip_report,
-        servo_round_trips,
-    )
+    from benchmarks.sim import render_figures, render_report, transactions_report  # the simulator: CLI only
 
-    with console.status("timing servo transactions…"):
-        servo = servo_round_trips(transactions)
-    with console.status("timing Modbus transactions…"):
-        modbus = modbus_round_trips(transactions)
-    _print(
-        round_trip_report(
-            f"servo transactions over a pty, dynamixel-sdk, {transactions} each (target ≤ 1 ms):", servo
-        )
-    )
-    _print(round_trip_report(f"Modbus transactions, pymodbus, {transactions} each (target ≤ 3 ms):", modbus))
+    with console.status("") as status:
+        _print(transactions_report(transactions, progress=status.update))
     if frames:
         with console.status(f"rendering (then {frames} re-renders)…"):
             _print(render_report(render_figures(frames)))
 
 
 @bench.command("acquire")
-@click.option("--poses", type=click.IntRange(2, 10_000), default=20, show_default=True)
+@click.option("--poses", type=click.IntRange(2, 10_000), default=20)
 @speed_factor_option("Simulated", default=1000.0)  # fast: waiting for motion must hide nothing
 def bench_acquire(poses, speed_factor) -> None:
     """Acquisition on the simulated rig with the real drivers: software overhead per pose (wall time not
@@ -169,7 +134,7 @@ def bench_acquire(poses, speed_factor) -> None:
 
 
 @bench.command("session-fit")
-@click.option("--poses", type=click.IntRange(2, 1000), default=20, show_default=True)
+@click.option("--poses", type=click.IntRange(2, 1000), default=20)
 def bench_session_fit(poses) -> None:
     """End-to-end ``hlr-lab fit`` on a simulated session: total time, time per stage (HDR, G-buffer,
     selection, shadows, fitting) and peak memory, the fit in a fresh process.
@@ -182,33 +147,25 @@ def bench_session_fit(poses) -> None:
     Example:
       hlr-lab bench session-fit --poses 20
     """
-    import tempfile
+    from benchmarks.acquire import session_fit_figures  # builds the simulated rig: CLI only
+    from benchmarks.numerical import session_fit_report
 
-    from benchmarks.acquire import acquire_figures  # builds the simulated rig: CLI only
-    from benchmarks.numerical import run_session_fit_case, session_fit_report
-
-    with tempfile.TemporaryDirectory(prefix="hlr-bench-fit-") as scratch:
-        with console.status(f"acquiring {poses} poses on the simulated rig…"):
-            acquired = acquire_figures(poses=poses, speed_factor=1000.0, keep=Path(scratch))
-        with console.status("fitting (fresh process)…"):
-            f = run_session_fit_case(Path(scratch) / "session")
-    _print(session_fit_report(f, acquired.frames))
+    with console.status("") as status:
+        f, frames = session_fit_figures(poses, progress=status.update)
+    _print(session_fit_report(f, frames))
 
 
 @bench.command("soak")
-@click.option("--poses", type=click.IntRange(20, 100_000), default=500, show_default=True)
-@click.option(
-    "--kills", type=click.IntRange(0, 1000), default=10, show_default=True, help="SIGKILLs at random moments."
-)
+@click.option("--poses", type=click.IntRange(20, 100_000), default=500)
+@click.option("--kills", type=click.IntRange(0, 1000), default=10, help="SIGKILLs at random moments.")
 @click.option(
     "--fault-every",
     "fault_interval_s",
     type=Finite(min=0.05),
     default=0.6,
-    show_default=True,
     help="Mean seconds between injected faults.",
 )
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0)
 @speed_factor_option("Simulated", default=1000.0)
 def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
     """A night under abuse: acquire POSES poses (builtin:pebble's plan cycled; hlr-lab acquire in a child
@@ -236,20 +193,17 @@ def bench_soak(poses, kills, fault_interval_s, seed, speed_factor) -> None:
     "--true-rig",
     "true_rig",
     default="builtin:bench-night",
-    show_default=True,
     metavar="FILE|builtin:NAME",
     help="The simulated world's rig as it really is (hlr-lab starts from the drawing, the built-in rig).",
 )
-@click.option(
-    "--views", type=click.IntRange(16, 200), default=24, show_default=True, help="Board photographs."
-)
-@click.option("--poses", type=click.IntRange(12, 200), default=30, show_default=True, help="Lamp poses.")
-@click.option("--run-poses", type=click.IntRange(1, 1000), default=40, show_default=True,
+@count_option("views", "Board photographs.")
+@count_option("poses", "Lamp poses.")
+@click.option("--run-poses", type=click.IntRange(1, 1000), default=40,
               help="Poses of the end-to-end runs (builtin:pebble's plan cycled).")  # fmt: skip
 @click.option(
     "--out",
     "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=FOLDER,
     help="Keep the photographs, rig files and sessions here (a new folder; default: a scratch folder).",
 )
 @speed_factor_option("Simulated", default=40.0)
@@ -265,21 +219,11 @@ def bench_calibration(true_rig, views, poses, run_poses, out_dir, speed_factor) 
       hlr-lab bench calibration
       hlr-lab bench calibration --true-rig builtin:bench-offsets --run-poses 2 --out bench-cal
     """
-    import tempfile
+    from benchmarks.calibration import bench_folder, calibration_figures, report  # the simulator: CLI only
 
-    from benchmarks.calibration import calibration_figures, report  # builds the simulated rig: CLI only
-    from hlr_lab.errors import InputError
-
-    with contextlib.ExitStack() as stack:
-        if out_dir is None:
-            folder = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="hlr-bench-calibration-")))
-        elif out_dir.exists() and any(out_dir.iterdir()):
-            raise InputError("the folder is not empty; give a new --out", path=out_dir, field="--out")
-        else:
-            folder = out_dir
-        with console.status("calibrating…") as status:
-            f = calibration_figures(folder, true_rig=true_rig, views=views, poses=poses, run_poses=run_poses,
-                                    speed_factor=speed_factor, progress=status.update)  # fmt: skip
+    with bench_folder(out_dir) as folder, console.status("calibrating…") as status:
+        f = calibration_figures(folder, true_rig=true_rig, views=views, poses=poses, run_poses=run_poses,
+                                speed_factor=speed_factor, progress=status.update)  # fmt: skip
     _print(
         report(f, true_rig=true_rig, views=views, poses=poses, run_poses=run_poses, speed_factor=speed_factor)
     )

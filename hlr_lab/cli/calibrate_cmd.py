@@ -3,16 +3,15 @@
 
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
+from calibration.operator import OperatorTargets
 from calibration.procedures import (
+    COUNT_RANGES,
     Calibrated,
     ProcedureName,
     Settings,
@@ -22,11 +21,17 @@ from calibration.procedures import (
     default_folder,
     run_procedure,
 )
-from calibration.tables import TITLES, rows, warnings
-from hlr_lab.cli.common import Finite, believed_rig, rig_options, speed_factor_option
+from calibration.tables import after_table, before_table, table
+from hlr_lab.cli.common import (
+    FILE,
+    FOLDER,
+    believed_rig,
+    output_option,
+    rig_options,
+    speed_factor_option,
+    warm_up_options,
+)
 from hlr_lab.cli.console import console
-from hlr_lab.instrument.devices import Links
-from hlr_lab.rig.file import Rig
 
 DEFAULT = Settings()
 board_along_zero_option = click.option(
@@ -36,9 +41,11 @@ board_along_zero_option = click.option(
 )
 
 
-def _count(name: str, lo: int, hi: int, default: int, help: str):
-    """A count option of a procedure (how many photographs, poses, positions, exposures)."""
-    return click.option(name, type=click.IntRange(lo, hi), default=default, show_default=True, help=help)
+def count_option(field: str, help: str):
+    """``--FIELD``: how many photographs, poses, positions or exposures a procedure takes (its range in
+    :data:`calibration.procedures.COUNT_RANGES`, its default :class:`Settings`')."""
+    lo, hi = COUNT_RANGES[field]
+    return click.option(f"--{field}", type=click.IntRange(lo, hi), default=getattr(DEFAULT, field), help=help)
 
 
 def photograph_options(replaced: str):
@@ -46,9 +53,7 @@ def photograph_options(replaced: str):
 
     def decorate(f):
         written = f"The calibrated rig file to write (the input's copy, {replaced} replaced)."
-        f = click.option(
-            "-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True, help=written
-        )(f)
+        f = click.option("-o", "--output", type=FILE, required=True, help=written)(f)
         f = click.option(
             "--from",
             "from_dir",
@@ -58,7 +63,7 @@ def photograph_options(replaced: str):
         return click.option(
             "--out",
             "out",
-            type=click.Path(file_okay=False, path_type=Path),
+            type=FOLDER,
             help="Folder for the photographs (a new one; default: calibration/DATE-PROCEDURE "
             "in the current folder).",
         )(f)
@@ -66,44 +71,19 @@ def photograph_options(replaced: str):
     return decorate
 
 
-class OperatorTargets:
-    """The operator's rig: they are asked to put each target where the rig file says."""
-
-    def board(self, stack: contextlib.ExitStack, rig: Rig) -> tuple[Links, Callable[[int], None]]:
-        def ask(face: int) -> None:
-            what = (
-                "on the wedge's first face"
-                if face == 0
-                else "on the wedge's other face (turn the wedge over)"
-            )
-            click.confirm(f"Put the board {what}, facing the camera. Ready?", abort=True, err=True)
-
-        return Links(), ask
-
-    def mirror_ball(self, stack: contextlib.ExitStack, rig: Rig) -> Links:
-        click.confirm(
-            "Put the mirror ball on the plate where the rig file says. Ready?", abort=True, err=True
-        )
-        return Links()
-
-    def white_reference(self, stack: contextlib.ExitStack, rig: Rig) -> Links:
-        click.confirm(
-            "Put the white reference on the plate where the rig file says. Ready?", abort=True, err=True
-        )
-        return Links()
-
-
 def targets_for(sim: bool, true_rig: str | None, speed_factor: float) -> Targets:
+    """The operator's targets (asked for at the terminal), or with ``sim`` a simulated world's."""
     if not sim:
-        return OperatorTargets()
+        return OperatorTargets(lambda question: click.confirm(question, abort=True, err=True))
     from worlds.targets import SimulatedTargets  # the simulator is reached only from the command line
 
     return SimulatedTargets(true_rig, speed_factor)
 
 
 def _run(
-    procedure: ProcedureName, rig_path, sim, true_rig, out, from_dir, output, speed_factor, settings: Settings
+    procedure: ProcedureName, rig_path, sim, true_rig, out, from_dir, output, speed_factor, **counts
 ) -> None:
+    settings = Settings(**counts)  # the options are named as Settings' fields
     rig = believed_rig(rig_path, sim, true_rig)
     check_targets(rig, (procedure,))  # a rig file without the target is refused before anything moves
     images = from_dir or out or default_folder(procedure, time.strftime("%Y-%m-%d-%H%M%S"))
@@ -123,24 +103,7 @@ def _run(
 
 def show(c: Calibrated) -> None:
     """Print ``c``'s table, its warnings, and where everything went."""
-    if c.warmed is not None:
-        state = "stable" if c.warmed.stable else "[yellow]NOT stable[/]"
-        console.print(
-            f"lamp {state} after {c.warmed.minutes:.1f} min of warm-up "
-            f"({100 * c.warmed.per_minute:.2f} % per minute)"
-        )
-    t = Table(title=TITLES[c.procedure], title_justify="left")
-    for column in ("", "rig file before", "calibrated"):
-        t.add_column(column, justify="right", overflow="fold")
-    for row in rows(c):
-        t.add_row(*row)
-    console.print(t)
-    for warning in warnings(c):
-        console.print(f"[yellow]{escape(warning)}[/]")
-    summary = f"; summary {escape(str(c.summary))}" if c.summary else ""
-    if c.summary_problem:
-        summary = f"; [yellow]no summary page ({escape(c.summary_problem)})[/]"
-    console.print(f"photographs in {escape(str(c.images))}{summary}; wrote {escape(str(c.output))}")
+    console.print(*before_table(c), table(c), *after_table(c), sep="\n")
 
 
 @click.group()
@@ -150,17 +113,14 @@ def calibrate() -> None:
 
 @calibrate.command("camera")
 @rig_options("Calibrate the simulated rig (a simulated board on a wedge).")
-@_count(
-    "--views",
-    16,
-    200,
-    DEFAULT.views,
+@count_option(
+    "views",
     "Photographs: half on each face of the wedge, spread over ±55° of turntable.",
 )
 @board_along_zero_option
 @photograph_options("camera fields")
 @speed_factor_option("With --sim: simulated")
-def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, output, speed_factor) -> None:
+def camera(**options) -> None:
     """Calibrate the camera: intrinsics, distortion and its pose against the turntable axis.
 
     A ChArUco board ([calibration.board] in the rig file) stands on a wedge on the turntable; the
@@ -179,18 +139,15 @@ def camera(rig_path, sim, true_rig, views, out, from_dir, board_along_zero, outp
       hlr-lab calibrate camera --sim --true-rig builtin:bench-offsets -o calibrated.toml
       hlr-lab calibrate camera --rig rig.toml --from calibration/2026-11-30-0930 -o rig-calibrated.toml
     """
-    settings = Settings(views=views, board_along_zero=board_along_zero)
-    _run("camera", rig_path, sim, true_rig, out, from_dir, output, speed_factor, settings)
+    _run("camera", **options)
 
 
 @calibrate.command("gantry")
 @rig_options("Calibrate the simulated rig (a simulated mirror ball).")
-@_count(
-    "--poses", 12, 200, DEFAULT.poses, "Lamp poses, each photographed with the ball at two turntable angles."
-)
+@count_option("poses", "Lamp poses, each photographed with the ball at two turntable angles.")
 @photograph_options("gantry fields")
 @speed_factor_option("With --sim: simulated")
-def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) -> None:
+def gantry(**options) -> None:
     """Calibrate the light gantry from a mirror ball: its centre, arm radius, azimuth axis and zero ticks.
 
     A polished ball ([calibration.mirror_ball] in the rig file: radius, rough place on the plate) is
@@ -204,51 +161,17 @@ def gantry(rig_path, sim, true_rig, poses, out, from_dir, output, speed_factor) 
       hlr-lab calibrate gantry --rig rig-camera.toml -o rig-calibrated.toml
       hlr-lab calibrate gantry --sim --true-rig builtin:bench-offsets -o calibrated.toml
     """
-    _run("gantry", rig_path, sim, true_rig, out, from_dir, output, speed_factor, Settings(poses=poses))
-
-
-def warm_up_options(f):
-    f = click.option(
-        "--warm-up-within",
-        "warm_up_within",
-        type=Finite(min=0.01, max=10),
-        default=DEFAULT.warm_up_within,
-        show_default=True,
-        metavar="PERCENT",
-        help="The warm-up ends when the lamp changes by less than this per minute (as for acquire).",
-    )(f)
-    return click.option(
-        "--warm-up",
-        "warm_up_min",
-        type=Finite(min=0),
-        default=DEFAULT.warm_up_min,
-        show_default=True,
-        metavar="MINUTES",
-        help="After the dark frames, keep the lamp on until it is stable "
-        "(--warm-up-within), for at most MINUTES (use the same as for acquire).",
-    )(f)
+    _run("gantry", **options)
 
 
 @calibrate.command("radiometric")
 @rig_options("Calibrate the simulated rig (a simulated white reference).")
-@_count("--positions", 3, 60, DEFAULT.positions, "Lamp positions over the white reference.")
-@_count("--levels", 4, 40, DEFAULT.levels, "Exposures of the photon transfer.")
-@warm_up_options
+@count_option("positions", "Lamp positions over the white reference.")
+@count_option("levels", "Exposures of the photon transfer.")
+@warm_up_options("After the dark frames and before the white reference's")
 @photograph_options("[sensor] fields")
 @speed_factor_option("With --sim: simulated")
-def radiometric(
-    rig_path,
-    sim,
-    true_rig,
-    positions,
-    levels,
-    warm_up_within,
-    warm_up_min,
-    out,
-    from_dir,
-    output,
-    speed_factor,
-) -> None:
+def radiometric(**options) -> None:
     """Calibrate the radiometry: black level, read noise, conversion gain and sensitivity × lamp power.
 
     Dark frames (the lamp off) at every exposure of the bracket; a white reference of known reflectance
@@ -264,50 +187,27 @@ def radiometric(
       hlr-lab calibrate radiometric --rig rig-calibrated.toml -o rig-calibrated-2.toml
       hlr-lab calibrate radiometric --sim --true-rig builtin:bench-night -o calibrated.toml
     """
-    settings = Settings(
-        positions=positions, levels=levels, warm_up_min=warm_up_min, warm_up_within=warm_up_within
-    )
-    _run("radiometric", rig_path, sim, true_rig, out, from_dir, output, speed_factor, settings)
+    _run("radiometric", **options)
 
 
 @calibrate.command("all")
 @rig_options("Calibrate the simulated rig.")
-@_count("--views", 16, 200, DEFAULT.views, "Board photographs.")
-@_count("--poses", 12, 200, DEFAULT.poses, "Lamp poses.")
-@_count("--positions", 3, 60, DEFAULT.positions, "Lamp positions over the white reference.")
+@count_option("views", "Board photographs.")
+@count_option("poses", "Lamp poses.")
+@count_option("positions", "Lamp positions over the white reference.")
 @click.option("--no-radiometric", is_flag=True, help="Camera and gantry only (no white reference).")
-@warm_up_options
+@warm_up_options("After the dark frames and before the white reference's")
 @board_along_zero_option
 @click.option(
     "--out",
     "out",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=FOLDER,
     help="Folder for the photographs and the intermediate rig files (default: calibration/DATE-all "
     "in the current folder).",
 )
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="The calibrated rig file to write.",
-)
+@output_option("the calibrated rig file")
 @speed_factor_option("With --sim: simulated")
-def all_(
-    rig_path,
-    sim,
-    true_rig,
-    views,
-    poses,
-    positions,
-    no_radiometric,
-    warm_up_within,
-    warm_up_min,
-    board_along_zero,
-    out,
-    output,
-    speed_factor,
-) -> None:
+def all_(rig_path, sim, true_rig, no_radiometric, out, output, speed_factor, **counts) -> None:
     """Calibrate the camera, then the gantry with it, then the radiometry, into one calibrated rig file.
 
     The camera procedure (board on a wedge) writes OUT/rig-camera.toml; the gantry procedure (mirror
@@ -324,14 +224,7 @@ def all_(
     rig = believed_rig(rig_path, sim, true_rig)
     check_targets(rig, ("camera", "gantry") if no_radiometric else ("camera", "gantry", "radiometric"))
     folder = out or default_folder("all", time.strftime("%Y-%m-%d-%H%M%S"))
-    settings = Settings(
-        views=views,
-        poses=poses,
-        positions=positions,
-        board_along_zero=board_along_zero,
-        warm_up_min=warm_up_min,
-        warm_up_within=warm_up_within,
-    )
+    settings = Settings(**counts)  # the options are named as Settings' fields
     with console.status("calibrating…") as status:
         calibrate_all(
             rig,

@@ -2,25 +2,22 @@
 
 from __future__ import annotations
 
-import contextlib
 import time
 from pathlib import Path
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
 from hlr_lab.campaign.runner import (
-    AcquireJob,
     CalibrateJob,
-    CampaignStep,
     campaign_status,
     load_campaign,
+    raise_if_unfinished,
     run_campaign,
 )
+from hlr_lab.cli.common import FILE
 from hlr_lab.cli.console import console
-from hlr_lab.errors import HlrLabError
-from hlr_lab.instrument.devices import Links
+from hlr_lab.display.campaign import campaign_table, step_line
 
 
 @click.group()
@@ -29,7 +26,7 @@ def campaign() -> None:
 
 
 @campaign.command("run")
-@click.argument("campaign_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("campaign_file", type=FILE)
 @click.option(
     "--notify",
     "notify",
@@ -51,36 +48,25 @@ def run(campaign_file: Path, notify: str | None) -> None:
       hlr-lab campaign run night.toml --notify 'mail -s "hlr-lab" lab@example.org'
       hlr-lab campaign status night.toml        # from another terminal, while it runs
     """
+    from worlds.plan_world import job_links  # a simulated job's world: CLI only (the composition root)
+
     c = load_campaign(campaign_file)
     started = time.monotonic()
     with console.status("starting the campaign…") as status:
-
-        def show(step: CampaignStep) -> None:
-            status.update(
-                escape(
-                    f"job {step.index + 1}/{step.total} {step.job}: {step.what} — about "
-                    f"{step.eta_s / 60:.0f} min of rig time left"
-                )
-            )
-
-        results = run_campaign(c, links_for=_links, calibrate=_calibrate, notify=notify, progress=show)
-    t = Table(title=f"campaign {escape(c.file.campaign.name)}", title_justify="left")
-    for column in ("job", "status", "attempts", "detail"):
-        t.add_column(column)
-    for r in results:
-        t.add_row(escape(r.name), r.status, str(r.attempts), escape(r.detail))
-    console.print(t)
-    console.print(f"{time.monotonic() - started:.0f} s; index: {escape(str(c.folder / 'index.html'))}")
-    unfinished = [r for r in results if r.status != "done"]
-    if unfinished:  # a night with a failed job says so in its exit status
-        names = ", ".join(f"{r.name} ({r.status})" for r in unfinished)
-        raise HlrLabError(
-            f"{len(unfinished)} of {len(results)} jobs did not complete: {names}; see the table above"
+        results = run_campaign(
+            c,
+            links_for=job_links,
+            calibrate=_calibrate,
+            notify=notify,
+            progress=lambda step: status.update(escape(step_line(step))),
         )
+    console.print(campaign_table(c.file.campaign.name, results))
+    console.print(f"{time.monotonic() - started:.0f} s; index: {escape(str(c.folder / 'index.html'))}")
+    raise_if_unfinished(results)  # a night with a failed job says so in its exit status
 
 
 @campaign.command("status")
-@click.argument("campaign_file", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("campaign_file", type=FILE)
 def status(campaign_file: Path) -> None:
     """Where the campaign of CAMPAIGN_FILE is: each job's state, the running job's pose, frames and
     retries, the rig time left. Reads the journals only: safe while the campaign runs.
@@ -93,30 +79,9 @@ def status(campaign_file: Path) -> None:
         console.print(escape(line), soft_wrap=True)
 
 
-def _links(job: AcquireJob, stack: contextlib.ExitStack) -> Links:
-    """The rig file's links, or a simulated world for the job (kept open for its attempts)."""
-    if not job.sim:
-        return Links()
-    from hlr_lab.campaign.runner import job_rig
-    from hlr_lab.formats.plan import read_plan
-    from worlds.plan_world import sim_links
-
-    return sim_links(
-        stack, job_rig(job), read_plan(job.plan), job.plan, job.scene, job.true_rig, job.speed_factor
-    )
-
-
 def _calibrate(job: CalibrateJob) -> None:
     """A calibrate job as ``hlr-lab calibrate PROCEDURE`` runs it (photographs beside the output)."""
-    from calibration.procedures import Settings, calibrate_all, run_procedure
+    from calibration.procedures import calibrate_job
     from hlr_lab.cli.calibrate_cmd import show, targets_for
-    from hlr_lab.cli.common import believed_rig
 
-    rig = believed_rig(job.rig, job.sim, job.true_rig)
-    folder = job.output.parent / "calibration" / f"{time.strftime('%Y-%m-%d-%H%M%S')}-{job.name}"
-    targets = targets_for(job.sim, job.true_rig, job.speed_factor)
-    settings = Settings(warm_up_min=job.warm_up_min, warm_up_within=job.warm_up_within)
-    if job.procedure == "all":
-        calibrate_all(rig, folder, job.output, targets, settings, done=show)
-    else:
-        show(run_procedure(job.procedure, rig, folder, job.output, targets, settings))
+    calibrate_job(job, targets_for(job.sim, job.true_rig, job.speed_factor), done=show)

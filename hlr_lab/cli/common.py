@@ -1,4 +1,5 @@
-"""What several commands share: mesh and rig options, tables (the consoles: :mod:`hlr_lab.cli.console`)."""
+"""What several commands share: mesh and rig options (the consoles: :mod:`hlr_lab.cli.console`; the
+tables: :mod:`hlr_lab.display`)."""
 
 from __future__ import annotations
 
@@ -6,19 +7,20 @@ import math
 from pathlib import Path
 
 import click
-from rich.table import Table
 
 from hlr_lab.errors import InputError
-from hlr_lab.object.segment import Region
 from hlr_lab.rig.file import Rig, load_rig, sim_rig
+from hlr_lab.session.lamp import LampWatch
+
+FILE = click.Path(dir_okay=False, path_type=Path)  # an option naming a file (that need not exist yet)
+FOLDER = click.Path(file_okay=False, path_type=Path)  # an option naming a folder
 
 
 def mesh_options(f):
-    f = click.option(
-        "--texture",
-        type=click.Path(dir_okay=False, path_type=Path),
-        help="Texture image for an OBJ whose UVs do not reference one.",
-    )(f)
+    """``--mesh FILE|builtin:NAME`` (required) and ``--texture FILE``: the object's mesh and its colours."""
+    f = click.option("--texture", type=FILE, help="Texture image for an OBJ whose UVs do not reference one.")(
+        f
+    )
     f = click.option(
         "--mesh",
         "mesh_spec",
@@ -31,23 +33,22 @@ def mesh_options(f):
 
 def placement_options(f):
     """``--up`` and ``--scale``: how the mesh stands on the turntable (its up axis; its units)."""
-    f = click.option("--scale", type=Finite(min=0, min_open=True), default=1.0, show_default=True,
-                     help="Mesh units → metres.")(f)  # fmt: skip
-    return click.option("--up", default="z", show_default=True,
-                        help="Mesh axis that points up on the turntable (y for most scans).")(f)  # fmt: skip
+    scale = click.option(
+        "--scale", type=Finite(min=0, min_open=True), default=1.0, help="Mesh units → metres."
+    )
+    up = click.option(
+        "--up", default="z", help="Mesh axis that points up on the turntable (y for most scans)."
+    )
+    return up(scale(f))
 
 
 def output_option(what: str):
-    return click.option(
-        "-o",
-        "--output",
-        type=click.Path(dir_okay=False, path_type=Path),
-        required=True,
-        help=f"Where to write {what}.",
-    )
+    """``-o/--output FILE`` (required): where the command writes ``what``."""
+    return click.option("-o", "--output", type=FILE, required=True, help=f"Where to write {what}.")
 
 
 def resolve_rig(rig_path: Path | None, use_sim: bool) -> Rig:
+    """The rig of ``--rig FILE`` or ``--sim`` (exactly one of them), for commands that only read it."""
     if rig_path is not None and use_sim:
         raise InputError("give either --rig FILE or --sim, not both", field="--rig")
     if rig_path is None and not use_sim:
@@ -79,9 +80,7 @@ def rig_options(sim_help: str):
     def apply(f):
         f = true_rig_option(f)
         f = click.option("--sim", is_flag=True, help=sim_help)(f)
-        return click.option(
-            "--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), help="Rig file (rig.toml)."
-        )(f)
+        return click.option("--rig", "rig_path", type=FILE, help="Rig file (rig.toml).")(f)
 
     return apply
 
@@ -110,28 +109,28 @@ class Finite(click.FloatRange):
         return number
 
 
-def swatch(colour: tuple[int, int, int]) -> str:
-    r, g, b = colour
-    return f"[on rgb({r},{g},{b})]    [/] {r:3d},{g:3d},{b:3d}"
-
-
-def region_table(regions: list[Region], title: str) -> Table:
-    t = Table(title=title, title_justify="left")
-    for name in ("region", "material", "colour (sRGB)", "vertices", "faces", "area m²"):
-        t.add_column(name, justify="right")
-    for r in regions:
-        t.add_row(
-            str(r.id), str(r.material), swatch(r.colour), str(r.vertices), str(r.faces), f"{r.area_m2:.4g}"
-        )
-    return t
-
-
 def speed_factor_option(subject: str, default: float = 1.0):
     """``--speed-factor`` for commands that run the simulated rig (tests and demos run it fast)."""
     return click.option(
         "--speed-factor",
         type=Finite(min=0.01),
         default=default,
-        show_default=True,
         help=f"{subject} time runs this much faster than real time.",
     )
+
+
+def warm_up_options(before: str, note: str = ""):
+    """``--warm-up MINUTES`` and ``--warm-up-within PERCENT``: keep the lamp on ``before`` until it is
+    stable (acquire and calibrate radiometric take the same figures; defaults: :class:`LampWatch`')."""
+    within = click.option(
+        "--warm-up-within", "warm_up_within", type=Finite(min=0.01, max=10), metavar="PERCENT",
+        default=100 * LampWatch.stable_per_min,
+        help="The warm-up ends when the lamp's output changes by less than this per minute; use one figure for "
+        "acquire and calibrate radiometric (a tighter one waits longer and leaves the lamp nearer its warm output).",
+    )  # fmt: skip
+    minutes = click.option(
+        "--warm-up", "warm_up_min", type=Finite(min=0), metavar="MINUTES", default=LampWatch.warm_up_s / 60,
+        help=f"{before}, keep the lamp on until its output is stable (--warm-up-within), for at most MINUTES "
+        f"(0: no wait){note}.",
+    )  # fmt: skip
+    return lambda f: minutes(within(f))

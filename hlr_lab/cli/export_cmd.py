@@ -6,18 +6,18 @@ from pathlib import Path
 
 import click
 
-from hlr_lab.cli.common import mesh_options
+from hlr_lab.cli.common import FILE, mesh_options
 from hlr_lab.cli.console import console
 from hlr_lab.pipeline import EXPORT_FORMATS, export_materials, load_object
 
 
 @click.command()
-@click.argument("materials_path", metavar="MATERIALS", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("materials_path", metavar="MATERIALS", type=FILE)
 @mesh_options
 @click.option(
     "--regions",
     "regions_file",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=FILE,
     help="regions.json the materials were fitted with (default: segment the mesh again).",
 )
 @click.option("--format", "fmt", type=click.Choice(sorted(EXPORT_FORMATS)), required=True)

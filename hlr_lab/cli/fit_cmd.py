@@ -7,14 +7,13 @@ from typing import Literal
 
 import click
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn
-from rich.table import Table
 
+from hlr_lab.cli.common import FILE, FOLDER
 from hlr_lab.cli.console import console
+from hlr_lab.display.materials import materials_table, stage_progress
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName
-from hlr_lab.formats.materials import MaterialsFile
 from hlr_lab.pipeline import fit_into
-from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, FitStep
+from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS
 
 
 def _theta_c(value: str) -> float | Literal["auto"]:
@@ -30,12 +29,11 @@ def _theta_c(value: str) -> float | Literal["auto"]:
 
 
 @click.command("fit")
-@click.argument("session", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("session", type=FOLDER)
 @click.option(
     "--theta-c",
     "theta_c",
     default="auto",
-    show_default=True,
     callback=lambda _c, _p, v: _theta_c(v),
     help="Highlight cone half-angle θc in degrees, or 'auto' (chosen per region from the data).",
 )
@@ -43,13 +41,12 @@ def _theta_c(value: str) -> float | Literal["auto"]:
     "--method",
     type=click.Choice(list(ESTIMATORS)),
     default=DEFAULT_ESTIMATOR,
-    show_default=True,
     help="The estimator: " + "; ".join(f"{k}: {e.summary}" for k, e in ESTIMATORS.items()) + ".",
 )
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=FILE,
     help="materials.json to write (default: SESSION/materials.json); diagnostics go beside it.",
 )
 @click.option(
@@ -64,14 +61,8 @@ def _theta_c(value: str) -> float | Literal["auto"]:
     help="Ignore the lamp's output the run measured (acquire --lamp-every): every pose under the rig "
     "file's power, to see what the correction is worth.",
 )
-def fit(
-    session: Path,
-    theta_c,
-    method: EstimatorName,
-    output: Path | None,
-    allow_incomplete: bool,
-    no_lamp_correction,
-) -> None:
+def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, output: Path | None,
+        allow_incomplete: bool, no_lamp_correction: bool) -> None:  # fmt: skip
     """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
 
     Each pose's bracket is merged into linear radiance (no clipped or noise-dominated value used, dark
@@ -92,23 +83,7 @@ def fit(
       hlr-lab fit sessions/stopped-run --allow-incomplete
     """
     output = output or session / MATERIALS
-    columns = (
-        TextColumn("{task.fields[stage]:8}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.description}"),
-    )
-    with Progress(*columns, console=console, transient=True) as bar:
-        tasks: dict[str, TaskID] = {}
-
-        def show(step: FitStep) -> None:
-            if step.stage not in tasks:
-                tasks[step.stage] = bar.add_task("", total=step.total, stage=step.stage)
-            for stage, task in tasks.items():  # an earlier stage is complete once a later one starts
-                if stage != step.stage:
-                    bar.update(task, completed=bar.tasks[task].total)
-            bar.update(tasks[step.stage], completed=step.index, description=escape(step.label))
-
+    with stage_progress(console) as show:
         result = fit_into(session, output, theta_c_deg=theta_c, method=method, allow_incomplete=allow_incomplete,
                           correct_lamp=not no_lamp_correction, progress=show, on_gaps=_say_gaps)  # fmt: skip
     console.print(materials_table(result.materials))
@@ -127,20 +102,3 @@ def _say_gaps(notes: list[str], missing: int) -> None:
             "materials.json)",
             soft_wrap=True,
         )
-
-
-def materials_table(materials: MaterialsFile) -> Table:
-    t = Table(title="fitted materials (± standard error)", title_justify="left")
-    for column in ("region", "Rd (linear RGB)", "Rs", "n", "θc", "pixels diffuse / highlight"):
-        t.add_column(column, justify="right")
-    for e in materials.regions:
-        rd = " ".join(f"{v:.4f}±{s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
-        if e.specular == "measured":
-            assert e.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
-            assert e.n is not None
-            rs = " ".join(f"{v:.4f}" for v in e.rs)
-            n = f"{e.n:.1f}±{e.n_se:.1f}"
-        else:
-            rs, n = "unmeasured", escape(e.reason or "")
-        t.add_row(str(e.id), rd, rs, n, f"{e.theta_c_deg:.1f}°", f"{e.pixels.diffuse} / {e.pixels.highlight}")
-    return t

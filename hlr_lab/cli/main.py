@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import errno
 import importlib
 import logging
 import sys
@@ -12,7 +11,7 @@ from rich.markup import escape
 
 from hlr_lab import __version__
 from hlr_lab.cli.console import console
-from hlr_lab.errors import HlrLabError
+from hlr_lab.errors import HlrLabError, os_error_line
 from hlr_lab.instrument.signals import stop_once_on_signals
 
 EXIT_ERROR = 1  # an HlrLabError: bad input, device trouble
@@ -81,7 +80,8 @@ def _shortened(text: str, limit: int) -> str:
 
 
 @click.group(
-    cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100}
+    cls=LazyGroup,
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100, "show_default": True},
 )
 @click.version_option(__version__, prog_name="hlr-lab")
 @click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
@@ -142,7 +142,7 @@ def _run(argv: list[str] | None) -> int:
     ) as exc:  # the machine said no: a read-only folder, a directory where a file goes, a full disk
         if debug:
             console.print_exception()
-        console.print(f"[bold red]error:[/] {escape(_os_error(exc))}", soft_wrap=True)
+        console.print(f"[bold red]error:[/] {escape(os_error_line(exc))}", soft_wrap=True)
         return EXIT_ERROR
     except Exception as exc:  # the last line of defence: a bug must still end in one clear line
         if debug:
@@ -153,20 +153,6 @@ def _run(argv: list[str] | None) -> int:
             soft_wrap=True,
         )
         return EXIT_INTERNAL
-
-
-def _os_error(exc: OSError) -> str:
-    """One line for an operating-system refusal: the file, what the system said, what to do."""
-    where = exc.filename if exc.filename is not None else "a file"
-    advice = {
-        errno.EACCES: "check the folder's permissions, or give another output path",
-        errno.EROFS: "the file system is read-only: give an output path elsewhere",
-        errno.EISDIR: "that is a folder: give a file name",
-        errno.ENOTDIR: "a part of that path is a file, not a folder",
-        errno.ENOENT: "no such file or folder: check the path",
-        errno.ENOSPC: "the disk is full: free space, or write elsewhere",
-    }.get(exc.errno or 0, "check the path")  # (errno 0 is no error: not a key)
-    return f"{where}: {exc.strerror or exc}; {advice}"
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from hlr_lab.cli.common import output_option
+from hlr_lab.cli.common import FILE, output_option
 from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.object.mesh import load_mesh, write_vertex_coloured_ply
@@ -14,12 +14,11 @@ from hlr_lab.object.procedural import PALETTE, paint_patches
 
 
 @click.command()
-@click.option("--mesh", "mesh_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--mesh", "mesh_path", required=True, type=FILE,
               help="Mesh (OBJ, PLY, glTF/GLB); its colours, if any, are replaced.")  # fmt: skip
-@click.option("--regions", "k", type=click.IntRange(2, len(PALETTE)), default=8, show_default=True,
+@click.option("--regions", "k", type=click.IntRange(2, len(PALETTE)), default=8,
               help="How many patches, each its own colour.")  # fmt: skip
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Another seed gives other patches.")  # fmt: skip
+@click.option("--seed", type=click.IntRange(min=0), default=0, help="Another seed gives other patches.")
 @output_option("the painted mesh (.ply, vertex colours)")
 def paint(mesh_path: Path, k: int, seed: int, output: Path) -> int:
     """Paint a mesh in K spatially compact patches of distinct colours, for trying segment, plan and

@@ -7,18 +7,14 @@ from pathlib import Path
 import click
 from rich.markup import escape
 
+from hlr_lab.cli.common import FILE, FOLDER
 from hlr_lab.cli.console import console
 from hlr_lab.pipeline import report_into
 
 
 @click.command("report")
-@click.argument("session", type=click.Path(file_okay=False, path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="HTML file to write (default: SESSION/report.html).",
-)
+@click.argument("session", type=FOLDER)
+@click.option("-o", "--output", type=FILE, help="HTML file to write (default: SESSION/report.html).")
 def report(session: Path, output: Path | None) -> None:
     """Write an HTML report of a fitted session: materials ± standard errors, the β–Is curves with the
     fitted lobes, each pose's photograph beside the fitted materials rendered back (with an error map and

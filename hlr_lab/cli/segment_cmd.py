@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import click
 
-from hlr_lab.cli.common import Finite, mesh_options, output_option, region_table
+from hlr_lab.cli.common import Finite, mesh_options, output_option
 from hlr_lab.cli.console import console
+from hlr_lab.display.regions import region_table
 from hlr_lab.formats.regions import write_regions
 from hlr_lab.object.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
 from hlr_lab.object.segment import segment as segment_mesh
@@ -13,26 +14,20 @@ from hlr_lab.pipeline import load_object
 
 
 def segmentation_options(f):
-    f = click.option(
-        "--min-fragment",
-        type=Finite(0, 0.5),
-        default=DEFAULT_MIN_FRAGMENT,
-        show_default=True,
-        help="Connected patches smaller than this fraction of the surface merge into a neighbour.",
-    )(f)
-    f = click.option(
+    """``--delta-e``, ``--split-connected`` and ``--min-fragment``: how the mesh's colours become regions
+    (:func:`hlr_lab.object.segment.segment`; its defaults)."""
+    delta_e = click.option("--delta-e", type=Finite(min=0.5), default=DEFAULT_DELTA_E,
+                           help="Colours closer than this CIELAB ΔE are one material "
+                           "(sets the region count).")  # fmt: skip
+    split = click.option(
         "--split-connected",
         is_flag=True,
         help="Make every connected patch its own region (default: same colour = one region).",
-    )(f)
-    f = click.option(
-        "--delta-e",
-        type=Finite(min=0.5),
-        default=DEFAULT_DELTA_E,
-        show_default=True,
-        help="Colours closer than this CIELAB ΔE are one material (sets the region count).",
-    )(f)
-    return f
+    )
+    fragment = click.option("--min-fragment", type=Finite(0, 0.5), default=DEFAULT_MIN_FRAGMENT,
+                            help="Connected patches smaller than this fraction of the surface merge into "
+                            "a neighbour.")  # fmt: skip
+    return delta_e(split(fragment(f)))
 
 
 @click.command()

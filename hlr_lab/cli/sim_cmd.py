@@ -10,8 +10,6 @@ import click
 
 from hlr_lab.cli.common import speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
-from hlr_lab.errors import InputError
-from hlr_lab.rig.file import sim_rig
 
 
 @click.group()
@@ -42,23 +40,13 @@ def serve(scene_spec, true_rig, speed_factor) -> int:
       hlr-lab sim serve --scene builtin:cylinder
       hlr-lab sim serve --scene builtin:lumpy --true-rig builtin:bench-offsets
     """
-    # the simulator is reached only from the command line (the composition root)
-    from sim.render.scene import SceneError, builtin_scene, load_scene
-    from sim.rig import SimRig
-    from worlds.plan_world import world_geometry
+    from worlds.standalone import served_world  # the simulator: CLI only (the composition root)
 
-    scene = None
-    if scene_spec:
-        try:
-            scene = builtin_scene(scene_spec) if scene_spec.startswith("builtin:") else load_scene(scene_spec)
-        except SceneError as exc:
-            raise InputError(str(exc), field="--scene") from exc
-    geometry = world_geometry(sim_rig(), true_rig)  # the camera is made only with a scene
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     with console.status("starting the simulated rig…"):
-        rig = SimRig(speed_factor=speed_factor, scene=scene, **geometry)
+        rig = served_world(scene_spec, true_rig, speed_factor)
     with rig:
         click.echo(json.dumps(rig.endpoints.as_dict()), nl=True)
         console.print("simulated rig running; Ctrl-C stops it")

@@ -28,18 +28,22 @@ MITSUBA_PLASTIC_IOR = 1.49  # roughplastic's default int_ior
 
 
 def beckmann_alpha(n: float) -> float:
+    """The Beckmann roughness α matching Blinn-Phong exponent ``n``: √(2 / (n + 2))."""
     return float(np.sqrt(2.0 / (n + 2.0)))
 
 
 def gltf_roughness(n: float) -> float:
+    """glTF's ``roughnessFactor`` for exponent ``n``: √α (glTF squares it into α)."""
     return float(np.sqrt(beckmann_alpha(n)))
 
 
 def specular_f0(rs: np.ndarray, n: float) -> np.ndarray:
+    """Fresnel F0 per channel, (3,), matching the peak of the measured lobe: 8 Rs / (n + 8)."""
     return 8.0 * np.asarray(rs, dtype=np.float64) / (n + 8.0)
 
 
 def dielectric_f0(ior: float) -> float:
+    """A dielectric's normal-incidence reflectance for index of refraction ``ior``: ((η − 1)/(η + 1))²."""
     return ((ior - 1.0) / (ior + 1.0)) ** 2
 
 

@@ -22,6 +22,8 @@ _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 
 def write_gltf(path: str | Path, parts: list[RegionPart]) -> list[Path]:
+    """Write one binary glTF 2.0 file (.glb): one primitive and one PBR material per region part;
+    returns the files written (the .glb alone)."""
     path = Path(path)
     blob = bytearray()
     views, accessors, primitives, materials = [], [], [], []

@@ -76,6 +76,8 @@ AUTO_MIN_HIGHLIGHT_FRACTION = (
 
 @dataclass(frozen=True)
 class RegionFit:
+    """One region's fitted Phong parameters with their standard errors and the pixels behind them."""
+
     rd: np.ndarray  # (3,) diffuse reflectance, linear
     rs: np.ndarray  # (3,) specular reflectance
     n: float  # sharpness (exponent of cos β, β between the normal and the half vector)

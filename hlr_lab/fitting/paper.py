@@ -32,6 +32,8 @@ _GRID = 400  # log-spaced n: 1.9 % steps over 1…2000, then Brent within a step
 
 @dataclass(frozen=True)
 class Estimate:
+    """What an estimator returns: Rd, Rs (3,) linear, n, their standard errors, the pixels used."""
+
     rd: np.ndarray
     rs: np.ndarray
     n: float

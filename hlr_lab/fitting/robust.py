@@ -36,6 +36,8 @@ _NOISE_BINS = 12
 
 
 def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], seed: int = 0) -> Estimate:
+    """Fit (Rd, Rs, n) to ``s`` by the module's steps; ``highlight``: (N,) bool, the pixels within θc;
+    n is kept within ``n_range``; ``seed`` fixes the subsample."""
     sub, sub_weight, sub_highlight = _subsample(s, highlight, seed)
     n0 = _start_n(sub, sub_highlight, n_range)
     n1, rd1, rs1 = _profile_n(sub, sub_weight, n0, n_range)

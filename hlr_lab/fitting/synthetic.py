@@ -19,6 +19,8 @@ Shape = Literal["sphere", "cylinder", "torus"]
 
 @dataclass(frozen=True)
 class Truth:
+    """A known material: Rd, Rs (3,) linear, and the exponent n."""
+
     rd: np.ndarray
     rs: np.ndarray
     n: float
@@ -29,6 +31,8 @@ PAPER_42 = Truth(np.array([230, 223, 205]) / 255, np.array([27, 18, 28]) / 255, 
 
 @dataclass(frozen=True, eq=False)
 class SyntheticRegion:
+    """Pixels of one region rendered from a known :class:`Truth` with sensor noise, as a fit receives them."""
+
     intensity: np.ndarray  # (N, 3) linear, as the fit sees it
     irradiance: np.ndarray  # (N,)
     cos_alpha: np.ndarray

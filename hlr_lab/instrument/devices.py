@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from functools import partial
 
 from drivers.dynamixel import Axis, DynamixelGantry, GantryConfig
@@ -24,6 +24,7 @@ from drivers.protocols import Camera, Clock
 from drivers.retrying import retried
 from hlr_lab.errors import InputError
 from hlr_lab.rig.file import Rig
+from hlr_lab.session.events import SafeStateLine, SafeStepLine
 
 log = logging.getLogger(__name__)
 HOLD_SETTLE_S = 5.0  # a gantry parked holding torque comes to rest within this after a stop
@@ -118,9 +119,10 @@ class SafeState:
             + " — make the rig safe by hand (lamp power, drive and servo power)"
         )
 
-    def as_event(self) -> dict:
+    def as_event(self) -> SafeStateLine:
         """The journal's ``safe_state`` line."""
-        return {"event": "safe_state", "ok": self.ok, "steps": [asdict(s) for s in self.steps]}
+        steps = [SafeStepLine(device=s.device, ok=s.ok, detail=s.detail) for s in self.steps]
+        return SafeStateLine(event="safe_state", ok=self.ok, steps=steps)
 
 
 @dataclass

@@ -28,6 +28,8 @@ HOT_MARGIN_C = 10  # warn this close to the servo's own temperature limit (it sh
 
 @dataclass(frozen=True)
 class Finding:
+    """One line of ``doctor``'s table: the device, how it is (ok, warning, problem), what it says and what to do."""
+
     device: str
     level: Level
     message: str
@@ -81,6 +83,8 @@ def calibration_findings(rig: Rig, now: float) -> list[Finding]:
 
 
 def diagnose_servo(report: ServoReport) -> list[Finding]:
+    """What one servo's report means: a wrong ID, a hardware alarm, its temperature and supply voltage, its
+    position against the rig file's limits; else its identity and state."""
     axis = report.axis
     device = f"servo {axis.servo_id} ({axis.label})"
     found = []
@@ -148,6 +152,8 @@ def diagnose_servo(report: ServoReport) -> list[Finding]:
 def diagnose_drive(
     report: DriveReport, config: StageConfig, kinematics: TurntableKinematics
 ) -> list[Finding]:
+    """What the turntable drive's report means: an alarm, its position against the rig file's limits, its
+    readiness; else where it is (steps and degrees)."""
     device = f"turntable on {config.address}"
     if report.alarm:
         return [

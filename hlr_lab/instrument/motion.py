@@ -23,6 +23,8 @@ SPHERE_TOLERANCE_M = 1e-3
 
 @dataclass(frozen=True)
 class PoseTarget:
+    """Where a pose sends the rig: angles in degrees, and the device units they convert to."""
+
     pose_id: str
     turntable_deg: float
     turntable_steps: int

@@ -48,6 +48,9 @@ class ProceduralObject:
 
 
 def pebble(subdivisions: int = 5, radius_m: float = 0.06) -> ProceduralObject:
+    """builtin:pebble: a lumpy ellipsoid of half-axes about ``radius_m`` × (1, 0.85, 0.8) (m), centred on
+    the origin (a plan sets it on the plate), four materials on six patches; an icosphere of
+    ``subdivisions`` moved out."""
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
     d = np.asarray(sphere.vertices)
     # low-frequency lumps keep curvature varied (highlights of all widths) but the surface smooth

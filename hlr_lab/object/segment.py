@@ -29,6 +29,8 @@ _KMEANS_ITERATIONS = 20
 
 @dataclass(frozen=True)
 class Region:
+    """One same-colour region: its id, material cluster, mean colour, size (vertices, faces, m²)."""
+
     id: int
     material: int
     colour: tuple[int, int, int]  # mean surface colour, 8-bit sRGB

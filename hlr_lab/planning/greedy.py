@@ -27,6 +27,8 @@ MAX_EVALUATIONS = 32
 
 @dataclass(frozen=True)
 class Choice:
+    """One light the greedy chose: its view, its candidate index, and the exact samples it gives."""
+
     view: int
     candidate: int
     counts: np.ndarray  # (R,) exact samples per region this light gives
@@ -34,6 +36,8 @@ class Choice:
 
 @dataclass(frozen=True)
 class Selection:
+    """The greedy's choices in order, the views they use, and whether it stopped at the light limit."""
+
     choices: list[Choice]
     views_used: list[int]
     hit_light_limit: bool

@@ -39,6 +39,8 @@ POOL_FRACTION = 4.0  # pool samples whose mirror points lie within θc/4 into on
 
 @dataclass(frozen=True)
 class PlanSettings:
+    """What ``plan`` is asked for (its options; these defaults are the command's)."""
+
     theta_c_deg: float = 5.0
     min_samples: float = 50.0
     count: CountUnit = "pixels"
@@ -55,6 +57,8 @@ class PlanSettings:
 
 @dataclass(frozen=True, eq=False)
 class PlannedLight:
+    """One planned light: where it is (world, turntable frame, gantry angles in degrees) and what it gives."""
+
     step: int  # order in which the greedy chose it
     turntable_deg: float
     light_world: np.ndarray  # (3,)
@@ -68,6 +72,8 @@ class PlannedLight:
 
 @dataclass(frozen=True, eq=False)
 class PlanResult:
+    """A plan with its coverage per region, the reasons for regions left short, and its timings (s)."""
+
     settings: PlanSettings
     sphere: LightSphere
     lights: list[PlannedLight]

@@ -34,6 +34,7 @@ class SurfaceSamples:
 
 
 def vertex_samples(mesh: ColouredMesh, seg: Segmentation) -> SurfaceSamples:
+    """The mesh's vertices as samples (the paper's count): positions, normals, labels, areas (m²)."""
     return SurfaceSamples(mesh.vertices, mesh.vertex_normals, seg.vertex_labels, mesh.vertex_areas)
 
 

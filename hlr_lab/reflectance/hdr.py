@@ -21,6 +21,8 @@ NOISE_FLOOR = 5.0  # read-noise σ below which a value is dark-noise dominated
 
 @dataclass(frozen=True, eq=False)
 class BracketFrame:
+    """One frame of a pose's exposure bracket, with its dark frame when one was taken."""
+
     pixels: np.ndarray  # (H, W, 3) or (H, W, 1) raw DN, unsigned integers
     exposure_s: float
     gain_db: float
@@ -30,6 +32,8 @@ class BracketFrame:
 
 @dataclass(frozen=True, eq=False)
 class Radiance:
+    """A bracket merged into linear radiance, with where it is usable and from how many frames."""
+
     value: np.ndarray  # (H, W, C) float32, linear radiance (NaN where no frame was usable)
     usable: np.ndarray  # (H, W) bool: some frame was usable
     frames_used: np.ndarray  # (H, W) uint8: how many frames went into the value

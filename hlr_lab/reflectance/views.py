@@ -41,6 +41,8 @@ class StageTimes(dict):
 
 @dataclass(frozen=True)
 class Selection:
+    """Which pixels a fit may use: lit and seen within these angles (°), away from borders (px)."""
+
     max_alpha_deg: float = 80.0
     max_view_deg: float = 75.0
     border_px: int = 2
@@ -62,6 +64,8 @@ class PoseSamples:
 
 @dataclass(frozen=True)
 class PoseGeometry:
+    """A pose's light as measured: turntable angle (°), the lamp's position (m) and power."""
+
     turntable_deg: float
     light_world: np.ndarray  # (3,) the lamp where the servos measured it, world frame
     power: float  # Φ

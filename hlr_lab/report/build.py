@@ -42,10 +42,14 @@ LOAD_CHECK = (
 
 @dataclass
 class ReportFigures:
+    """The figures a report computes: the PSNR (dB) of each pose's re-render against its photograph."""
+
     psnr_db: dict[str, float] = field(default_factory=dict)  # per view (pose id)
 
 
 def build_report(session: Session, progress=lambda _: None) -> tuple[str, ReportFigures]:
+    """The report page (self-contained HTML) of a fitted session, and its figures; ``progress`` is told
+    each step."""
     materials_path = session.path / MATERIALS
     if not materials_path.is_file():
         raise InputError("no materials.json in the session: run hlr-lab fit on it first", path=session.path)
@@ -306,4 +310,5 @@ def _runs(session: Session) -> str:
 
 
 def write_report(path: Path, page: str) -> None:
+    """Write the report ``page`` to ``path`` atomically."""
     atomic_write_text(path, page)

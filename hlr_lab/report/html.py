@@ -21,6 +21,7 @@ figure { display: inline-block; margin: .4em; text-align: center; } figcaption {
 
 
 def escape(text: object) -> str:
+    """``text`` as HTML text."""
     return html.escape(str(text))
 
 
@@ -33,6 +34,7 @@ def png_data_uri(rgb: np.ndarray) -> str:
 
 
 def figure(rgb: np.ndarray, caption: str) -> str:
+    """An ``<figure>`` of an (H, W, 3) uint8 RGB image, embedded, with its caption."""
     img = f'<img src="{png_data_uri(rgb)}" alt="{escape(caption)}">'
     return f"<figure>{img}<figcaption>{escape(caption)}</figcaption></figure>"
 
@@ -53,6 +55,7 @@ def error_map(captured: np.ndarray, rendered: np.ndarray, mask: np.ndarray, scal
 
 
 def table(headers: list[str], rows: list[list[str]], numeric_from: int = 1) -> str:
+    """An HTML table; cells are HTML already; columns from ``numeric_from`` on are right-aligned."""
     head = "".join(f"<th>{escape(h)}</th>" for h in headers)
     body = "".join(
         "<tr>"
@@ -64,6 +67,7 @@ def table(headers: list[str], rows: list[list[str]], numeric_from: int = 1) -> s
 
 
 def swatch(rgb8) -> str:
+    """A small square of the colour ``rgb8`` (three 0–255 values)."""
     r, g, b = (int(c) for c in rgb8)
     return f'<span class="swatch" style="background: rgb({r},{g},{b})"></span>'
 

@@ -14,6 +14,8 @@ from hlr_lab.reflectance.views import PixelGeometry
 
 @dataclass(frozen=True)
 class Comparison:
+    """A pose's photograph against the fitted materials rendered back, and their PSNR (dB) on the object."""
+
     captured: np.ndarray  # (H, W, C) radiance, NaN where unusable
     rendered: np.ndarray  # (H, W, C)
     mask: np.ndarray  # (H, W) bool: object pixels with usable radiance and a fitted material

@@ -32,6 +32,8 @@ def gantry_frame(azimuth_axis) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class GantryKinematics:
+    """The light gantry: servo ticks ↔ azimuth and elevation ↔ the lamp's position (m, world frame)."""
+
     centre: np.ndarray  # (3,) m
     arm_radius: float
     zero_ticks: tuple[int, int]  # azimuth, elevation servo readings at 0°
@@ -103,6 +105,8 @@ class GantryKinematics:
 
 @dataclass(frozen=True)
 class TurntableKinematics:
+    """The turntable: stage steps ↔ degrees."""
+
     steps_per_degree: float
     zero_steps: int = 0
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -19,6 +20,7 @@ import numpy as np
 
 from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_create_bytes
+from hlr_lab.session.events import JournalLine, StoredFiles
 
 FRAMES = "frames"
 # zlib level 1, no row filter, run-length matching: 30 ms and 1.9 MB for a 1280×960×3 16-bit frame here,
@@ -32,19 +34,25 @@ _PNG_FAST = [
 
 @dataclass(frozen=True)
 class StoredFrame:
-    file: str  # relative to the session directory
+    """A frame's two files, relative to the session directory, with their SHA-256 checksums."""
+
+    file: str
     sha256: str
     sidecar: str
     sidecar_sha256: str
 
-    def as_event(self, **fields) -> dict:
-        return {"event": "frame", **fields, **asdict(self)}
+    def files(self) -> StoredFiles:
+        """The part of the frame's journal line that names its files."""
+        return StoredFiles(
+            file=self.file, sha256=self.sha256, sidecar=self.sidecar, sidecar_sha256=self.sidecar_sha256
+        )
 
 
-def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> StoredFrame:
+def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: Mapping[str, object]) -> StoredFrame:
     """Write ``frames/NAME.png`` and ``frames/NAME.json``; :class:`FileExistsError` if either exists.
 
-    pixels: (H, W, 3) RGB or (H, W) uint8/uint16 raw values, stored bit for bit.
+    pixels: (H, W, 3) RGB or (H, W) uint8/uint16 raw values, stored bit for bit. sidecar: a session
+    frame's :class:`~hlr_lab.session.events.Sidecar`, or a calibration photograph's own record.
     """
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name) or ".." in name:
         raise ValueError(
@@ -65,13 +73,13 @@ def store_frame(session: Path, name: str, pixels: np.ndarray, sidecar: dict) -> 
     return StoredFrame(image_path, image_sha256, sidecar_path, _sha256(meta))
 
 
-def frame_problem(session: Path, event: dict) -> str | None:
+def frame_problem(session: Path, event: JournalLine) -> str | None:
     """Why a journaled frame cannot be trusted (a file missing or changed, a sidecar that disagrees with
     its journal line), or None when it is intact. ``event`` is a checked journal frame line."""
     return checked_sidecar(session, event)[1] or _checked_image(session, event)[1]
 
 
-def load_frame(session: Path, event: dict) -> np.ndarray:
+def load_frame(session: Path, event: JournalLine) -> np.ndarray:
     """The pixels of a journaled frame, its image checked against the journal as it is read (once)."""
     image, problem = _checked_image(session, event)
     if problem:
@@ -86,7 +94,7 @@ def load_frame(session: Path, event: dict) -> np.ndarray:
 _AGREE = ("pose", "exposure_index", "dark", "exposure_s")
 
 
-def checked_sidecar(session: Path, event: dict) -> tuple[dict | None, str | None]:
+def checked_sidecar(session: Path, event: JournalLine) -> tuple[JournalLine | None, str | None]:
     """The sidecar of a journaled frame, and why the frame cannot be trusted (None when it can): its
     image is there, the sidecar matches its checksum, is a JSON object and agrees with the journal line
     (pose, exposure, lamp, and its image's checksum). The image itself is checked when it is read
@@ -113,7 +121,7 @@ def checked_sidecar(session: Path, event: dict) -> tuple[dict | None, str | None
     return sidecar, None
 
 
-def _checked_image(session: Path, event: dict) -> tuple[bytes, str | None]:
+def _checked_image(session: Path, event: JournalLine) -> tuple[bytes, str | None]:
     """The image file's bytes, and why they cannot be trusted (None when they match the journal)."""
     path = session / event["file"]
     if not path.is_file():

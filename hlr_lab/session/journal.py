@@ -20,11 +20,13 @@ import math
 import os
 import re
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from hlr_lab.errors import DiskFull
 from hlr_lab.files import atomic_write_bytes, disk_full, fsync_directory
+from hlr_lab.session.events import JournalLine
 
 JOURNAL = "journal.jsonl"  # the session directory's journal (docs/sessions.md)
 DAMAGED = "journal.damaged"  # damaged lines set aside by a resumed run, one JSON object per line
@@ -48,7 +50,9 @@ class Damage:
 
 @dataclass(frozen=True)
 class JournalContents:
-    events: list[dict]
+    """A journal as read: its intact lines, the damaged ones, and the intact part's bytes."""
+
+    events: list[JournalLine]
     damaged: list[Damage]
     intact_bytes: int  # length of everything but a torn last line
     kept: bytes  # the intact lines as they are in the file
@@ -79,7 +83,7 @@ class Journal:
         self._lock = threading.Lock()  # the frame writer appends from its own thread
         reserve(self.path.parent)
 
-    def append(self, event: dict) -> None:
+    def append(self, event: Mapping[str, object]) -> None:
         """Write ``event`` as one line and fsync it before returning (safe from the frame writer's thread);
         a full disk raises :class:`~hlr_lab.errors.DiskFull` with the journal whole."""
         line = (json.dumps(event, ensure_ascii=False, sort_keys=True) + "\n").encode()
@@ -94,9 +98,9 @@ class Journal:
                 os.ftruncate(self._fd, os.fstat(self._fd).st_size - written)
                 raise disk_full(self.path, len(line))
             os.fsync(self._fd)
-            self.events.append(event)
+            self.events.append(dict(event))
 
-    def append_last(self, event: dict) -> None:
+    def append_last(self, event: Mapping[str, object]) -> None:
         """Append the run's last line, using the room kept for it when the disk is full."""
         try:
             self.append(event)
@@ -129,7 +133,7 @@ def reserve(session: Path) -> None:
         path.unlink(missing_ok=True)
 
 
-def read_journal(path: str | Path) -> list[dict]:
+def read_journal(path: str | Path) -> list[JournalLine]:
     """The intact events of a journal (damaged lines and a torn last line left out), read only."""
     return load_journal(Path(path)).events
 
@@ -152,7 +156,7 @@ def load_journal(path: Path) -> JournalContents:
     return JournalContents(events, damaged, offset, b"".join(kept))  # lines[-1]: b"" or a torn tail
 
 
-def _parse(line: bytes) -> tuple[dict | None, str | None]:
+def _parse(line: bytes) -> tuple[JournalLine | None, str | None]:
     try:
         event = json.loads(line)
     except ValueError as exc:
@@ -163,7 +167,7 @@ def _parse(line: bytes) -> tuple[dict | None, str | None]:
     return (None, problem) if problem else (event, None)
 
 
-def _frame_problem(e: dict) -> str | None:
+def _frame_problem(e: JournalLine) -> str | None:
     """What makes a frame line unusable, or None."""
     for key, ok, wanted in (
         ("pose", lambda v: isinstance(v, str) and re.fullmatch(_NAME, v), "a pose id"),

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.protocols import Clock
+from hlr_lab.session.events import WarmUpLine
 
 WELL_EXPOSED = (0.1, 0.8)  # of full scale, in the first reference frame: the values compared
 WHITE_REFERENCE = (
@@ -103,9 +104,10 @@ class WarmUp:
     minutes: float
     per_minute: float
 
-    def as_event(self) -> dict:
-        return {"event": "warm_up", "at": time.time(), "stable": self.stable, "minutes": self.minutes,
-                "per_minute": self.per_minute}  # fmt: skip
+    def as_event(self) -> WarmUpLine:
+        """The journal's ``warm_up`` line."""
+        return WarmUpLine(event="warm_up", at=time.time(), stable=self.stable, minutes=self.minutes,
+                          per_minute=self.per_minute)  # fmt: skip
 
 
 def warm_up(

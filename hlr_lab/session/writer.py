@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hlr_lab.session.events import FrameFields, FrameLine, Sidecar
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import Journal
 
@@ -32,8 +33,8 @@ log = logging.getLogger(__name__)
 class _Job:
     name: str
     pixels: np.ndarray
-    sidecar: dict
-    event: dict  # journal fields besides the files' names and checksums
+    sidecar: Sidecar
+    fields: FrameFields  # the journal line's fields besides the files' names and checksums
 
 
 class FrameWriter:
@@ -50,10 +51,11 @@ class FrameWriter:
         self._thread = threading.Thread(target=self._work, name="frame-writer", daemon=True)
         self._thread.start()
 
-    def submit(self, name: str, pixels: np.ndarray, sidecar: dict, **event) -> None:
-        """Queue ``frames/NAME`` for storing; waits while ``depth`` frames are already waiting."""
+    def submit(self, name: str, pixels: np.ndarray, sidecar: Sidecar, fields: FrameFields) -> None:
+        """Queue ``frames/NAME`` for storing (pixels: (H, W[, 3]) uint8/uint16 raw values), its journal line
+        to say ``fields``; waits while ``depth`` frames are already waiting."""
         self._raise_failure()
-        self._jobs.put(_Job(name, pixels, sidecar, event))
+        self._jobs.put(_Job(name, pixels, sidecar, fields))
 
     def close(self) -> None:
         """Store every queued frame, stop the thread, and raise a storing failure if there was one."""
@@ -80,7 +82,7 @@ class FrameWriter:
                 continue  # drain without storing: the run is stopping on this error
             try:
                 stored = store_frame(self.session, job.name, job.pixels, job.sidecar)
-                self.journal.append(stored.as_event(**job.event))
+                self.journal.append(FrameLine(event="frame", **job.fields, **stored.files()))
                 self.stored += 1
             except BaseException as exc:  # a full disk is a DiskFull naming the file already
                 self._error = exc
