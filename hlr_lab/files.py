@@ -8,6 +8,7 @@ import math
 import os
 import re
 import shutil
+import stat
 import tempfile
 import tomllib
 from collections.abc import Sequence
@@ -54,6 +55,40 @@ def as_triple(values: Sequence[T]) -> tuple[T, T, T]:
     return x, y, z
 
 
+LINK_REFUSED = (
+    "is a symbolic link: hlr-lab neither writes nor reads through links; put the file itself there (or give "
+    "its real path)"
+)
+SPECIAL_REFUSED = "is not a regular file (a FIFO, a socket, a device or a folder): give a regular file"
+
+
+def open_regular(path: Path, flags: int, mode: int = 0o644) -> int:
+    """``os.open(path, flags)`` that neither follows a symbolic link at ``path`` nor blocks on a FIFO, and
+    refuses anything but a regular file (an :class:`InputError` naming it); the descriptor is blocking."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:  # O_NOFOLLOW's answer to a link at the name
+            raise InputError(LINK_REFUSED, path=path) from None
+        if exc.errno == errno.ENXIO:  # a FIFO opened for writing without a reader
+            raise InputError(SPECIAL_REFUSED, path=path) from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise InputError(SPECIAL_REFUSED, path=path)
+    os.set_blocking(fd, True)
+    return fd
+
+
+def read_regular(path: str | Path) -> bytes:
+    """The bytes of the regular file ``path``, not through a symbolic link at its name (a link, a FIFO, a
+    device such as /dev/zero or a folder is an :class:`InputError` naming it; a missing file raises
+    :class:`FileNotFoundError`)."""
+    fd = open_regular(Path(path), os.O_RDONLY)
+    with os.fdopen(fd, "rb") as f:
+        return f.read()
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write to a temporary file beside ``path``, fsync, then rename over it: a crash leaves the old
     file or the new one, never a mix."""
@@ -74,6 +109,8 @@ def atomic_create_bytes(path: str | Path, data: bytes) -> None:
 
 
 def _write_via_temporary(path: Path, data: bytes, publish) -> None:
+    if path.is_symlink():  # replacing it would break the user's link; writing through it, redirect a write
+        raise InputError(LINK_REFUSED, path=path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

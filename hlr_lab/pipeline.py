@@ -45,10 +45,12 @@ from hlr_lab.reflectance.session_fit import (
 )
 from hlr_lab.rig.file import Rig
 from hlr_lab.session.lamp import UNWATCHED, LampWatch
+from hlr_lab.session.outputs import check_outputs, mesh_files
 
 if TYPE_CHECKING:
     from hlr_lab.report.build import ReportFigures
 
+REPORT = "report.html"  # report's default output, in the session
 EXPORT_FORMATS = {"obj": ".obj", "gltf": ".glb", "mitsuba": ""}  # format → the file's suffix ("": a folder)
 
 
@@ -146,15 +148,17 @@ def fit_into(
     """Fit ``session``'s frames and write materials.json (``output``, default SESSION/materials.json)
     with its diagnostics beside it; each pose's light scaled by the lamp's output the run measured
     (unless not ``correct_lamp``). ``on_gaps(notes, missing frames)`` hears what was left out before the
-    fit starts. Refuses a session without frames."""
+    fit starts. Refuses a session without frames, and an output over one of the session's files."""
+    output = output or session / MATERIALS
+    diagnostics = output.with_name(DIAGNOSTICS)
+    check_outputs([output, diagnostics])
     s = open_session(session, allow_incomplete=allow_incomplete, correct_lamp=correct_lamp)
     on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
     result = fit_session(s, theta_c_deg=theta_c_deg, method=method, progress=progress)
-    output = output or session / MATERIALS
     write_materials(output, result.materials)
-    atomic_write_text(output.with_name(DIAGNOSTICS), json.dumps(result.diagnostics, indent=1) + "\n")
+    atomic_write_text(diagnostics, json.dumps(result.diagnostics, indent=1) + "\n")
     return result
 
 
@@ -165,9 +169,10 @@ def report_into(
     figures (PSNR per pose) and its size in bytes."""
     from hlr_lab.report.build import build_report, write_report
 
+    output = output or session / REPORT
+    check_outputs([output], [session / MATERIALS, session / DIAGNOSTICS])
     s = open_session(session, allow_incomplete=True)  # fit said what is missing (so does materials.json)
     page, figures = build_report(s, progress=progress)
-    output = output or session / "report.html"
     write_report(output, page)
     return output, figures, output.stat().st_size
 
@@ -186,11 +191,12 @@ def export_materials(
     region without a fitted material gets its colour as a named, diffuse-only stand-in. Returns the files
     written and the ids of the regions that got a stand-in."""
     from hlr_lab.export.gltf import write_gltf
-    from hlr_lab.export.mitsuba import write_mitsuba
-    from hlr_lab.export.obj import write_obj
+    from hlr_lab.export.mitsuba import mitsuba_files, write_mitsuba
+    from hlr_lab.export.obj import obj_files, write_obj
     from hlr_lab.export.regions import region_parts, stand_ins
 
-    writers = {"obj": write_obj, "gltf": write_gltf, "mitsuba": write_mitsuba}
+    writers = {"obj": (obj_files, write_obj), "gltf": (lambda path, _parts: [path], write_gltf),
+               "mitsuba": (mitsuba_files, write_mitsuba)}  # fmt: skip
     suffix = EXPORT_FORMATS[fmt]
     if suffix and output.suffix.lower() != suffix:
         raise InputError(f"a {fmt} export is written to a {suffix} file", field="--output")
@@ -201,4 +207,6 @@ def export_materials(
         )
     seg = read_regions(regions_path, mesh) if regions_path else segment(mesh)
     parts = region_parts(mesh, seg, materials, source=str(materials_path))
-    return writers[fmt](output, parts), stand_ins(parts)
+    files, write = writers[fmt]
+    check_outputs(files(output, parts), [materials_path, regions_path, *mesh_files(mesh)])
+    return write(output, parts), stand_ins(parts)

@@ -47,6 +47,7 @@ from hlr_lab.session.events import (
     RunSummary,
     Sidecar,
 )
+from hlr_lab.session.folder import check_session_folder
 from hlr_lab.session.frames import FRAMES, frame_problem, load_frame, store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 from hlr_lab.session.lamp import (
@@ -162,6 +163,7 @@ def acquire(
     :mod:`hlr_lab.acquisition.white_reference`), a ``lamp`` line per pose where it can be.
     """
     outcome, started = Outcome(), time.monotonic()
+    check_session_folder(session)  # before anything in it is removed or written (its own files only)
     remove_temporaries(session)
     with Journal(session / JOURNAL) as journal, _RetryJournal(journal) as retries:
         for damage in journal.damaged:

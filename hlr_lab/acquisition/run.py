@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -18,6 +19,7 @@ import numpy as np
 
 from hlr_lab.acquisition.poses import Bracketing, LampMeter, Outcome, Step, Tolerance, acquire
 from hlr_lab.errors import HlrLabError
+from hlr_lab.files import open_regular
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.instrument.control import NO_OVERRIDES, OpenRig, RunStopped, open_rig
 from hlr_lab.instrument.devices import Links, SafeState
@@ -25,13 +27,13 @@ from hlr_lab.instrument.locks import hold_session
 from hlr_lab.instrument.motion import PoseTarget
 from hlr_lab.object.mesh import file_sha256
 from hlr_lab.rig.file import Rig
+from hlr_lab.session.folder import LOG
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
 from hlr_lab.session.lamp import UNWATCHED, LampWatch
 from hlr_lab.session.metadata import start_or_resume
 from hlr_lab.session.space import check_room, frame_bytes
 
 log = logging.getLogger(__name__)
-LOG = "acquire.log"
 PLANNED_ONLY = Bracketing()  # adaptive bracketing, no dark frames
 
 
@@ -122,7 +124,8 @@ def _journal_safe_state(safe: SafeState, session: Path) -> None:
 def session_log(path: Path) -> Iterator[None]:
     """Everything the drivers and hlr-lab log during the run (retries, reboots, warnings, the safe state),
     appended to the session's log file."""
-    handler = logging.FileHandler(path, encoding="utf-8")
+    stream = os.fdopen(open_regular(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND), "a", encoding="utf-8")
+    handler = logging.StreamHandler(stream)  # a FileHandler would follow a link at the log's name
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     loggers = [logging.getLogger(name) for name in ("drivers", "hlr_lab", "pymodbus")]
     levels = [logger.level for logger in loggers]
@@ -136,3 +139,4 @@ def session_log(path: Path) -> Iterator[None]:
             logger.removeHandler(handler)
             logger.setLevel(level)
         handler.close()
+        stream.close()

@@ -12,8 +12,24 @@ from hlr_lab.errors import InputError
 from hlr_lab.rig.file import Rig, load_rig, sim_rig
 from hlr_lab.session.lamp import LampWatch
 
-FILE = click.Path(dir_okay=False, path_type=Path)  # an option naming a file (that need not exist yet)
-FOLDER = click.Path(file_okay=False, path_type=Path)  # an option naming a folder
+
+class PathOption(click.Path):
+    """A path option that refuses an empty name (``--out ''`` would make the current folder the session)
+    and a name with a control character (a line break written into a file that names it breaks that file)."""
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and not value.strip():
+            self.fail("an empty path names nothing: give a file or folder", param, ctx)
+        if isinstance(value, str) and any(ord(c) < 32 or ord(c) == 127 for c in value):
+            self.fail(
+                f"{value!r} has a control character (a line break, a tab, …): give a plain name", param, ctx
+            )
+        return super().convert(value, param, ctx)
+
+
+FILE = PathOption(dir_okay=False, path_type=Path)  # an option naming a file (that need not exist yet)
+FOLDER = PathOption(file_okay=False, path_type=Path)  # an option naming a folder
+ANY_PATH = PathOption(path_type=Path)  # a file or a folder (export: a Mitsuba scene is a folder)
 
 
 def mesh_options(f):

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
-from hlr_lab.cli.common import FILE, mesh_options
+from hlr_lab.cli.common import ANY_PATH, FILE, mesh_options
 from hlr_lab.cli.console import console
 from hlr_lab.pipeline import EXPORT_FORMATS, export_materials, load_object
 
@@ -24,7 +22,7 @@ from hlr_lab.pipeline import EXPORT_FORMATS, export_materials, load_object
 @click.option(
     "-o",
     "--output",
-    type=click.Path(path_type=Path),
+    type=ANY_PATH,
     required=True,
     help="File to write (obj: .obj with its .mtl beside it; gltf: .glb) or, for mitsuba, a folder.",
 )

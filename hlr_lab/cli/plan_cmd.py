@@ -16,6 +16,7 @@ from hlr_lab.formats.regions import read_regions
 from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object, plan_object
 from hlr_lab.planning.planner import PlanSettings
+from hlr_lab.session.outputs import check_outputs, mesh_files
 
 EXIT_UNCOVERED = 3  # the plan was written but some regions cannot get their M samples
 
@@ -127,6 +128,7 @@ def plan(mesh_spec, texture, regions_file, delta_e, split_connected, min_fragmen
     rig = resolve_rig(rig_path, sim)
     with console.status("loading the mesh…"):
         mesh = load_object(mesh_spec, texture)
+    check_outputs([output], [*mesh_files(mesh), regions_file, rig_path])
     if regions_file is not None:
         seg = read_regions(regions_file, mesh)
     else:

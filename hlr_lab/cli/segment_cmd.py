@@ -11,6 +11,7 @@ from hlr_lab.formats.regions import write_regions
 from hlr_lab.object.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
 from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object
+from hlr_lab.session.outputs import check_outputs, mesh_files
 
 
 def segmentation_options(f):
@@ -50,6 +51,7 @@ def segment(mesh_spec, texture, n_regions, delta_e, split_connected, min_fragmen
     """
     with console.status("loading the mesh…"):
         mesh = load_object(mesh_spec, texture)
+    check_outputs([output], mesh_files(mesh))
     with console.status(f"segmenting {len(mesh.vertices):,} vertices…"):
         seg = segment_mesh(
             mesh,

@@ -13,20 +13,34 @@ import numpy as np
 import trimesh
 from trimesh.exchange.ply import export_ply
 
+from hlr_lab.errors import InputError
 from hlr_lab.export.conversion import MITSUBA_PLASTIC_IOR, beckmann_alpha, ior_for_f0, specular_f0
 from hlr_lab.export.regions import RegionPart
 from hlr_lab.files import atomic_write_bytes, atomic_write_text
 
+_HEADER = "hlr-lab export"  # the comment that opens every scene.xml hlr-lab writes
+
+
+def mitsuba_files(folder: Path, parts: list[RegionPart]) -> list[Path]:
+    """The files :func:`write_mitsuba` writes into ``folder``: ``scene.xml``, then a PLY per region. Refuses
+    (:class:`InputError`) a ``folder`` that is a file, and a ``scene.xml`` there that hlr-lab did not write."""
+    if folder.exists() and not folder.is_dir():
+        raise InputError("a mitsuba export is a folder (scene.xml, meshes/): give a folder", path=folder,
+                         field="--output")  # fmt: skip
+    scene = folder / "scene.xml"
+    if scene.is_file() and not _ours(scene):
+        raise InputError(f"the export would replace {scene}, which hlr-lab did not write: give another folder",
+                         path=folder, field="--output")  # fmt: skip
+    return [scene, *(folder / "meshes" / f"{p.name}.ply" for p in parts)]
+
 
 def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:
-    """Write ``folder/scene.xml`` and ``folder/meshes/region_<id>.ply``."""
-    folder = Path(folder)
-    written = []
-    for p in parts:
-        ply = folder / "meshes" / f"{p.name}.ply"
+    """Write ``folder/scene.xml`` and ``folder/meshes/region_<id>.ply`` (the meshes first: a scene is never
+    left naming a missing one); returns the paths, scene.xml first."""
+    scene, *plys = mitsuba_files(Path(folder), parts)
+    for p, ply in zip(parts, plys, strict=True):
         mesh = trimesh.Trimesh(p.vertices, p.faces, vertex_normals=p.normals, process=False)
         atomic_write_bytes(ply, export_ply(mesh, encoding="binary", vertex_normal=True))
-        written.append(ply)
     pts = np.concatenate([p.vertices for p in parts])
     centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
     radius = float(np.linalg.norm(pts - centre, axis=1).max())
@@ -37,7 +51,7 @@ def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:
         for p in parts
     ]
     xml = f"""<?xml version="1.0" encoding="utf-8"?>
-<!-- hlr-lab export: {len(parts)} regions. Blinn-Phong fits converted to roughplastic (hlr_lab.export.conversion);
+<!-- {_HEADER}: {len(parts)} regions. Blinn-Phong fits converted to roughplastic (hlr_lab.export.conversion);
      the exact fitted values are in the comment above each BSDF. The camera and light are a preview. -->
 <scene version="3.0.0">
   <integrator type="path"><integer name="max_depth" value="4"/></integrator>
@@ -55,9 +69,8 @@ def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:
 {chr(10).join(body)}
 </scene>
 """
-    scene = folder / "scene.xml"
     atomic_write_text(scene, xml)
-    return [scene, *written]
+    return [scene, *plys]
 
 
 def _bsdf(p: RegionPart) -> str:
@@ -82,6 +95,14 @@ def _bsdf(p: RegionPart) -> str:
     <rgb name="diffuse_reflectance" value="{_xyz(np.clip(p.rd, 0, 1))}"/>
     <rgb name="specular_reflectance" value="{_xyz(scale)}"/>
   </bsdf>"""
+
+
+def _ours(scene: Path) -> bool:
+    try:
+        with scene.open("rb") as f:
+            return _HEADER.encode() in f.read(200)
+    except OSError:
+        return False
 
 
 def _xyz(v) -> str:

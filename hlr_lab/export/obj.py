@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
+from hlr_lab.errors import InputError
 from hlr_lab.export.regions import RegionPart
 from hlr_lab.files import atomic_write_text
 
@@ -17,10 +19,33 @@ MTL_HEADER = """\
 """
 
 
-def write_obj(path: str | Path, parts: list[RegionPart]) -> list[Path]:
-    """Write ``path`` (.obj) and the .mtl beside it; returns both paths."""
-    path = Path(path)
+def obj_files(path: Path, parts: list[RegionPart]) -> list[Path]:
+    """The files :func:`write_obj` writes for ``path``: the OBJ and its .mtl. Refuses (:class:`InputError`) a
+    name the OBJ cannot carry on its ``mtllib`` line (readers split it at spaces), and a .mtl already
+    there that hlr-lab did not write (the user named the OBJ, not the library beside it)."""
+    del parts  # one .mtl whatever the regions
     mtl = path.with_suffix(".mtl")
+    if re.search(r"\s", mtl.name):
+        raise InputError(
+            f"the OBJ names its material library ({mtl.name}) on its mtllib line, which readers split at spaces: "
+            "give a name without spaces",
+            path=path,
+            field="--output",
+        )
+    if mtl.is_file() and not _ours(mtl):
+        raise InputError(
+            f"the OBJ's material library would replace {mtl}, which hlr-lab did not write: move it, or give "
+            "another name",
+            path=path,
+            field="--output",
+        )
+    return [path, mtl]
+
+
+def write_obj(path: str | Path, parts: list[RegionPart]) -> list[Path]:
+    """Write ``path`` (.obj) and the .mtl beside it (the library first: an OBJ is never left naming a
+    missing one); returns both paths."""
+    path, mtl = obj_files(Path(path), parts)
     lines = [f"# hlr-lab export: {len(parts)} regions", f"mtllib {mtl.name}"]
     offset = 0
     groups = []
@@ -33,9 +58,17 @@ def write_obj(path: str | Path, parts: list[RegionPart]) -> list[Path]:
             + "\n".join(f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f.tolist())
         )
         offset += len(part.vertices)
-    atomic_write_text(path, "\n".join(lines + groups) + "\n")
     atomic_write_text(mtl, MTL_HEADER + "\n".join(_material(p) for p in parts))
+    atomic_write_text(path, "\n".join(lines + groups) + "\n")
     return [path, mtl]
+
+
+def _ours(mtl: Path) -> bool:
+    try:
+        with mtl.open("rb") as f:
+            return f.readline().rstrip(b"\n") == MTL_HEADER.splitlines()[0].encode()
+    except OSError:
+        return False
 
 
 def _rows(tag: str, a: np.ndarray) -> str:

@@ -27,8 +27,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from hlr_lab.errors import HlrLabError
-
-SESSION_LOCK = "acquire.lock"
+from hlr_lab.files import open_regular
+from hlr_lab.session.folder import LOCK, check_session_folder
 
 
 class Busy(HlrLabError):
@@ -40,7 +40,7 @@ class Lock:
 
     def __init__(self, path: Path, what: str):
         self.path, self.what = path, what
-        self._fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        self._fd = open_regular(path, os.O_RDWR | os.O_CREAT, 0o666)  # never through a link at its name
         try:
             fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -119,9 +119,11 @@ def hold_devices(links: Iterable[tuple[str, str]]) -> Iterator[None]:
 
 @contextlib.contextmanager
 def hold_session(session: Path) -> Iterator[None]:
-    """Lock a session directory (created if missing) for the block."""
+    """Lock a session directory (created if missing) for the block; a session holding a link or a special
+    file is refused first (:func:`hlr_lab.session.folder.check_session_folder`)."""
     session.mkdir(parents=True, exist_ok=True)
-    lock = Lock(session / SESSION_LOCK, f"session {session}")
+    check_session_folder(session)
+    lock = Lock(session / LOCK, f"session {session}")
     try:
         yield
     finally:

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from hlr_lab.errors import InputError
-from hlr_lab.files import atomic_create_bytes
+from hlr_lab.files import atomic_create_bytes, read_regular
 from hlr_lab.session.events import JournalLine, StoredFiles
 
 FRAMES = "frames"
@@ -101,10 +101,10 @@ def checked_sidecar(session: Path, event: JournalLine) -> tuple[JournalLine | No
     (:func:`load_frame`), so that a fit reads each image once."""
     if not (session / event["file"]).is_file():
         return None, f"{event['file']} is missing"
-    path = session / event["sidecar"]
-    if not path.is_file():
+    try:
+        data = read_regular(session / event["sidecar"])  # not through a link, nor from a FIFO or a device
+    except FileNotFoundError:
         return None, f"{event['sidecar']} is missing"
-    data = path.read_bytes()
     if _sha256(data) != event["sidecar_sha256"]:
         return None, f"{event['sidecar']} does not match its checksum in the journal"
     try:
@@ -123,10 +123,10 @@ def checked_sidecar(session: Path, event: JournalLine) -> tuple[JournalLine | No
 
 def _checked_image(session: Path, event: JournalLine) -> tuple[bytes, str | None]:
     """The image file's bytes, and why they cannot be trusted (None when they match the journal)."""
-    path = session / event["file"]
-    if not path.is_file():
+    try:
+        data = read_regular(session / event["file"])
+    except FileNotFoundError:
         return b"", f"{event['file']} is missing"
-    data = path.read_bytes()
     if _sha256(data) != event["sha256"]:
         return b"", f"{event['file']} does not match its checksum in the journal"
     return data, None

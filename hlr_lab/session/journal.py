@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hlr_lab.errors import DiskFull
-from hlr_lab.files import atomic_write_bytes, disk_full, fsync_directory
+from hlr_lab.files import atomic_write_bytes, disk_full, fsync_directory, open_regular, read_regular
 from hlr_lab.session.events import JournalLine
 
 JOURNAL = "journal.jsonl"  # the session directory's journal (docs/sessions.md)
@@ -74,7 +74,7 @@ class Journal:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.damaged:
             _set_aside(self.path, contents)
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self._fd = open_regular(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND)
         if not self.damaged and os.fstat(self._fd).st_size > contents.intact_bytes:
             os.ftruncate(self._fd, contents.intact_bytes)  # the torn tail of a crash
             os.fsync(self._fd)
@@ -122,15 +122,18 @@ def reserve(session: Path) -> None:
     """Keep ``RESERVE_BYTES`` of disk for the journal's last lines (a run that stops on a full disk must
     still say so); :meth:`Journal.append_last` frees it. Best effort: no room, no reserve."""
     path = session / RESERVE
-    if path.exists() and path.stat().st_size >= RESERVE_BYTES:
-        return
+    fd = open_regular(path, os.O_WRONLY | os.O_CREAT)  # a link or a FIFO here is refused, never written
     try:
-        with open(path, "wb") as f:
+        if os.fstat(fd).st_size >= RESERVE_BYTES:
+            return
+        with os.fdopen(os.dup(fd), "wb") as f:
             f.write(b"\0" * RESERVE_BYTES)  # real blocks (a sparse file would reserve nothing)
             f.flush()
             os.fsync(f.fileno())
     except OSError:
         path.unlink(missing_ok=True)
+    finally:
+        os.close(fd)
 
 
 def read_journal(path: str | Path) -> list[JournalLine]:
@@ -140,9 +143,10 @@ def read_journal(path: str | Path) -> list[JournalLine]:
 
 def load_journal(path: Path) -> JournalContents:
     """Every line checked: the intact events, and the damaged lines with what is wrong with each."""
-    if not path.exists():
+    try:
+        data = read_regular(path)  # a link, a FIFO or /dev/zero in its place is refused, never read
+    except FileNotFoundError:
         return JournalContents([], [], 0, b"")
-    data = path.read_bytes()
     events, damaged, kept, offset = [], [], [], 0
     lines = data.split(b"\n")
     for number, line in enumerate(lines[:-1], start=1):  # every element but the last ended in "\n"
@@ -195,7 +199,7 @@ def _set_aside(path: Path, contents: JournalContents) -> None:
     """Append the damaged lines to ``journal.damaged``, then replace the journal by its intact lines
     (the damaged record is on disk before the journal loses them)."""
     aside = path.with_name(DAMAGED)
-    with open(aside, "a", encoding="utf-8") as f:
+    with os.fdopen(open_regular(aside, os.O_WRONLY | os.O_CREAT | os.O_APPEND), "a", encoding="utf-8") as f:
         for d in contents.damaged:
             f.write(
                 json.dumps({"line": d.line, "problem": d.problem, "text": d.text}, ensure_ascii=False) + "\n"

@@ -15,15 +15,16 @@ from hlr_lab.files import atomic_create_bytes, check_header, dumps, non_finite, 
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.object.mesh import file_sha256
 from hlr_lab.rig.file import Rig
+from hlr_lab.session.folder import SESSION, check_session_folder
 from hlr_lab.session.kept_object import keep_object, kept_plan
 
-SESSION = "session.json"
 SESSION_FORMAT = "hlr-lab.session"
 
 
 def read_record(session: Path) -> dict:
     """``session.json``, checked: its header and the fields a resumed run and a fit rely on."""
     path = session / SESSION
+    check_session_folder(session)  # nothing read below comes through a link or from a special file
     if not path.is_file():
         raise InputError(
             "not a session directory (no session.json); give the --out of hlr-lab acquire", path=session

@@ -1,0 +1,100 @@
+"""Where a command may write (docs/sessions.md, "Outputs never destroy inputs"): never over one of its own
+inputs, never over a session's own files, never twice in one command, never under a name that cannot be
+written.
+
+A mistyped ``-o`` must not cost a night's measurement: ``fit S -o S/journal.jsonl`` would replace the
+journal with materials, ``segment --mesh m.ply -o m.ply`` the mesh with its regions, ``export -o spot.obj``
+the input mesh and its .mtl. Every command that writes hands its outputs (with their companions: the
+diagnostics beside materials.json, an OBJ's .mtl) and its inputs to :func:`check_outputs` before it does
+its work, so a refused output costs nothing and leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from hlr_lab.errors import InputError
+from hlr_lab.files import LINK_REFUSED
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.session.folder import FOLDERS, OWN_FILES, SESSION
+from hlr_lab.session.journal import JOURNAL
+from hlr_lab.session.kept_object import companions
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")  # a line break in a name breaks every file that names it
+
+
+def check_outputs(
+    outputs: Sequence[Path], inputs: Iterable[str | Path | None] = (), *, field: str = "--output"
+) -> None:
+    """Refuse (:class:`InputError` naming the output and ``field``) to write any of ``outputs`` — the files
+    one command is about to write — when it is one of ``inputs`` (the same file by any name, hard links
+    included), a symbolic link, a file of a session (its journal, session.json, lock, log, reserve, anything in its
+    ``frames/`` or ``object/``), another of ``outputs`` (two files of the command under one name), an
+    existing folder, or a name with a control character (a line break, a NUL). ``inputs`` may hold
+    ``None`` and ``builtin:`` names (skipped)."""
+    taken: dict[str, Path] = {}
+    for output in outputs:
+        if _CONTROL.search(str(output)):
+            raise InputError(
+                "has a control character (a line break, a tab, …) in its name, which the files naming it cannot "
+                "carry: give a plain name",
+                path=repr(str(output))[1:-1],
+                field=field,
+            )
+        if output.is_symlink():  # writing through it would redirect the write; replacing it, break the link
+            raise InputError(LINK_REFUSED, path=output, field=field)
+        if output.is_dir():
+            raise InputError("is a folder: name a file to write (or move the folder away)", path=output,
+                             field=field)  # fmt: skip
+        real = os.path.realpath(output)
+        if real in taken:
+            raise InputError(f"is written twice by this command (also as {taken[real]}): give another name",
+                             path=output, field=field)  # fmt: skip
+        taken[real] = output
+        _refuse_session_file(output, real, field)
+    for source in inputs:
+        if source is None or str(source).startswith("builtin:"):
+            continue
+        for output in outputs:
+            if _same_file(output, Path(source)):
+                raise InputError(
+                    f"is also this command's input ({source}): writing it would destroy it; give another output",
+                    path=output,
+                    field=field,
+                )
+
+
+def mesh_files(mesh: ColouredMesh) -> list[Path]:
+    """The files ``mesh`` was read from: the mesh file, its texture, and what the mesh names (an OBJ's
+    .mtl and its images, a glTF's buffers and images). [] for a built-in object."""
+    if mesh.source is None:
+        return []
+    named = [mesh.source.parent / name for name in companions(mesh.source)]
+    return [mesh.source, *([mesh.texture_source] if mesh.texture_source else []), *named]
+
+
+def _refuse_session_file(output: Path, real: str, field: str) -> None:
+    path = Path(real)
+    for folder in path.parents:
+        if not ((folder / SESSION).is_file() or (folder / JOURNAL).is_file()):
+            continue
+        parts = path.relative_to(folder).parts
+        if parts[0] in FOLDERS or (len(parts) == 1 and parts[0] in OWN_FILES):
+            raise InputError(
+                f"is one of the session {folder}'s own files (docs/sessions.md), which a command never writes "
+                "over: give another output",
+                path=output,
+                field=field,
+            )
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)  # another name of the same file: a hard link
+    except OSError:
+        return False  # one of them does not exist (yet)

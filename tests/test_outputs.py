@@ -1,0 +1,154 @@
+"""An output never destroys an input (issue 20, §2): a command refuses, before it does its work, to write
+over one of its own inputs (by any name), over a session's own files, twice under one name, into a
+folder, under an empty name or one its format cannot carry, and over a companion (.mtl, scene.xml) that
+is not hlr-lab's. Each refused case leaves every file as it was."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from hlr_lab.cli.main import main
+from hlr_lab.errors import InputError
+from hlr_lab.formats.materials import PixelCounts, materials_file, unmeasured_entry, write_materials
+from hlr_lab.formats.regions import RegionEntry
+from hlr_lab.object.mesh import load_mesh
+from hlr_lab.object.segment import segment
+from hlr_lab.session.outputs import check_outputs
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def _refused(capsys, command: list[str], *words: str) -> str:
+    assert main(command) in (1, 2)  # 1: a refused input; 2: an option click refuses
+    err = " ".join(capsys.readouterr().err.split())
+    assert "internal error" not in err
+    for word in words:
+        assert word in err, err
+    return err
+
+
+@pytest.fixture
+def painted_ply(tmp_path) -> Path:
+    """A small mesh with two vertex colours: a PLY that segment and plan read."""
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.03)
+    colours = np.where(sphere.vertices[:, 2:3] > 0, [200, 40, 40, 255], [40, 40, 200, 255]).astype(np.uint8)
+    sphere.visual.vertex_colors = colours
+    path = tmp_path / "m.ply"
+    sphere.export(path)
+    return path
+
+
+@pytest.fixture
+def textured_obj(tmp_path) -> tuple[Path, Path]:
+    """A textured OBJ (quad.obj, quad.mtl, maps/paint.png) and a materials.json for it."""
+    meshes = tmp_path / "meshes"
+    (meshes / "maps").mkdir(parents=True)
+    cv2.imwrite(str(meshes / "maps" / "paint.png"), np.full((8, 8, 3), (40, 90, 200), np.uint8))
+    (meshes / "quad.mtl").write_text("newmtl paint\nKd 1 1 1\nmap_Kd maps/paint.png\n")
+    obj = meshes / "quad.obj"
+    obj.write_text(
+        "mtllib quad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl paint\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    seg = segment(load_mesh(obj, need_colour=True))
+    entries = [
+        unmeasured_entry(RegionEntry.of(r), [0.2, 0.3, 0.5], [0.001] * 3, reason="a test", theta_c_deg=10.0,
+                         pixels=PixelCounts(diffuse=900, highlight=0), residual_rms=0.0, estimator="robust")
+        for r in seg.regions
+    ]  # fmt: skip
+    materials = tmp_path / "materials.json"
+    write_materials(materials, materials_file(entries, mesh=str(obj), sha256=""))
+    return obj, materials
+
+
+# -- the rule itself ---------------------------------------------------------------------------------------
+
+
+def test_an_output_that_is_an_input_by_any_name_is_refused(tmp_path):
+    source = tmp_path / "mesh.ply"
+    source.write_bytes(b"ply\n")
+    (tmp_path / "sub").mkdir()
+    hard = tmp_path / "hard.ply"
+    os.link(source, hard)
+    for output in (source, tmp_path / "sub" / ".." / "mesh.ply", hard):
+        with pytest.raises(InputError, match="is also this command's input"):
+            check_outputs([output], [source])
+    alias = tmp_path / "alias.ply"
+    alias.symlink_to(source)
+    with pytest.raises(InputError, match="is a symbolic link"):
+        check_outputs([alias], [source])
+    check_outputs([tmp_path / "regions.json"], [source, None, "builtin:pebble"])  # another name: fine
+
+
+def test_a_sessions_own_files_are_never_an_output_but_its_products_are(tmp_path):
+    session = tmp_path / "s"
+    (session / "frames").mkdir(parents=True)
+    (session / "session.json").write_text("{}")
+    for name in ("journal.jsonl", "session.json", "journal.reserve", "acquire.lock", "acquire.log",
+                 "frames/p000_e0.png", "object/plan.json", "object/maps/paint.png"):  # fmt: skip
+        with pytest.raises(InputError, match="own files"):
+            check_outputs([session / name])
+    check_outputs([session / "materials.json", session / "fit-diagnostics.json", session / "report.html"])
+    check_outputs([session / "materials-paper.json"])
+
+
+def test_two_outputs_under_one_name_a_folder_and_a_control_character_are_refused(tmp_path):
+    with pytest.raises(InputError, match="written twice"):
+        check_outputs([tmp_path / "fit-diagnostics.json", tmp_path / "fit-diagnostics.json"])
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(InputError, match="is a folder"):
+        check_outputs([tmp_path / "folder"])
+    with pytest.raises(InputError, match="control character"):
+        check_outputs([tmp_path / "a\nb.obj"])
+
+
+# -- the commands --------------------------------------------------------------------------------------------
+
+
+def test_segment_and_plan_refuse_to_write_over_their_inputs(painted_ply, tmp_path, capsys):
+    regions = tmp_path / "r.json"
+    assert main(["segment", "--mesh", str(painted_ply), "-o", str(regions)]) == 0
+    before = _snapshot(tmp_path)
+    _refused(capsys, ["segment", "--mesh", str(painted_ply), "-o", str(painted_ply)], "m.ply", "input")
+    _refused(capsys, ["plan", "--mesh", str(painted_ply), "--sim", "-o", str(painted_ply)], "m.ply", "input")
+    _refused(capsys, ["plan", "--mesh", str(painted_ply), "--regions", str(regions), "--sim", "-o", str(regions)],
+             "r.json", "input")  # fmt: skip
+    assert _snapshot(tmp_path) == before
+
+
+def test_export_refuses_the_input_mesh_its_library_and_a_library_it_did_not_write(
+    textured_obj, tmp_path, capsys
+):
+    obj, materials = textured_obj
+    export = ["export", str(materials), "--mesh", str(obj), "--format", "obj", "-o"]
+    before = _snapshot(tmp_path)
+    _refused(capsys, [*export, str(obj)], "quad")  # the mesh, and its quad.mtl beside it
+    _refused(capsys, [*export, str(obj.with_name("quad.OBJ"))], "quad.mtl")  # another OBJ, the same library
+    notes = tmp_path / "notes.mtl"
+    notes.write_text("my own notes\n")
+    _refused(capsys, [*export, str(tmp_path / "notes.obj")], "notes.mtl", "did not write")
+    assert notes.read_text() == "my own notes\n"
+    _refused(capsys, [*export, str(tmp_path / "a b.obj")], "spaces")
+    _refused(capsys, [*export, str(tmp_path / "a\nb.obj")], "control character")
+    assert _snapshot(tmp_path) == {**before, "notes.mtl": b"my own notes\n"}
+    out = tmp_path / "out" / "quad.obj"
+    for _ in range(2):  # the second time over its own .mtl: hlr-lab wrote it
+        assert main([*export, str(out)]) == 0
+    assert (out.with_suffix(".mtl")).read_text().startswith("# hlr-lab materials")
+
+
+def test_an_empty_output_is_refused_by_every_command_that_writes(builtin_plan, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _refused(capsys, ["acquire", "--plan", str(builtin_plan), "--sim", "--out", ""], "empty path")
+    _refused(capsys, ["segment", "--mesh", "builtin:pebble", "-o", ""], "empty path")
+    assert list(tmp_path.iterdir()) == []
