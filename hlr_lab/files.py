@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import errno
 import json
 import math
@@ -31,9 +32,20 @@ class StrictModel(pydantic.BaseModel):
 
 
 class OpenModel(pydantic.BaseModel):
-    """:class:`StrictModel` that keeps keys it does not know: a newer hlr-lab's, read by an older one."""
+    """:class:`StrictModel` that keeps keys it does not know: a newer hlr-lab's, read by an older one —
+    unless the key looks like a misspelling of one it knows (``exposure_s`` for ``exposures_s``): a value
+    the user meant to set would be silently ignored."""
 
     model_config = pydantic.ConfigDict(extra="allow", allow_inf_nan=False, strict=True)
+
+    @pydantic.model_validator(mode="after")
+    def _no_misspelt_keys(self):
+        known = list(type(self).model_fields)
+        for key in self.model_extra or {}:
+            close = difflib.get_close_matches(key, known, n=1, cutoff=0.8)
+            if close and key not in known:
+                raise ValueError(f"unknown key {key!r}: did you mean {close[0]!r}?")
+        return self
 
 
 # files get the mode an ordinary open() gives (mkstemp's temporaries are private: 0600); read once, at
@@ -80,6 +92,21 @@ def open_regular(path: Path, flags: int, mode: int = 0o644) -> int:
     return fd
 
 
+def require_file(path: Path, what: str = "") -> None:
+    """Refuse (:class:`InputError` naming it) an input that is missing or is not a regular file (a FIFO
+    would block the reader forever, a device such as /dev/zero never end, a folder is not a file). A
+    symbolic link to a regular file is an input like any other (inside a session, links are refused:
+    :func:`read_regular`)."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise InputError(f"no such {what + ' ' if what else ''}file; check the path", path=path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read it ({exc.strerror})", path=path) from exc
+    if not stat.S_ISREG(mode):
+        raise InputError(SPECIAL_REFUSED, path=path)
+
+
 def read_regular(path: str | Path) -> bytes:
     """The bytes of the regular file ``path``, not through a symbolic link at its name (a link, a FIFO, a
     device such as /dev/zero or a folder is an :class:`InputError` naming it; a missing file raises
@@ -108,12 +135,17 @@ def atomic_create_bytes(path: str | Path, data: bytes) -> None:
     _write_via_temporary(Path(path), data, os.link)
 
 
+_TEMPORARY_NAME_BYTES = 200
+
+
 def _write_via_temporary(path: Path, data: bytes, publish) -> None:
     if path.is_symlink():  # replacing it would break the user's link; writing through it, redirect a write
         raise InputError(LINK_REFUSED, path=path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        # the name cut short: a legal name of up to NAME_MAX (255) bytes must leave room for ".XXXXXXXX.tmp"
+        prefix = "." + path.name.encode()[:_TEMPORARY_NAME_BYTES].decode(errors="ignore") + "."
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as f:
                 os.fchmod(f.fileno(), FILE_MODE)
@@ -194,12 +226,13 @@ def read_toml(path: str | Path) -> dict:
 
 
 def _parse(path: Path, loads, error: type[Exception], kind: str):
-    if not path.is_file():
-        raise InputError("no such file; check the path", path=path)
+    require_file(path)
     try:
         return loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, error) as exc:
         raise InputError(f"not valid {kind} ({exc})", path=path) from exc
+    except ValueError as exc:  # Python's int limit: "Exceeds the limit (4300 digits) for integer string …"
+        raise InputError(f"not valid {kind} for hlr-lab ({str(exc).split(';')[0]})", path=path) from exc
     except RecursionError as exc:  # Python's parsers recurse once per nesting level
         raise InputError(
             f"not valid {kind} (nested too deeply to be a file of hlr-lab's)", path=path

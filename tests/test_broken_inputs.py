@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 import shutil
+import struct
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
@@ -114,21 +117,70 @@ def _session_with(damage: Callable[[Path], None]):
     return make
 
 
-def _replace_frame(session: Path, pixels_of: Callable[[np.ndarray], np.ndarray]) -> None:
-    """The first frame's image replaced, its checksum updated in the journal and the sidecar (as a
-    careful hand would), so only its contents give it away."""
+def _replace_frame(session: Path, pixels_of: Callable[[np.ndarray], np.ndarray], every: bool = False) -> None:
+    """The first frame's image (``every``: every frame's) replaced, its checksum updated in the journal and
+    the sidecar (as a careful hand would), so only its contents give it away."""
+
+    def encoded(image: Path) -> bytes:
+        return cv2.imencode(".png", pixels_of(cv2.imread(str(image), cv2.IMREAD_UNCHANGED)))[1].tobytes()
+
+    _replace_image_bytes(session, encoded, every)
+
+
+def _replace_image_bytes(session: Path, data_of: Callable[[Path], bytes], every: bool = False) -> None:
     journal = session / "journal.jsonl"
     events = [json.loads(line) for line in journal.read_text().splitlines()]
-    e = next(e for e in events if e["event"] == "frame")
-    image = session / e["file"]
-    _, png = cv2.imencode(".png", pixels_of(cv2.imread(str(image), cv2.IMREAD_UNCHANGED)))
-    image.write_bytes(png.tobytes())
-    sidecar_path = session / e["sidecar"]
-    sidecar = json.loads(sidecar_path.read_text())
-    sidecar["image_sha256"] = e["sha256"] = hashlib.sha256(png.tobytes()).hexdigest()
-    sidecar_path.write_text(json.dumps(sidecar))
-    e["sidecar_sha256"] = hashlib.sha256(sidecar_path.read_bytes()).hexdigest()
+    for e in [e for e in events if e["event"] == "frame"][: None if every else 1]:
+        image = session / e["file"]
+        data = data_of(image)
+        image.write_bytes(data)
+        sidecar_path = session / e["sidecar"]
+        sidecar = json.loads(sidecar_path.read_text())
+        sidecar["image_sha256"] = e["sha256"] = hashlib.sha256(data).hexdigest()
+        sidecar_path.write_text(json.dumps(sidecar))
+        e["sidecar_sha256"] = hashlib.sha256(sidecar_path.read_bytes()).hexdigest()
     journal.write_text("".join(json.dumps(x) + "\n" for x in events))
+
+
+def _png_header_only(width: int, height: int) -> bytes:
+    """A PNG that claims width × height pixels (RGB, 16-bit) and holds none: what a decoder would try to
+    allocate is what the header says."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 16, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b"")
+
+
+def _plan_text(change: Callable[[str], str]):
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        (folder / "plan.json").write_text(change(plan.read_text()))
+        return [
+            "acquire",
+            "--plan",
+            str(folder / "plan.json"),
+            "--sim",
+            "--dry-run",
+            "--out",
+            str(folder / "out"),
+        ]
+
+    return make
+
+
+def _plan_mesh(make_mesh: Callable[[Path], str]):
+    """A dry run of a plan whose object.mesh is what ``make_mesh(folder)`` makes and names."""
+
+    def make(folder: Path, plan: Path, session: Path) -> list[str]:
+        return _plan_with(_set("object.mesh", make_mesh(folder)))(folder, plan, session)
+
+    return make
+
+
+def _fifo(folder: Path) -> str:
+    os.mkfifo(folder / "m.ply")
+    return "m.ply"
 
 
 def _sidecar(session: Path, change: Callable[[dict], None]) -> None:
@@ -230,6 +282,36 @@ CASES = [
     Case("a sidecar's negative exposure", _session_with(lambda s: _sidecar(s, lambda d: d.update(
          exposure_s=-1.0))), r"exposure"),
     Case("resumed on another rig", _resumed_on_another_rig, r"started with another rig", written=""),
+    # issue 20, §3–4: values that lie and inputs that crashed or hung
+    Case("a plan integer of 5000 digits",
+         _plan_text(lambda t: t.replace('"version": 1', '"version": ' + "1" * 5000, 1)),
+         r"plan\.json: not valid JSON for hlr-lab \(Exceeds the limit \(4300 digits\)"),
+    Case("a rig integer of 5000 digits", _rig_with(r"^width = .*$", "width = " + "1" * 5000),
+         r"rig\.toml: not valid TOML for hlr-lab \(Exceeds the limit"),
+    Case("a misspelt pose key", _plan_with(lambda d: d["poses"][0].update(exposure_s=[0.01])),
+         r"poses\[0\]: unknown key 'exposure_s': did you mean 'exposures_s'\?"),
+    Case("a singular placement", _plan_with(_set("object.mesh_to_turntable", [[0.0] * 4] * 3 + [[0, 0, 0, 1.0]])),
+         r"object\.mesh_to_turntable: the placement is singular"),
+    Case("a mirrored placement", _plan_with(_set("object.mesh_to_turntable",
+         [[-1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]])),
+         r"mesh_to_turntable: the placement mirrors"),
+    Case("a dry run of a plan whose mesh is a FIFO", _plan_mesh(_fifo), r"m\.ply: is not a regular file"),
+    Case("a dry run of a plan whose mesh is /dev/zero", _plan_mesh(lambda f: "/dev/zero"),
+         r"/dev/zero: is not a regular file"),
+    Case("a dry run of a plan whose mesh is a folder", _plan_mesh(lambda f: "."), r"in: is not a regular file"),
+    Case("a dry run of a plan whose mesh is another file", _plan_mesh(lambda f: "../../../../../../../etc/passwd"),
+         r"etc/passwd"),
+    Case("a sphere 1e300 times the object", lambda f, p, s: ["plan", "--mesh", "builtin:pebble", "--sim",
+         "--sphere-scale", "1e300", "-o", str(f / "out")], r"--sphere-scale must exceed 1 and be at most 100"),
+    Case("a view the turntable cannot reach", lambda f, p, s: ["plan", "--mesh", "builtin:pebble", "--sim",
+         "--views", "0,200", "-o", str(f / "out")],
+         r"--views: 200° is outside the rig's turntable limits \[-180, 180\]"),
+    Case("a greyscale frame in an RGB bracket", _session_with(lambda s: _replace_frame(s, lambda px: px[..., 1])),
+         r"frames/p000_e0\.png: it has 1 channel, where hlr-lab fits RGB frames"),
+    Case("a frame of 60000 × 60000 pixels", _session_with(lambda s: _replace_image_bytes(
+         s, lambda _: _png_header_only(60000, 60000))), r"frames/p000_e0\.png: it is 60000×60000 pixels"),
+    Case("every frame saturated: no region to fit", _session_with(lambda s: _replace_frame(
+         s, lambda px: np.full_like(px, 4095), every=True)), r"session: no region could be fitted \(region 0: "),
 ]  # fmt: skip
 
 

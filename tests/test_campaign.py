@@ -127,6 +127,7 @@ def test_a_job_that_keeps_failing_is_skipped_and_a_rig_not_confirmed_safe_stops_
 def test_campaign_files_that_are_wrong_are_refused_with_the_field(tmp_path, builtin_plan):
     path = campaign_file(tmp_path, builtin_plan, jobs=1)
     text = path.read_text()
+    calibrating = text + '\n[[job]]\nkind = "calibrate"\nname = "c"\nprocedure = "radiometric"\nsim = true\n'
     for change, field in (
         (text + "colour = 3\n", "job[0].colour"),
         (text.replace(str(builtin_plan), str(tmp_path / "gone.json")), "job[0].plan"),
@@ -139,6 +140,18 @@ def test_campaign_files_that_are_wrong_are_refused_with_the_field(tmp_path, buil
             "job[1].out: job 'j1' would write into the session of job 'j0'",
         ),
         (text.replace('name = "j0"', 'name = "../j0"'), "job[0].name: '../j0': a job's name is"),
+        (  # the same folder, written otherwise (issue 20, §3)
+            text + f'\n[[job]]\nname = "j1"\nplan = "{builtin_plan}"\nout = "x/../s0"\nsim = true\n',
+            "job[1].out: job 'j1' would write into the session of job 'j0'",
+        ),
+        (
+            text
+            + f'\n[[job]]\nname = "j1"\nplan = "{builtin_plan}"\nout = "{tmp_path / "s0"}"\nsim = true\n',
+            "job[1].out: job 'j1' would write into the session of job 'j0'",
+        ),
+        (calibrating + 'output = "night.toml"\n', "job[1].output: "),  # over the campaign file itself
+        (calibrating + f'output = "{builtin_plan}"\n', "is also this command's input"),  # over a job's plan
+        (calibrating + 'output = "s0/rig.toml"\n', "lies in the session of an acquire job"),
         (text + 'warm_up_min = "30"\n', "job[0].warm_up_min: Input should be a valid number"),
     ):
         path.write_text(change)
@@ -203,6 +216,23 @@ speed_factor = 40
     assert load_rig(tmp_path / "rig-radiometric.toml").file.calibration.radiometric is not None
     assert main(["campaign", "status", str(path)]) == 0
     assert "campaign ended" in capsys.readouterr().err
+
+
+def test_status_of_a_night_whose_log_lies_says_so(tmp_path, builtin_plan):
+    """A campaign.jsonl whose forecast is a string, and a job_end without its status (a hand-edited or
+    damaged log): status reads what it can and says what it cannot, instead of an internal error."""
+    import json
+
+    night = load_campaign(campaign_file(tmp_path, builtin_plan, jobs=2))
+    night.folder.mkdir()
+    lines = [{"event": "campaign_start", "at": 0, "jobs": ["j0", "j1"], "forecast_s": {"j0": "ten", "j1": 60},
+              "forecast_bytes": {}}, {"event": "job_start", "at": 1, "job": "j0"}, {"event": "job_end", "at": 2,
+              "job": "j0"}]  # fmt: skip
+    (night.folder / "campaign.jsonl").write_text("".join(json.dumps(e) + "\n" for e in lines))
+    status = list(campaign_status(night))
+    assert status[0] == "j0: (no status) ()"
+    assert status[1] == "j1: waiting"
+    assert status[2].endswith("the forecast of its campaign_start line is damaged; time left unknown")
 
 
 def test_a_night_with_a_failed_job_says_so_in_its_exit_status(tmp_path, capsys):

@@ -12,6 +12,8 @@ import shutil
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hlr_lab.cli.main import main
 
@@ -153,3 +155,35 @@ def test_report_refuses_an_output_over_the_session_or_the_materials_it_reads(
         err = " ".join(capsys.readouterr().err.split())
         assert f"{session / name}: --output: {said}" in err, err
     assert _snapshot(session) == before
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_any_entry_of_a_session_replaced_by_a_link_or_a_special_file_is_refused_naming_it(
+    data, finished_session, tmp_path_factory, capsys
+):
+    """Property (issue 20): whichever file or folder of a finished session becomes a link (to a file
+    outside, to /dev/zero) or a FIFO, fit and report refuse it naming that entry, read nothing through
+    it and write nothing outside; the victim keeps its bytes."""
+    root = tmp_path_factory.mktemp("hostile")
+    session = root / "session"
+    shutil.copytree(finished_session, session)
+    entries = sorted(p.relative_to(session).as_posix() for p in session.rglob("*"))
+    name = data.draw(st.sampled_from(entries), label="entry")
+    kind = data.draw(st.sampled_from(["link to a file outside", "link to /dev/zero", "fifo"]), label="kind")
+    victim = root / "victim.txt"
+    victim.write_bytes(VICTIM)
+    target = session / name
+    shutil.rmtree(target) if target.is_dir() else target.unlink()
+    if kind == "fifo":
+        os.mkfifo(target)
+    else:
+        target.symlink_to(victim if kind == "link to a file outside" else Path("/dev/zero"))
+    for command in (["fit", str(session)], ["report", str(session)]):
+        capsys.readouterr()
+        assert main(command) == 1
+        err = " ".join(capsys.readouterr().err.split())
+        assert f"{target}: is " in err, (name, kind, err)
+        assert "internal error" not in err
+    assert victim.read_bytes() == VICTIM
+    assert sorted(p.name for p in root.iterdir()) == ["session", "victim.txt"]

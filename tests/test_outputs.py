@@ -152,3 +152,32 @@ def test_an_empty_output_is_refused_by_every_command_that_writes(builtin_plan, t
     _refused(capsys, ["acquire", "--plan", str(builtin_plan), "--sim", "--out", ""], "empty path")
     _refused(capsys, ["segment", "--mesh", "builtin:pebble", "-o", ""], "empty path")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_long_legal_output_name_is_written(tmp_path):
+    """A name of 250 bytes is legal (NAME_MAX 255); the temporary beside it must not be longer."""
+    output = tmp_path / ("r" * 245 + ".json")
+    assert main(["segment", "--mesh", "builtin:pebble", "-o", str(output)]) == 0
+    assert output.is_file()
+    assert [p.name for p in tmp_path.iterdir()] == [output.name]  # no temporary left
+
+
+@pytest.mark.filterwarnings("always::PIL.Image.DecompressionBombWarning")  # as outside the tests
+def test_a_librarys_warning_is_one_line(textured_obj, tmp_path, capsys, monkeypatch):
+    """PIL's DecompressionBombWarning (here for a 40 × 40 texture under a lowered limit) is one console
+    line, not Python's file:line and source dump."""
+    from PIL import Image
+
+    texture = tmp_path / "big.png"
+    cv2.imwrite(str(texture), np.full((40, 40, 3), 128, np.uint8))
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)  # 1600 pixels: above it, below twice it (an error)
+    obj, _ = textured_obj
+    assert (
+        main(["segment", "--mesh", str(obj), "--texture", str(texture), "-o", str(tmp_path / "r.json")]) == 0
+    )
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if "exceeds limit" in line]
+    assert said, err
+    assert all(line.startswith("warning: Image size (1600 pixels) exceeds limit") for line in said), err
+    assert "warnings.warn" not in err
+    assert ".py:" not in err

@@ -52,6 +52,7 @@ from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.rig.file import Rig, load_rig, sim_rig
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
 from hlr_lab.session.lamp import LampWatch
+from hlr_lab.session.outputs import check_outputs
 from hlr_lab.session.space import MARGIN_BYTES, frame_bytes
 
 log = logging.getLogger(__name__)
@@ -166,7 +167,9 @@ def load_campaign(path: Path) -> Campaign:
         fields = {k: (base / v if isinstance(v, Path) and not v.is_absolute() else v) for k, v in job}
         job = type(job)(**fields)
         if isinstance(job, AcquireJob):
-            twin = next((j for j in checked if isinstance(j, AcquireJob) and j.out == job.out), None)
+            twin = next(
+                (j for j in checked if isinstance(j, AcquireJob) and _same_place(j.out, job.out)), None
+            )
             if twin is not None:
                 raise InputError(
                     f"job {job.name!r} would write into the session of job {twin.name!r} ({job.out}); give each "
@@ -187,7 +190,31 @@ def load_campaign(path: Path) -> Campaign:
             raise InputError(f"job {job.name!r}: true_rig and scene describe a simulated world: add sim = true",
                              path=path, field=f"job[{i}].sim")  # fmt: skip
         checked.append(job)
+    _check_calibration_outputs(path, checked)
     return Campaign(path, CampaignFile(header, checked), base / f"{path.stem}-campaign")
+
+
+def _same_place(a: Path, b: Path) -> bool:
+    """The same folder however written (``s``, ``x/../s``, relative or absolute, through a link)."""
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _check_calibration_outputs(path: Path, jobs: list[AcquireJob | CalibrateJob]) -> None:
+    """A calibrate job writes its rig file over none of the night's inputs (the campaign file, a job's
+    plan or scene, its own rig) and not into an acquire job's session; a later job may read it as its rig."""
+    inputs = [path, *(getattr(j, key, None) for j in jobs for key in ("plan", "scene"))]
+    sessions = [os.path.realpath(j.out) for j in jobs if isinstance(j, AcquireJob)]
+    for i, job in enumerate(jobs):
+        if not isinstance(job, CalibrateJob):
+            continue
+        try:
+            check_outputs([job.output], [*inputs, job.rig], field=None)
+        except InputError as exc:
+            raise InputError(str(exc), path=path, field=f"job[{i}].output") from None
+        inside = next((s for s in sessions if os.path.realpath(job.output).startswith(s + os.sep)), None)
+        if inside is not None:
+            raise InputError(f"{job.output} lies in the session of an acquire job ({inside}): write it elsewhere",
+                             path=path, field=f"job[{i}].output")  # fmt: skip
 
 
 def job_rig(job: AcquireJob | CalibrateJob) -> Rig:
@@ -408,6 +435,8 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
                 if not stop.safe.ok or isinstance(stop.cause, AxisMoved):
                     raise CampaignStopped(f"job {job.name!r}: {stop} — the campaign stops: further motion is not "
                                           "safe until the rig is checked", 1) from None  # fmt: skip
+                if isinstance(stop.cause, InputError):  # a file in the way, not the rig: again would not help
+                    return JobResult(job.name, "failed", attempt, str(stop))
                 journal.append(JobRetryLine(event="job_retry" if attempt < ATTEMPTS else "job_skip", at=time.time(),
                                             job=job.name, attempt=attempt, error=str(stop.cause)))  # fmt: skip
                 log.warning("job %s, attempt %d: %s", job.name, attempt, stop)
@@ -456,19 +485,32 @@ def campaign_status(campaign: Campaign) -> Iterator[str]:
     ended = {e["job"]: e for e in events if e["event"] == "job_end"}
     started = {e["job"] for e in events if e["event"] == "job_start"}
     finished = next((e for e in events if e["event"] in ("campaign_end", "campaign_stopped")), None)
-    left = sum(s for name, s in start.get("forecast_s", {}).items() if name not in ended)
+    forecast = start.get("forecast_s")
+    left = None
+    if isinstance(forecast, dict) and all(_seconds(s) for s in forecast.values()):
+        left = sum(s for name, s in forecast.items() if name not in ended)
     for job in campaign.jobs:
         if job.name in ended:
             e = ended[job.name]
-            yield f"{job.name}: {e['status']} ({e['detail']})"
+            yield f"{job.name}: {e.get('status', '(no status)')} ({e.get('detail', '')})"
         elif job.name in started and finished is None:
             yield f"{job.name}: running" + (_session_line(job.out) if isinstance(job, AcquireJob) else "")
         else:
             yield f"{job.name}: waiting"
     if finished is None:
-        yield f"about {left / 60:.0f} min of rig time left (forecast)"
+        yield (
+            f"{path}: the forecast of its campaign_start line is damaged; time left unknown"
+            if left is None
+            else f"about {left / 60:.0f} min of rig time left (forecast)"
+        )
     else:
-        yield f"campaign {'ended' if finished['event'] == 'campaign_end' else 'stopped: ' + finished['reason']}"
+        reason = str(finished.get("reason", "(no reason recorded)"))
+        yield f"campaign {'ended' if finished['event'] == 'campaign_end' else 'stopped: ' + reason}"
+
+
+def _seconds(value: object) -> bool:
+    """A forecast entry the log can be trusted with: a finite, non-negative number of seconds."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value < float("inf")
 
 
 def _session_line(session: Path) -> str:

@@ -20,6 +20,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.display.acquire import motion_table, pose_progress, run_table
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan
+from hlr_lab.formats.planned_object import load_planned_mesh
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
@@ -94,6 +95,7 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames
     targets = motion_targets(plan, rig, plan_path)
     console.print(motion_table(plan, targets))
     if dry_run:
+        load_planned_mesh(plan, plan_path)  # the object the run would load: a mesh that changed is said now
         frames = sum(len(p.exposures_s) for p in plan.poses)
         duration = estimate_duration_s(plan, targets, rig)
         console.print(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import logging
 import sys
+import warnings
 
 import click
 from rich.markup import escape
@@ -107,8 +108,16 @@ def main(argv: list[str] | None = None) -> int:
         logger = logging.getLogger(name)
         if not any(isinstance(h, logging.NullHandler) for h in logger.handlers):
             logger.addHandler(logging.NullHandler())
-    with stop_once_on_signals():
+    with stop_once_on_signals(), warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning
         return _run(argv)
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A library's warning as one console line (Python's own shows the file, the line and its source:
+    PIL's DecompressionBombWarning reads as a crash)."""
+    text = str(message).strip().splitlines()[0] if str(message).strip() else category.__name__
+    console.print(f"[yellow]warning:[/] {escape(text)}", soft_wrap=True)
 
 
 def _run(argv: list[str] | None) -> int:

@@ -45,6 +45,23 @@ class PlanObject(OpenModel):
     up: str = "z"
     scale: float = 1.0
 
+    @field_validator("mesh_to_turntable")
+    @classmethod
+    def _a_placement(cls, m: list[list[float]] | None) -> list[list[float]] | None:
+        """A rigid motion with a scale: last row (0, 0, 0, 1), its 3×3 part invertible (a singular one
+        flattens the mesh) and not a mirror image (the mesh's outside would face in)."""
+        if m is None:
+            return m
+        a = np.asarray(m, float)
+        if not np.allclose(a[3], [0, 0, 0, 1]):
+            raise ValueError("the last row of a placement is 0, 0, 0, 1")
+        singular = np.linalg.svd(a[:3, :3], compute_uv=False)
+        if singular[-1] <= 1e-9 * singular[0]:
+            raise ValueError("the placement is singular (it flattens the mesh): re-plan the object")
+        if np.linalg.det(a[:3, :3]) < 0:
+            raise ValueError("the placement mirrors the mesh (a negative determinant): re-plan the object")
+        return m
+
 
 class PlanParameters(OpenModel):
     """What the plan was made with: θc (degrees), M samples per region (in ``count`` units), the light

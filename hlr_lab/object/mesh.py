@@ -19,7 +19,8 @@ from PIL import Image
 from trimesh.visual import ColorVisuals, TextureVisuals
 
 from hlr_lab.errors import InputError
-from hlr_lab.files import atomic_write_bytes
+from hlr_lab.files import atomic_write_bytes, require_file
+from hlr_lab.object.companions import refuse_special_companions
 
 CREASE_DEG = 60.0  # faces meeting at a sharper angle than this do not share a shading normal
 
@@ -188,8 +189,8 @@ def load_mesh(
     vertices, or (with ``need_colour``) no colour.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("no such mesh file; check the path", path=path)
+    require_file(path, "mesh")
+    refuse_special_companions(path)  # trimesh would open them: a FIFO named by map_Kd blocks forever
     try:
         loaded = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:  # trimesh raises many types for malformed files
@@ -309,8 +310,7 @@ def _material_image(material) -> np.ndarray | None:
 
 
 def _read_texture(path: Path) -> np.ndarray:
-    if not path.is_file():
-        raise InputError("no such texture file; check the path", path=path)
+    require_file(path, "texture")
     try:
         with Image.open(path) as im:
             return np.asarray(im.convert("RGB"))

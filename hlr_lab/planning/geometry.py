@@ -14,6 +14,7 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.rig.file import Gantry
 
 _UP_AXES = {"x": 0, "y": 1, "z": 2}
+MAX_SPHERE_SCALE = 100.0  # a lamp 100 object radii away is already a directional light
 
 
 def placement(mesh: ColouredMesh, *, up: str = "z", scale: float = 1.0) -> np.ndarray:
@@ -86,9 +87,11 @@ def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: floa
         centre, radius = np.asarray(gantry.centre, float), float(gantry.arm_radius)
         source: SphereSource = "rig"
     else:
-        if sphere_scale <= 1:
+        if not 1 < sphere_scale <= MAX_SPHERE_SCALE:
             raise InputError(
-                f"--sphere-scale must exceed 1 (the paper uses 2), got {sphere_scale}", field="--sphere-scale"
+                f"--sphere-scale must exceed 1 and be at most {MAX_SPHERE_SCALE:g} (the paper uses 2), got "
+                f"{sphere_scale:g}",
+                field="--sphere-scale",
             )
         lo, hi = placed_vertices.min(axis=0), placed_vertices.max(axis=0)
         centre = (lo + hi) / 2

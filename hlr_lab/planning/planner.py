@@ -21,6 +21,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import KDTree
 
+from hlr_lab.errors import InputError
 from hlr_lab.geometry.sphere import directions_with_spacing, rotation_z
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster, facing
@@ -86,6 +87,20 @@ class PlanResult:
     reachable: int  # of which the gantry reaches
     samples: SurfaceSamples  # what the counts count (points in the turntable frame)
     seconds: dict[str, float] = field(default_factory=dict)
+
+
+def given_views(views_deg: Sequence[float], limits_deg: tuple[float, float]) -> list[float]:
+    """The turntable angles given (``--views``), each once in the order given (an angle twice would be
+    photographed twice for nothing), refused (:class:`InputError`, field ``--views``) when one lies outside
+    the rig's turntable ``limits_deg``: a plan the rig cannot run is not written."""
+    low, high = limits_deg
+    outside = [v for v in views_deg if not low <= v <= high]
+    if outside:
+        raise InputError(
+            f"{outside[0]:g}° is outside the rig's turntable limits [{low:g}, {high:g}]: give angles within them",
+            field="--views",
+        )
+    return list(dict.fromkeys(float(v) for v in views_deg))
 
 
 def auto_views(limits_deg: tuple[float, float], step_deg: float) -> list[float]:
@@ -205,7 +220,7 @@ class _Planner:
         )
         clock.lap("candidates")
         self.views = (
-            list(settings.views_deg)
+            given_views(settings.views_deg, rig.turntable_limits_deg)
             if settings.views_deg is not None
             else auto_views(rig.turntable_limits_deg, settings.view_step_deg)
         )

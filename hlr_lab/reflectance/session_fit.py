@@ -345,6 +345,13 @@ def fit_session(
         diagnostics["regions"].append(diag)
         if fit is not None:
             fits[region.id] = fit
+    if not entries:  # materials.json holds at least one region: say why there is none instead
+        reasons = "; ".join(f"region {d['id']}: {d['note']}" for d in diagnostics["regions"][:4])
+        raise InputError(
+            f"no region could be fitted ({reasons}): the frames do not show the object lit as planned — check the "
+            "lamp, the exposures and the rig file's [sensor] against the photographs",
+            path=session.path,
+        )
     materials = materials_file(entries, mesh=plan.object.mesh, sha256=plan.object.sha256)
     if session.gaps.missing_frames:  # fitted with --allow-incomplete: the file says on what
         materials = MaterialsFile.model_validate(
@@ -460,10 +467,12 @@ def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins
 
 
 def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None, rig: Rig) -> BracketFrame:
-    pixels = load_frame(session, event)
+    size = (rig.camera.width, rig.camera.height)
+    pixels = load_frame(session, event, size)
     problem = _frame_problem(pixels, int(sidecar["bits"]), rig)
-    if problem is None and dark is not None:
-        problem = _frame_problem(load_frame(session, dark), int(sidecar["bits"]), rig)
+    dark_pixels = None if dark is None else load_frame(session, dark, size)
+    if problem is None and dark_pixels is not None:
+        problem = _frame_problem(dark_pixels, int(sidecar["bits"]), rig)
     if problem:
         raise InputError(
             f"{event['file']}: {problem}; it is not the frame this rig took — restore the session's frame, or "
@@ -475,7 +484,7 @@ def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None,
         float(sidecar["exposure_s"]),
         float(sidecar["gain_db"]),
         int(sidecar["bits"]),
-        None if dark is None else _channels(load_frame(session, dark)),
+        None if dark_pixels is None else _channels(dark_pixels),
     )
 
 
@@ -486,8 +495,9 @@ def _frame_problem(pixels: np.ndarray, bits: int, rig: Rig) -> str | None:
     h, w = rig.camera.height, rig.camera.width
     if pixels.shape[:2] != (h, w):
         return f"it is {pixels.shape[1]}×{pixels.shape[0]} pixels, the rig's camera {w}×{h}"
-    if pixels.ndim == 3 and pixels.shape[2] not in (1, 3):
-        return f"it has {pixels.shape[2]} channels (a raw frame has 1 or 3)"
+    channels = pixels.shape[2] if pixels.ndim == 3 else 1
+    if channels != 3:  # the fit's model is per RGB channel (a mono camera's frames cannot be fitted yet)
+        return f"it has {channels} channel{'s' if channels > 1 else ''}, where hlr-lab fits RGB frames (3 channels)"
     if bits > 8 * pixels.dtype.itemsize:
         return f"it is a {8 * pixels.dtype.itemsize}-bit image, but its sidecar says the sensor gives {bits} bits"
     if int(pixels.max()) > (1 << bits) - 1:

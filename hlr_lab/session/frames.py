@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,15 +80,33 @@ def frame_problem(session: Path, event: JournalLine) -> str | None:
     return checked_sidecar(session, event)[1] or _checked_image(session, event)[1]
 
 
-def load_frame(session: Path, event: JournalLine) -> np.ndarray:
-    """The pixels of a journaled frame, its image checked against the journal as it is read (once)."""
+def load_frame(session: Path, event: JournalLine, size: tuple[int, int] | None = None) -> np.ndarray:
+    """The pixels of a journaled frame, its image checked against the journal as it is read (once), and
+    (given ``size``, width × height in pixels) its size from the PNG header before it is decoded: a
+    60000 × 60000 image with a consistent checksum is refused, not decoded."""
     image, problem = _checked_image(session, event)
     if problem:
         raise InputError(f"{problem}; run hlr-lab acquire again on this session to retake it", path=session)
+    header = png_size(image)
+    if size is not None and header is not None and header != size:
+        raise InputError(
+            f"{event['file']}: it is {header[0]}×{header[1]} pixels, the rig's camera {size[0]}×{size[1]}; it is "
+            "not the frame this rig took — restore the session's frame, or delete it and its journal line is set "
+            "aside when hlr-lab acquire runs on the session again",
+            path=session,
+        )
     pixels = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
     if pixels is None:
         raise InputError(f"{event['file']} is not a PNG image although its checksum matches", path=session)
     return pixels[..., ::-1] if pixels.ndim == 3 else pixels
+
+
+def png_size(image: bytes) -> tuple[int, int] | None:
+    """(width, height) in pixels from a PNG's IHDR chunk, or None when ``image`` does not start as a PNG."""
+    if len(image) < 24 or image[:8] != b"\x89PNG\r\n\x1a\n" or image[12:16] != b"IHDR":
+        return None
+    width, height = struct.unpack(">II", image[16:24])
+    return width, height
 
 
 # what a journal frame line and its sidecar must both say

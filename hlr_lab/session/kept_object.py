@@ -11,14 +11,13 @@ Built-in objects have no files to keep.
 
 from __future__ import annotations
 
-import json
 import logging
-import re
 from pathlib import Path, PurePosixPath
 
 from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_bytes
 from hlr_lab.formats.plan import PlanFile, read_plan, write_plan
+from hlr_lab.object.companions import named_files
 from hlr_lab.object.mesh import file_sha256
 from hlr_lab.object.procedural import BUILTIN_PREFIX
 
@@ -78,36 +77,11 @@ def kept_plan(session: Path, copy: object) -> tuple[PlanFile, Path]:
 
 
 def companions(mesh: Path) -> list[str]:
-    """The files ``mesh`` names that a reader loads with it, as relative POSIX paths under its folder: an
-    OBJ's ``mtllib`` files and the images those name, a glTF's external buffers and images. Names that
-    leave the mesh's folder (absolute, or through ``..``) are not followed: such a mesh cannot be kept
-    whole, and is logged as such."""
-    suffix = mesh.suffix.lower()
-    if suffix == ".obj":
-        libraries = _names(mesh, r"^[ \t]*mtllib[ \t]+(.+?)[ \t]*$")
-        images = [
-            i
-            for lib in libraries
-            for i in _names(mesh.parent / lib, r"^[ \t]*(?:map_\w+|bump|disp|norm)[ \t].*?(\S+)[ \t]*$")
-        ]
-        found = libraries + images
-    elif suffix == ".gltf":
-        try:
-            doc = json.loads(mesh.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError):
-            return []
-        found = [
-            str(item["uri"])
-            for key in ("buffers", "images")
-            for item in (doc.get(key) or [])
-            if isinstance(item, dict)
-            and isinstance(item.get("uri"), str)
-            and not item["uri"].startswith("data:")
-        ]
-    else:
-        return []  # PLY and GLB carry everything in the one file
+    """The files ``mesh`` names that a reader loads with it (:func:`hlr_lab.object.companions.named_files`),
+    as relative POSIX paths under its folder. Names that leave the mesh's folder (absolute, or through
+    ``..``) are not followed: such a mesh cannot be kept whole, and is logged as such."""
     kept = []
-    for name in dict.fromkeys(found):
+    for name in named_files(mesh):
         p = PurePosixPath(name.replace("\\", "/"))
         if p.is_absolute() or ".." in p.parts or not (mesh.parent / p).is_file():
             log.warning(
@@ -116,15 +90,6 @@ def companions(mesh: Path) -> list[str]:
             continue
         kept.append(str(p))
     return kept
-
-
-def _names(path: Path, pattern: str) -> list[str]:
-    """Every first group of ``pattern`` over the lines of the text file ``path`` ([] when unreadable)."""
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return []
-    return [m.group(1) for m in re.finditer(pattern, text, flags=re.MULTILINE)]
 
 
 def _copy(source: Path, target: Path, named_in: Path, field: str) -> None:

@@ -27,7 +27,7 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f]")  # a line break in a name breaks every
 
 
 def check_outputs(
-    outputs: Sequence[Path], inputs: Iterable[str | Path | None] = (), *, field: str = "--output"
+    outputs: Sequence[Path], inputs: Iterable[str | Path | None] = (), *, field: str | None = "--output"
 ) -> None:
     """Refuse (:class:`InputError` naming the output and ``field``) to write any of ``outputs`` — the files
     one command is about to write — when it is one of ``inputs`` (the same file by any name, hard links
@@ -76,7 +76,7 @@ def mesh_files(mesh: ColouredMesh) -> list[Path]:
     return [mesh.source, *([mesh.texture_source] if mesh.texture_source else []), *named]
 
 
-def _refuse_session_file(output: Path, real: str, field: str) -> None:
+def _refuse_session_file(output: Path, real: str, field: str | None) -> None:
     path = Path(real)
     for folder in path.parents:
         if not ((folder / SESSION).is_file() or (folder / JOURNAL).is_file()):
