@@ -195,6 +195,12 @@ def _sidecar(session: Path, change: Callable[[dict], None]) -> None:
     journal.write_text("".join(json.dumps(x) + "\n" for x in events))
 
 
+def _report_with_foreign_materials(folder: Path, plan: Path, session: Path) -> list[str]:
+    assert main(["fit", str(session)]) == 0
+    _edit_json(session / "materials.json", session / "materials.json", _set("sha256", "0" * 64))
+    return ["report", str(session), "-o", str(folder / "out")]
+
+
 def _set(path: str, value):
     """A change that sets ``path`` (dotted, with list indices) in a JSON document."""
 
@@ -310,6 +316,12 @@ CASES = [
          r"frames/p000_e0\.png: it has 1 channel, where hlr-lab fits RGB frames"),
     Case("a frame of 60000 × 60000 pixels", _session_with(lambda s: _replace_image_bytes(
          s, lambda _: _png_header_only(60000, 60000))), r"frames/p000_e0\.png: it is 60000×60000 pixels"),
+    Case("a sidecar's steps of 1e15", _session_with(lambda s: _sidecar(s, _set("measured.turntable_steps", 10**15))),
+         r"turntable_steps"),
+    Case("a sidecar's ticks of 1e30", _session_with(lambda s: _sidecar(s, _set("measured.gantry_ticks", [10**30, 0]))),
+         r"gantry_ticks"),
+    Case("materials of another mesh reported as the session's", _report_with_foreign_materials,
+         r"materials\.json: sha256: its materials are of another mesh"),
     Case("every frame saturated: no region to fit", _session_with(lambda s: _replace_frame(
          s, lambda px: np.full_like(px, 4095), every=True)), r"session: no region could be fitted \(region 0: "),
 ]  # fmt: skip
@@ -333,3 +345,25 @@ def test_a_broken_input_is_one_line_naming_it(case, tmp_path, builtin_plan, fini
     assert re.search(case.said, errors[0]), errors[0]
     if case.written:
         assert not (folder / case.written).exists()
+
+
+def test_a_frame_of_a_pose_the_plan_lacks_is_left_out_naming_it(tmp_path, finished_session, capsys):
+    """A complete frame (image, sidecar, checksums, journal line) for a pose the plan does not have: its
+    geometry would be no one's; fit leaves it out and says so."""
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    journal = session / "journal.jsonl"
+    first = next(e for e in map(json.loads, journal.read_text().splitlines()) if e["event"] == "frame")
+    sidecar = json.loads((session / first["sidecar"]).read_text())
+    sidecar["pose"] = "zz9"
+    (session / "frames" / "zz9_e0.png").write_bytes((session / first["file"]).read_bytes())
+    (session / "frames" / "zz9_e0.json").write_text(json.dumps(sidecar))
+    written = hashlib.sha256((session / "frames" / "zz9_e0.json").read_bytes()).hexdigest()
+    line = {**first, "pose": "zz9", "file": "frames/zz9_e0.png", "sidecar": "frames/zz9_e0.json",
+            "sidecar_sha256": written}  # fmt: skip
+    with journal.open("a") as f:
+        f.write(json.dumps(line) + "\n")
+    assert main(["fit", str(session), "-o", str(tmp_path / "m.json")]) == 0
+    assert "frames/zz9_e0.png: its pose 'zz9' is not in the session's plan" in " ".join(
+        capsys.readouterr().err.split()
+    )

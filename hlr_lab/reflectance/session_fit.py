@@ -185,7 +185,7 @@ def open_session(path: Path, *, allow_incomplete: bool = False, correct_lamp: bo
     plan, plan_path = session_plan(path, record)
     rig = rig_of_snapshot(record["rig"]["snapshot"], f"{path / SESSION} (rig snapshot)")
     journal = load_journal(path / JOURNAL)
-    views, rejected = _views(path, journal.events)
+    views, rejected = _views(path, journal.events, {p.id for p in plan.poses})
     have = {(v.pose, e["exposure_index"]) for v in views for e in v.frames}
     missing = [
         f"{p.id} exposure {k}" for p in plan.poses for k in range(len(p.exposures_s)) if (p.id, k) not in have
@@ -203,10 +203,10 @@ def open_session(path: Path, *, allow_incomplete: bool = False, correct_lamp: bo
     return Session(path, plan, plan_path, rig, views, record, gaps, lamp)
 
 
-def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
-    """The journaled frames that check out (files there, sidecar checksum, sidecar agreeing with the
-    journal line; each image's checksum when it is read), grouped into views, and what was wrong with the
-    others. Of the lines for one frame (pose, exposure,
+def _views(path: Path, events: list[dict], planned: set[str]) -> tuple[list[View], list[str]]:
+    """The journaled frames of the ``planned`` poses that check out (files there, sidecar checksum, sidecar
+    agreeing with the journal line; each image's checksum when it is read), grouped into views, and what was
+    wrong with the others. Of the lines for one frame (pose, exposure,
     lamp), the last intact one counts (a resumed run retakes a lost frame under a new name)."""
     latest: dict[tuple[str, int, bool], tuple[dict, dict]] = {}
     rejected = []
@@ -216,6 +216,8 @@ def _views(path: Path, events: list[dict]) -> tuple[list[View], list[str]]:
         sidecar, problem = checked_sidecar(path, e)  # the image's checksum is checked as it is read
         if sidecar is not None and problem is None:
             problem = _sidecar_problem(sidecar)
+        if problem is None and e["pose"] not in planned:  # no planned pose, no geometry
+            problem = f"its pose {e['pose']!r} is not in the session's plan"
         if problem is not None or sidecar is None:
             rejected.append(f"{e['file']}: {problem or 'no sidecar'}")
         else:
@@ -237,15 +239,21 @@ def _sidecar_problem(sidecar: dict) -> str | None:
     """What makes a sidecar's numbers unusable (they set the geometry and the radiometry), or None."""
     m = sidecar.get("measured")
     checks = (
-        ("measured.turntable_steps", isinstance(m, dict) and type(m.get("turntable_steps")) is int),
+        ("measured.turntable_steps", isinstance(m, dict) and _register(m.get("turntable_steps"))),
         ("measured.gantry_ticks", isinstance(m, dict) and isinstance(m.get("gantry_ticks"), list)
-         and len(m["gantry_ticks"]) == 2 and all(type(t) is int for t in m["gantry_ticks"])),
+         and len(m["gantry_ticks"]) == 2 and all(_register(t) for t in m["gantry_ticks"])),
         ("exposure_s", _finite(sidecar.get("exposure_s"), 0, 3600)),
         ("gain_db", _finite(sidecar.get("gain_db"), 0, 60, closed=True)),
         ("bits", type(sidecar.get("bits")) is int and 1 <= sidecar["bits"] <= 16),
     )  # fmt: skip
     bad = [name for name, ok in checks if not ok]
     return f"its sidecar has no usable {', '.join(bad)}" if bad else None
+
+
+def _register(v) -> bool:
+    """A position a drive can report: an integer in a signed 32-bit register (the Modbus stage's two
+    words, a Dynamixel's Present Position); 10¹⁵ steps is no reading."""
+    return type(v) is int and -(2**31) <= v < 2**31
 
 
 def _finite(v, lo: float, hi: float, *, closed: bool = False) -> bool:

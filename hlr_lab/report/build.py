@@ -54,6 +54,13 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
     if not materials_path.is_file():
         raise InputError("no materials.json in the session: run hlr-lab fit on it first", path=session.path)
     materials = read_materials(materials_path)
+    if materials.sha256 and materials.sha256 != session.plan.object.sha256:
+        raise InputError(
+            f"its materials are of another mesh ({materials.mesh}, sha256 {materials.sha256[:12]}…) than the "
+            f"session's ({session.plan.object.mesh}): run hlr-lab fit on the session again",
+            path=materials_path,
+            field="sha256",
+        )
     diagnostics_path = session.path / DIAGNOSTICS
     diagnostics = json.loads(diagnostics_path.read_text()) if diagnostics_path.is_file() else {"regions": []}
     figures = ReportFigures()
