@@ -11,6 +11,7 @@ import click
 from hlr_lab.errors import InputError
 from hlr_lab.rig.file import Rig, load_rig, sim_rig
 from hlr_lab.session.lamp import LampWatch
+from hlr_lab.session.outputs import has_control_character
 
 
 class PathOption(click.Path):
@@ -20,7 +21,7 @@ class PathOption(click.Path):
     def convert(self, value, param, ctx):
         if isinstance(value, str) and not value.strip():
             self.fail("an empty path names nothing: give a file or folder", param, ctx)
-        if isinstance(value, str) and any(ord(c) < 32 or ord(c) == 127 for c in value):
+        if isinstance(value, str) and has_control_character(value):
             self.fail(
                 f"{value!r} has a control character (a line break, a tab, …): give a plain name", param, ctx
             )

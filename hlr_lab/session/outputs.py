@@ -26,6 +26,11 @@ from hlr_lab.session.kept_object import companions
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")  # a line break in a name breaks every file that names it
 
 
+def has_control_character(name: str) -> bool:
+    """Whether ``name`` holds a control character (a line break, a tab, a NUL): no output may."""
+    return _CONTROL.search(name) is not None
+
+
 def check_outputs(
     outputs: Sequence[Path], inputs: Iterable[str | Path | None] = (), *, field: str | None = "--output"
 ) -> None:
@@ -37,7 +42,7 @@ def check_outputs(
     ``None`` and ``builtin:`` names (skipped)."""
     taken: dict[str, Path] = {}
     for output in outputs:
-        if _CONTROL.search(str(output)):
+        if has_control_character(str(output)):
             raise InputError(
                 "has a control character (a line break, a tab, …) in its name, which the files naming it cannot "
                 "carry: give a plain name",
