@@ -135,32 +135,58 @@ def atomic_create_bytes(path: str | Path, data: bytes) -> None:
     _write_via_temporary(Path(path), data, os.link)
 
 
+def atomic_write_all(files: Sequence[tuple[str | Path, bytes]]) -> None:
+    """Write several files all or none: each to a temporary beside it first (fsynced), and only when every
+    one is written are they renamed over their names, in order (a file another names goes first: an OBJ's
+    .mtl before the OBJ, a scene's meshes before scene.xml). A full disk or a failed write leaves none of
+    them changed and no temporary behind."""
+    staged: list[tuple[str, Path]] = []
+    try:
+        for path, data in files:
+            staged.append((_temporary(Path(path), data), Path(path)))
+        for tmp, path in staged:
+            os.replace(tmp, path)
+            fsync_directory(path.parent)
+    finally:
+        for tmp, _ in staged:
+            Path(tmp).unlink(missing_ok=True)  # after os.replace it is gone already
+
+
 _TEMPORARY_NAME_BYTES = 200
 
 
 def _write_via_temporary(path: Path, data: bytes, publish) -> None:
+    tmp = _temporary(path, data)
+    try:
+        publish(tmp, path)
+        fsync_directory(path.parent)
+    finally:
+        # after os.replace it is gone already; after os.link, it is a second name
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _temporary(path: Path, data: bytes) -> str:
+    """A fsynced temporary file beside ``path`` holding ``data``; its name."""
     if path.is_symlink():  # replacing it would break the user's link; writing through it, redirect a write
         raise InputError(LINK_REFUSED, path=path)
+    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         # the name cut short: a legal name of up to NAME_MAX (255) bytes must leave room for ".XXXXXXXX.tmp"
         prefix = "." + path.name.encode()[:_TEMPORARY_NAME_BYTES].decode(errors="ignore") + "."
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                os.fchmod(f.fileno(), FILE_MODE)
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            publish(tmp, path)
-        finally:
-            # after os.replace it is gone already; after os.link, it is a second name
+        with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), FILE_MODE)
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    except BaseException as exc:  # nothing half-written is left behind, whatever stopped the write
+        if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
-        fsync_directory(path.parent)
-    except OSError as exc:
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
             raise disk_full(path, len(data)) from exc
         raise
+    return tmp
 
 
 def free_bytes(path: Path) -> int:
@@ -197,9 +223,14 @@ def dumps(data: object) -> str:
     return _NUMBER_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m.group(1).split(",")) + "]", text)
 
 
+def model_json(model: pydantic.BaseModel) -> str:
+    """``model`` as the JSON text hlr-lab writes (:func:`dumps`, unset optional fields left out)."""
+    return dumps(model.model_dump(mode="json", exclude_none=True)) + "\n"
+
+
 def write_json(path: str | Path, model: pydantic.BaseModel) -> None:
     """Write ``model`` as JSON to ``path`` atomically (a reader sees the old file or the new one)."""
-    atomic_write_text(path, dumps(model.model_dump(mode="json", exclude_none=True)) + "\n")
+    atomic_write_text(path, model_json(model))
 
 
 def read_json(path: str | Path) -> object:

@@ -20,9 +20,9 @@ from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.acquisition.run import PLANNED_ONLY, acquire_session
 from hlr_lab.acquisition.white_reference import reference_meter
 from hlr_lab.errors import InputError
-from hlr_lab.files import atomic_write_text
+from hlr_lab.files import atomic_write_all, model_json
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, EstimatorName
-from hlr_lab.formats.materials import read_materials, write_materials
+from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import PlanFile, build_plan, read_plan
 from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.formats.regions import mesh_reference, read_regions
@@ -30,7 +30,7 @@ from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.instrument.control import NO_OVERRIDES
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import motion_targets
-from hlr_lab.object.mesh import ColouredMesh, load_mesh
+from hlr_lab.object.mesh import ColouredMesh, load_mesh, texture_sha256
 from hlr_lab.object.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.object.segment import Segmentation, segment
 from hlr_lab.planning.geometry import placement
@@ -87,6 +87,7 @@ def plan_object(
         mesh_ref=mesh_reference(mesh_spec, plan_folder),
         sha256=mesh.sha256 or "",
         texture_ref=texture,
+        texture_sha256=texture_sha256(mesh),
         mesh_to_turntable=to_turntable,
         up=up,
         scale=scale,
@@ -157,8 +158,9 @@ def fit_into(
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
     result = fit_session(s, theta_c_deg=theta_c_deg, method=method, progress=progress)
-    write_materials(output, result.materials)
-    atomic_write_text(diagnostics, json.dumps(result.diagnostics, indent=1) + "\n")
+    # both or neither: materials.json without its diagnostics would be a fit the report cannot show
+    atomic_write_all([(output, model_json(result.materials).encode()),
+                      (diagnostics, (json.dumps(result.diagnostics, indent=1) + "\n").encode())])  # fmt: skip
     return result
 
 

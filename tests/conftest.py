@@ -147,6 +147,7 @@ def plan_file(tmp_path_factory, rig):
         mesh_ref="builtin:pebble",
         sha256=obj.mesh.sha256,
         texture_ref=None,
+        texture_sha256=None,
         mesh_to_turntable=m,
         up="z",
         scale=1.0,

@@ -142,6 +142,36 @@ def _replace_image_bytes(session: Path, data_of: Callable[[Path], bytes], every:
     journal.write_text("".join(json.dumps(x) + "\n" for x in events))
 
 
+def _in_step_with_exposure(level_per_s: float) -> Callable[[Path], bytes]:
+    """A frame of one uniform value, in proportion to its sidecar's exposure: a bracket that agrees with
+    itself, in which nothing follows the light."""
+
+    def data_of(image: Path) -> bytes:
+        exposure = json.loads(image.with_suffix(".json").read_text())["exposure_s"]
+        shape = cv2.imread(str(image), cv2.IMREAD_UNCHANGED).shape
+        return cv2.imencode(".png", np.full(shape, round(level_per_s * exposure), np.uint16))[1].tobytes()
+
+    return data_of
+
+
+def _swap_exposures(session: Path) -> None:
+    """Every pose's first two exposures swapped in the sidecars and the journal, checksums kept consistent:
+    only the pixels can tell."""
+    journal = session / "journal.jsonl"
+    events = [json.loads(line) for line in journal.read_text().splitlines()]
+    frames = [e for e in events if e["event"] == "frame" and not e["dark"] and e["exposure_index"] in (0, 1)]
+    for pose in {e["pose"] for e in frames}:
+        a, b = (next(e for e in frames if e["pose"] == pose and e["exposure_index"] == k) for k in (0, 1))
+        a["exposure_s"], b["exposure_s"] = b["exposure_s"], a["exposure_s"]
+        for e in (a, b):
+            path = session / e["sidecar"]
+            sidecar = json.loads(path.read_text())
+            sidecar["exposure_s"] = sidecar["camera"]["exposure_s"] = e["exposure_s"]
+            path.write_text(json.dumps(sidecar))
+            e["sidecar_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    journal.write_text("".join(json.dumps(x) + "\n" for x in events))
+
+
 def _png_header_only(width: int, height: int) -> bytes:
     """A PNG that claims width × height pixels (RGB, 16-bit) and holds none: what a decoder would try to
     allocate is what the header says."""
@@ -324,6 +354,21 @@ CASES = [
          r"materials\.json: sha256: its materials are of another mesh"),
     Case("every frame saturated: no region to fit", _session_with(lambda s: _replace_frame(
          s, lambda px: np.full_like(px, 4095), every=True)), r"session: no region could be fitted \(region 0: "),
+    Case("every frame black: the lamp lit nothing", _session_with(lambda s: _replace_frame(
+         s, np.zeros_like, every=True)), r"session: every pixel of the object is black in every frame of its 2 pose"),
+    Case("two exposures swapped, checksums consistent", _session_with(_swap_exposures),
+         r"frames/p000_e[01]\.png \(0\.0\d+ s\) is [0-9.]+× as bright per second of exposure as frames/p000_e"),
+    Case("frames uniform, in step with their exposures", _session_with(lambda s: _replace_image_bytes(
+         s, _in_step_with_exposure(51200.0), every=True)),
+         r"no region could be fitted \(region 0: its \d+ pixels do not brighten where the lamp's light falls"),
+    Case("a frame cut short, checksums consistent", _session_with(lambda s: _replace_image_bytes(
+         s, lambda image: image.read_bytes()[: image.stat().st_size // 2])),
+         r"frames/p000_e0\.png is not a whole PNG image although its checksum matches \(its IDAT chunk is cut"),
+    Case("a frame with a flipped bit, checksums consistent", _session_with(lambda s: _replace_image_bytes(
+         s, lambda image: (lambda d: d[:4000] + bytes([d[4000] ^ 1]) + d[4001:])(image.read_bytes()))),
+         r"frames/p000_e0\.png is not a whole PNG image .*\(its IDAT chunk fails its CRC\)"),
+    Case("a region taken out of the plan", _plan_with(lambda d: d["object"]["regions"].pop()),
+         r"plan\.json: object\.regions: its regions hold \d+ faces, the mesh has 20480: a region was taken out"),
 ]  # fmt: skip
 
 
@@ -367,3 +412,59 @@ def test_a_frame_of_a_pose_the_plan_lacks_is_left_out_naming_it(tmp_path, finish
     assert "frames/zz9_e0.png: its pose 'zz9' is not in the session's plan" in " ".join(
         capsys.readouterr().err.split()
     )
+
+
+def test_a_damaged_frame_is_one_line_with_nothing_from_libpng(tmp_path, finished_session, capfd):
+    """libpng prints its own "libpng error: …" line straight to the console (file descriptor 2, which only
+    capfd sees) before OpenCV gives up: the frame is checked before it is decoded."""
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    _replace_image_bytes(session, lambda image: image.read_bytes()[:-5000])
+    capfd.readouterr()
+    assert main(["fit", str(session), "-o", str(tmp_path / "m.json")]) == 1
+    err = capfd.readouterr().err
+    assert "libpng" not in err, err
+    assert re.search(r"^error: .*frames/p000_e0\.png is not a whole PNG image", err, re.M), err
+
+
+def test_a_texture_repainted_after_planning_is_refused(tmp_path, builtin_plan):
+    """The plan records its texture's pixels (object.texture_sha256) however the image was found (here an
+    OBJ's .mtl): repainted after planning, its regions are no longer the plan's."""
+    from hlr_lab.errors import InputError
+    from hlr_lab.formats.plan import read_plan
+    from hlr_lab.formats.planned_object import load_planned_mesh
+    from hlr_lab.object.mesh import file_sha256, load_mesh, texture_sha256
+
+    cv2.imwrite(str(tmp_path / "paint.png"), np.full((8, 8, 3), (40, 90, 200), np.uint8))
+    (tmp_path / "quad.mtl").write_text("newmtl paint\nKd 1 1 1\nmap_Kd paint.png\n")
+    obj = tmp_path / "quad.obj"
+    obj.write_text(
+        "mtllib quad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "usemtl paint\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
+    )
+    doc = json.loads(builtin_plan.read_text())
+    doc["object"].update(mesh="quad.obj", sha256=file_sha256(obj), texture_sha256=texture_sha256(load_mesh(obj)),
+                         regions=[{"id": 0, "color": [200, 90, 40], "vertices": 4, "faces": 2}])  # fmt: skip
+    plan_path = tmp_path / "plan.json"
+    plan_path.write_text(json.dumps(doc))
+    assert len(load_planned_mesh(read_plan(plan_path), plan_path).faces) == 2
+    cv2.imwrite(str(tmp_path / "paint.png"), np.full((8, 8, 3), (40, 200, 90), np.uint8))
+    with pytest.raises(InputError, match=r"object\.texture_sha256: the texture of quad\.obj has changed"):
+        load_planned_mesh(read_plan(plan_path), plan_path)
+
+
+def test_a_black_level_that_is_not_the_rig_files_is_named_by_the_fit(tmp_path, finished_session, capsys):
+    """Frames 64 DN brighter than their sensor's black level in the rig file (bench-night's camera against
+    the drawing): the brackets measure the difference (not mistaken for exposures that lie) and the fit
+    says so, naming the setting and the procedure that measures it."""
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    _replace_frame(session, lambda px: px + np.uint16(64), every=True)
+    assert main(["fit", str(session), "-o", str(tmp_path / "m.json")]) == 0
+    printed = capsys.readouterr()
+    said = " ".join((printed.out + printed.err).split())
+    assert re.search(r"warning: the exposure brackets put the sensor's black level \+6[34]\.\d DN from the rig "
+                     r"file's \[sensor\] black_level_dn = 0 .*hlr-lab calibrate radiometric", said), said  # fmt: skip
+    found = json.loads((tmp_path / "fit-diagnostics.json").read_text())["black_level"]
+    assert found["brackets"] == 2, found
+    assert abs(found["offset_dn"] - 64) < 1, found

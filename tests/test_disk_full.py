@@ -114,3 +114,25 @@ def test_a_read_only_output_folder_is_one_line_not_an_internal_error(
         err = capsys.readouterr().err
         assert "internal error" not in err
         assert re.search(rf"error: {re.escape(str(locked))}/[^:]*: .*read-only", err), err
+
+
+def test_files_written_together_are_written_all_or_none(finished_session, small_disk, tmp_path, capsys):
+    """A disk with room for the first files of a set but not the rest (tmpfs counts 4 KB pages): 8 KB free
+    holds materials.json (~3 KB) or an .mtl, not the diagnostics (~13 KB) or the OBJ (1.6 MB); 400 KB holds
+    two of the Mitsuba scene's PLYs (177 KB each), not the third. fit and export write none of their files
+    and leave no temporary."""
+    materials = tmp_path / "materials.json"
+    assert main(["fit", str(finished_session), "-o", str(materials)]) == 0
+    export = ["export", str(materials), "--mesh", "builtin:pebble", "--format"]
+    for free_kb, command in (
+        (8, ["fit", str(finished_session), "-o", "materials.json"]),
+        (8, [*export, "obj", "-o", "o.obj"]),
+        (400, [*export, "mitsuba", "-o", "scene"]),
+    ):
+        disk = small_disk(1)
+        fill(disk, leave_bytes=free_kb * 1024)
+        capsys.readouterr()
+        assert main([*command[:-1], str(disk / command[-1])]) == 1, command
+        err = capsys.readouterr().err
+        assert re.search(r"error: .*: no space left on the device", err), err
+        assert sorted(p.name for p in disk.rglob("*") if p.is_file()) == ["ballast"], command

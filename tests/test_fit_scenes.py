@@ -25,7 +25,7 @@ from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.instrument.devices import open_devices
 from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.instrument.motion import motion_targets
-from hlr_lab.object.mesh import file_sha256, load_mesh
+from hlr_lab.object.mesh import file_sha256, load_mesh, texture_sha256
 from hlr_lab.object.procedural import pebble
 from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
@@ -108,6 +108,7 @@ def measure(
         mesh_ref=str(mesh_path),
         sha256=mesh.sha256 or "",
         texture_ref=None if texture is None else str(texture),
+        texture_sha256=texture_sha256(mesh),
         mesh_to_turntable=to_tt,
         up=up,
         scale=scale,

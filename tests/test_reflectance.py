@@ -12,7 +12,7 @@ from hlr_lab.fitting.synthetic import Truth, synthetic_region
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.formats.regions import RegionEntry
-from hlr_lab.reflectance.hdr import BracketFrame, merge_bracket
+from hlr_lab.reflectance.hdr import BracketFrame, exposure_agreement, merge_bracket
 from hlr_lab.reflectance.session_fit import _fit_one, _Pooled
 from hlr_lab.reflectance.views import PoseSamples
 from worlds.plan_world import sim_scene
@@ -64,6 +64,44 @@ def test_a_pixel_clipped_in_every_frame_is_not_usable_and_dark_frames_are_subtra
     assert not merged.usable[0, -1]
     assert np.isnan(merged.value[0, -1]).all()
     np.testing.assert_allclose(merged.value[0, :-1].mean(axis=0), 0.3, rtol=5e-3)
+
+
+def test_a_bracket_agrees_with_itself_and_a_recorded_exposure_that_was_not_taken_shows():
+    """The same radiance field (0.1–100, so every frame has unclipped pixels well above the noise) taken at
+    20, 5 and 1.25 ms: each pair's ratio is 1 within 1 % (sums over thousands of values) and the black level
+    right within 0.5 DN (the intercept of 30 000 values). Recorded with the 20 and 5 ms frames swapped,
+    the pairs show the confusion: the 20 ms frame recorded as 5 ms is 4× as bright per second as the
+    1.25 ms one, the 5 ms frame recorded as 20 ms 1/16 as bright as the 20 ms one recorded as 5 ms (within
+    5 %: the black level the swapped pair implies is nonsense, and enters the sums)."""
+    rng = np.random.default_rng(5)
+    radiance = np.geomspace(0.1, 100.0, 30_000).reshape(1, -1, 1) * np.ones((1, 1, 3))
+    shots = {t: expose(radiance, t, rng) for t in (0.02, 0.005, 0.00125)}
+    honest = exposure_agreement(
+        [BracketFrame(px, t, 0.0, BITS) for t, px in shots.items()], read_noise_dn=READ_NOISE
+    )
+    assert [(p.longer, p.shorter) for p in honest] == [(1, 2), (0, 1)]  # indices into the frames
+    np.testing.assert_allclose([p.ratio for p in honest], 1.0, rtol=0.01)
+    np.testing.assert_allclose([p.black_offset_dn for p in honest], 0.0, atol=0.5)
+    swapped = [BracketFrame(shots[0.02], 0.005, 0.0, BITS), BracketFrame(shots[0.005], 0.02, 0.0, BITS),
+               BracketFrame(shots[0.00125], 0.00125, 0.0, BITS)]  # fmt: skip
+    got = {(p.longer, p.shorter): p.ratio for p in exposure_agreement(swapped, read_noise_dn=READ_NOISE)}
+    np.testing.assert_allclose(got[(0, 2)], 4.0, rtol=0.05)  # the 20 ms frame, recorded as 5 ms
+    np.testing.assert_allclose(got[(1, 0)], 1 / 16, rtol=0.05)
+    dim = [BracketFrame(expose(radiance * 1e-4, t, rng), t, 0.0, BITS) for t in (0.02, 0.005)]
+    assert exposure_agreement(dim, read_noise_dn=READ_NOISE) == []  # nothing above the noise: no verdict
+
+
+def test_a_black_level_that_is_not_the_rig_files_is_measured_and_does_not_look_like_a_wrong_exposure():
+    """A sensor whose black level is 64 DN where the rig file says 0: the brackets' ratios stay 1 within
+    1 % (the black level is allowed for), and the error is measured within 1 DN."""
+    rng = np.random.default_rng(6)
+    radiance = np.geomspace(0.1, 100.0, 30_000).reshape(1, -1, 1) * np.ones((1, 1, 3))
+    frames = [
+        BracketFrame(expose(radiance, t, rng) + np.uint16(64), t, 0.0, BITS) for t in (0.02, 0.005, 0.00125)
+    ]
+    pairs = exposure_agreement(frames, black_level_dn=0.0, read_noise_dn=READ_NOISE)
+    np.testing.assert_allclose([p.ratio for p in pairs], 1.0, rtol=0.01)
+    np.testing.assert_allclose([p.black_offset_dn for p in pairs], 64.0, atol=1.0)
 
 
 def test_a_region_without_highlight_pixels_gets_its_diffuse_colour_and_a_reason():

@@ -206,6 +206,7 @@ def test_a_session_keeps_its_plan_and_the_objects_files_so_it_can_move(plan_file
 
     from hlr_lab.formats.plan import read_plan, write_plan
     from hlr_lab.formats.planned_object import load_planned_mesh
+    from hlr_lab.formats.regions import RegionEntry
     from hlr_lab.object.mesh import file_sha256
     from hlr_lab.session.metadata import read_record, session_plan
 
@@ -218,7 +219,8 @@ def test_a_session_keeps_its_plan_and_the_objects_files_so_it_can_move(plan_file
         "usemtl paint\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n"
     )
     plan = read_plan(plan_file[0])
-    ref = {"mesh": "meshes/quad.obj", "sha256": file_sha256(meshes / "quad.obj")}
+    ref = {"mesh": "meshes/quad.obj", "sha256": file_sha256(meshes / "quad.obj"),
+           "regions": [RegionEntry(id=0, color=[40, 90, 200], vertices=4, faces=2)]}  # fmt: skip
     plan_path = tmp_path / "work" / "plan.json"
     write_plan(plan_path, plan.model_copy(update={"object": plan.object.model_copy(update=ref)}))
     before = load_planned_mesh(read_plan(plan_path), plan_path)

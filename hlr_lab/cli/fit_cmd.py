@@ -87,6 +87,8 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
         result = fit_into(session, output, theta_c_deg=theta_c, method=method, allow_incomplete=allow_incomplete,
                           correct_lamp=not no_lamp_correction, progress=show, on_gaps=_say_gaps)  # fmt: skip
     console.print(materials_table(result.materials))
+    if "warning" in result.diagnostics["black_level"]:
+        console.print(f"[yellow]warning:[/] {escape(result.diagnostics['black_level']['warning'])}")
     for d in result.diagnostics["regions"]:
         if "note" in d:
             console.print(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")

@@ -16,7 +16,7 @@ from trimesh.exchange.ply import export_ply
 from hlr_lab.errors import InputError
 from hlr_lab.export.conversion import MITSUBA_PLASTIC_IOR, beckmann_alpha, ior_for_f0, specular_f0
 from hlr_lab.export.regions import RegionPart
-from hlr_lab.files import atomic_write_bytes, atomic_write_text
+from hlr_lab.files import atomic_write_all
 
 _HEADER = "hlr-lab export"  # the comment that opens every scene.xml hlr-lab writes
 
@@ -35,12 +35,14 @@ def mitsuba_files(folder: Path, parts: list[RegionPart]) -> list[Path]:
 
 
 def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:
-    """Write ``folder/scene.xml`` and ``folder/meshes/region_<id>.ply`` (the meshes first: a scene is never
-    left naming a missing one); returns the paths, scene.xml first."""
+    """Write ``folder/scene.xml`` and ``folder/meshes/region_<id>.ply``, all or none (the meshes go in
+    first: a scene is never left naming a missing one); returns the paths, scene.xml first."""
     scene, *plys = mitsuba_files(Path(folder), parts)
-    for p, ply in zip(parts, plys, strict=True):
-        mesh = trimesh.Trimesh(p.vertices, p.faces, vertex_normals=p.normals, process=False)
-        atomic_write_bytes(ply, export_ply(mesh, encoding="binary", vertex_normal=True))
+    meshes = [
+        export_ply(trimesh.Trimesh(p.vertices, p.faces, vertex_normals=p.normals, process=False),
+                   encoding="binary", vertex_normal=True)
+        for p in parts
+    ]  # fmt: skip
     pts = np.concatenate([p.vertices for p in parts])
     centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
     radius = float(np.linalg.norm(pts - centre, axis=1).max())
@@ -69,7 +71,7 @@ def write_mitsuba(folder: str | Path, parts: list[RegionPart]) -> list[Path]:
 {chr(10).join(body)}
 </scene>
 """
-    atomic_write_text(scene, xml)
+    atomic_write_all([*zip(plys, meshes, strict=True), (scene, xml.encode())])
     return [scene, *plys]
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from hlr_lab.errors import InputError
 from hlr_lab.export.regions import RegionPart
-from hlr_lab.files import atomic_write_text
+from hlr_lab.files import atomic_write_all
 
 MTL_HEADER = """\
 # hlr-lab materials, one per colour region.
@@ -43,8 +43,8 @@ def obj_files(path: Path, parts: list[RegionPart]) -> list[Path]:
 
 
 def write_obj(path: str | Path, parts: list[RegionPart]) -> list[Path]:
-    """Write ``path`` (.obj) and the .mtl beside it (the library first: an OBJ is never left naming a
-    missing one); returns both paths."""
+    """Write ``path`` (.obj) and the .mtl beside it, both or neither (the library goes in first: an OBJ
+    is never left naming a missing one); returns both paths."""
     path, mtl = obj_files(Path(path), parts)
     lines = [f"# hlr-lab export: {len(parts)} regions", f"mtllib {mtl.name}"]
     offset = 0
@@ -58,8 +58,8 @@ def write_obj(path: str | Path, parts: list[RegionPart]) -> list[Path]:
             + "\n".join(f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f.tolist())
         )
         offset += len(part.vertices)
-    atomic_write_text(mtl, MTL_HEADER + "\n".join(_material(p) for p in parts))
-    atomic_write_text(path, "\n".join(lines + groups) + "\n")
+    library = MTL_HEADER + "\n".join(_material(p) for p in parts)
+    atomic_write_all([(mtl, library.encode()), (path, ("\n".join(lines + groups) + "\n").encode())])
     return [path, mtl]
 
 

@@ -41,6 +41,7 @@ class PlanObject(OpenModel):
     sha256: str
     regions: list[RegionEntry]
     texture: str | None = None
+    texture_sha256: str | None = None  # of the texture's pixels (object.mesh.texture_sha256)
     mesh_to_turntable: Matrix4 | None = None
     up: str = "z"
     scale: float = 1.0
@@ -183,6 +184,7 @@ def build_plan(
     mesh_ref: str,
     sha256: str,
     texture_ref: str | None,
+    texture_sha256: str | None,
     mesh_to_turntable: np.ndarray,
     up: str,
     scale: float,
@@ -195,8 +197,9 @@ def build_plan(
     ----------
     mesh_ref, texture_ref
         The mesh (and texture) as the plan names them: relative to the plan's folder, or ``builtin:…``.
-    sha256
-        The mesh file's checksum, checked wherever the plan's mesh is loaded.
+    sha256, texture_sha256
+        The mesh file's checksum and its texture's (:func:`hlr_lab.object.mesh.texture_sha256`), checked
+        wherever the plan's mesh is loaded.
     mesh_to_turntable
         (4, 4) placement of the mesh on the plate: its frame and units (``scale``, ``up``) → metres.
     exposures_s
@@ -234,6 +237,7 @@ def build_plan(
             mesh=mesh_ref,
             sha256=sha256,
             texture=texture_ref,
+            texture_sha256=texture_sha256,
             regions=[RegionEntry.of(r) for r in seg.regions],
             mesh_to_turntable=[_r(row, 9) for row in mesh_to_turntable],
             up=up,

@@ -10,7 +10,7 @@ import numpy as np
 
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile
-from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, load_mesh, sample_texture
+from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, load_mesh, sample_texture, texture_sha256
 from hlr_lab.object.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.object.raycast import PixelSurface
 
@@ -29,7 +29,29 @@ def load_planned_mesh(plan: PlanFile, plan_path: Path) -> ColouredMesh:
             path=plan_path,
             field="object.sha256",
         )
+    if plan.object.texture_sha256 is not None and texture_sha256(mesh) != plan.object.texture_sha256:
+        raise InputError(
+            f"the texture of {ref} has changed since the plan was made (or is not found any more): its regions "
+            "are not the plan's; plan again",
+            path=plan_path,
+            field="object.texture_sha256",
+        )
+    _all_faces_in_regions(plan, plan_path, len(mesh.faces))
     return mesh
+
+
+def _all_faces_in_regions(plan: PlanFile, plan_path: Path, faces: int) -> None:
+    """Refuse a plan whose regions do not hold every face of its mesh (a region taken out of the plan: its
+    pixels would be fitted as whichever neighbour's colour is nearest). Plans that do not record their
+    regions' faces (0) are not checked."""
+    held = sum(r.faces for r in plan.object.regions)
+    if held and held != faces:
+        raise InputError(
+            f"its regions hold {held} faces, the mesh has {faces}: a region was taken out of (or added to) the "
+            "plan by hand; plan again (hlr-lab plan) to change the regions",
+            path=plan_path,
+            field="object.regions",
+        )
 
 
 def mesh_to_turntable(plan: PlanFile) -> np.ndarray:

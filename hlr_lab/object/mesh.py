@@ -170,6 +170,15 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def texture_sha256(mesh: ColouredMesh) -> str | None:
+    """The identity of ``mesh``'s texture as its regions are read from it: sha256 over the decoded pixels
+    (H, W, 3 sRGB8) and their shape, however the image was found (``--texture``, an OBJ's .mtl, a glTF's
+    image); None for a mesh without one. A texture repainted after planning changes the regions."""
+    if mesh.texture is None:
+        return None
+    return arrays_sha256(np.array(mesh.texture.shape, np.int64), mesh.texture)
+
+
 def arrays_sha256(*arrays: np.ndarray | None) -> str:
     """Identity of a mesh that has no file (built-in objects): sha256 over its arrays' bytes."""
     h = hashlib.sha256()

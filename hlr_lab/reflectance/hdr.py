@@ -10,6 +10,7 @@ mostly noise, and biased where the sensor clips at zero).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,7 @@ class Radiance:
     value: np.ndarray  # (H, W, C) float32, linear radiance (NaN where no frame was usable)
     usable: np.ndarray  # (H, W) bool: some frame was usable
     frames_used: np.ndarray  # (H, W) uint8: how many frames went into the value
+    agreement: tuple[PairAgreement, ...] = ()  # the bracket's frames compared (when the caller asked)
 
 
 def merge_bracket(
@@ -50,7 +52,7 @@ def merge_bracket(
 ) -> Radiance:
     """Merge one pose's bracket; ``sensitivity`` in DN per (radiance · s) at 0 dB. ``within`` (H, W) bool
     limits the work to those pixels (the object's window): elsewhere the result is unusable."""
-    by_length = sorted(frames, key=lambda f: f.exposure_s * 10 ** (f.gain_db / 20))  # shortest first
+    by_length = sorted(frames, key=_kt)  # shortest first
     shape = by_length[0].pixels.shape
     for f in by_length:
         if f.pixels.shape != shape:
@@ -93,3 +95,72 @@ def _signal(f: BracketFrame, black_level_dn: float, where: np.ndarray) -> np.nda
     if f.dark is not None:
         signal -= f.dark[where].astype(np.float32) - np.float32(black_level_dn)
     return signal
+
+
+AGREEMENT_SIGNAL = 20.0  # read-noise σ: a value this far above the noise is within 5 % of its true radiance
+AGREEMENT_PIXELS = 100  # fewer values than this tell nothing about a pair of frames
+
+
+@dataclass(frozen=True)
+class PairAgreement:
+    """Two frames of one bracket (indices into it) compared: ``ratio``, the longer's radiance over the
+    shorter's once the black level is allowed for (1 when the recorded exposures and gains are the ones
+    taken); ``black_offset_dn``, how far the sensor's true black level lies above the one assumed (DN), as
+    the bracket tells it."""
+
+    longer: int
+    shorter: int
+    ratio: float
+    black_offset_dn: float
+
+
+def exposure_agreement(
+    frames: list[BracketFrame],
+    *,
+    black_level_dn: float = 0.0,
+    read_noise_dn: float = 1.5,
+    within: np.ndarray | None = None,
+) -> list[PairAgreement]:
+    """Each frame of a bracket against the next shorter one (by recorded exposure × gain), over their
+    common pixels: unclipped in both, where the longer predicts the shorter ``AGREEMENT_SIGNAL`` read-noise
+    σ above black. With a linear sensor the shorter's signal (DN above the assumed black) is x = y/q +
+    e·(1 − 1/q) in the longer's y, q the ratio of their exposures × gains and e the black level's error:
+    the line through the pair spanning the widest range of values gives e from its intercept, and each
+    pair's ratio is Σ(y − e) / (q · Σ(x − e)), which noise does not bias (a regression's slope would be
+    flattened by it where the values span only a few times the noise). Two exposures a factor 4 apart
+    swapped show as 4 and 1/16 against their neighbours. Pairs with fewer than ``AGREEMENT_PIXELS`` values
+    are left out; an empty list when no pair can be told."""
+    where = np.ones(frames[0].pixels.shape[:2], bool) if within is None else within
+    order = sorted(range(len(frames)), key=lambda i: _kt(frames[i]))  # shortest first
+    pairs = []  # (longer, shorter, q, x, y, e)
+    for shorter, longer in itertools.pairwise(order):
+        a, b = frames[shorter], frames[longer]
+        q = _kt(b) / _kt(a)
+        sa, sb = _signal(a, black_level_dn, where), _signal(b, black_level_dn, where)  # (N, C)
+        both = ~clipped(a.pixels[where], a.bits, channels=a.pixels.ndim == 3)
+        both &= ~clipped(b.pixels[where], b.bits, channels=b.pixels.ndim == 3)
+        # chosen by what the longer frame predicts for the shorter, not by the shorter's own value: choosing
+        # by a value keeps those that noise pushed up, and the shorter's relative noise is the larger
+        strong = both[:, None] & (sb >= q * AGREEMENT_SIGNAL * read_noise_dn)  # (N, C)
+        if strong.sum() < AGREEMENT_PIXELS or abs(q - 1) < 1e-6:
+            continue
+        x, y = sa[strong].astype(np.float64), sb[strong].astype(np.float64)
+        # the shorter's signal regressed on the longer's: chosen by the longer, which does not bias this
+        # regression; the longer's noise flattens it (errors in the regressor), less the wider its span
+        spread = float(np.var(y))
+        intercept = np.mean(x) - np.cov(y, x)[0, 1] / spread * np.mean(y) if spread > 0 else np.nan
+        pairs.append((longer, shorter, q, x, y, spread, intercept * q / (q - 1)))
+    if not pairs:
+        return []
+    widest = max(pairs, key=lambda p: p[5])  # the pair spanning the widest range tells the black level
+    offset = float(widest[6]) if widest[5] > 0 else 0.0  # (every value alike: no line, no black level)
+    # each pair's ratio from its sums once that black is allowed for: a sum is not biased by noise
+    return [
+        PairAgreement(longer, shorter, float((y - offset).sum() / q / (x - offset).sum()), float(offset))
+        for longer, shorter, q, x, y, _, _ in pairs
+    ]
+
+
+def _kt(f: BracketFrame) -> float:
+    """The frame's exposure × analogue gain (the sensitivity is common to the bracket)."""
+    return f.exposure_s * 10 ** (f.gain_db / 20)

@@ -12,7 +12,7 @@ import json
 import math
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -42,7 +42,7 @@ from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
-from hlr_lab.reflectance.hdr import BracketFrame, Radiance, merge_bracket
+from hlr_lab.reflectance.hdr import BracketFrame, Radiance, exposure_agreement, merge_bracket
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
     PoseGeometry,
@@ -60,6 +60,17 @@ from hlr_lab.session.metadata import SESSION, read_record, session_plan
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
+# a bracket's frames may disagree about radiance by this much (relative) before they are refused: a linear
+# sensor under a steady lamp agrees within 1 % (the simulated rig: 1.000–1.008); two exposures of the default
+# bracket swapped disagree by 4× and 16×, any two confused by at least their ratio (≥ 2 in a useful bracket)
+EXPOSURE_TOLERANCE = 0.2
+# a region's diffuse pixels must follow the light that falls on them (Pearson r of pixel and L·cos α) at
+# least this well: a lit matte surface gives r > 0.95; a dead lamp, a uniform frame or another object ~0
+FOLLOWS_LIGHT = 0.5
+SPREAD = 0.05  # … judged only where L·cos α varies by this much (relative σ): else noise decides r
+# a black level this far (DN) from the rig file's, as the brackets tell it, is worth a warning: the
+# brackets measure it within ~0.2 DN on the simulated rig (1.5 DN read noise)
+BLACK_LEVEL_WARNING_DN = 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -262,20 +273,32 @@ def _finite(v, lo: float, hi: float, *, closed: bool = False) -> bool:
 
 def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
     """The view's bracket merged into linear radiance with the rig's radiometric calibration, where the
-    object (``mesh``, turntable frame) may appear."""
+    object (``mesh``, turntable frame) may appear. A bracket whose frames contradict their recorded
+    exposures (:func:`~hlr_lab.reflectance.hdr.exposure_agreement` beyond ``EXPOSURE_TOLERANCE``) is
+    refused, naming its frames: merged, it would give every pixel a wrong radiance."""
     sensor = session.rig.file.sensor
-    return merge_bracket(
-        [
-            _bracket_frame(
-                session.path, e, view.sidecars[e["file"]], view.darks.get(e["exposure_index"]), session.rig
+    frames = [
+        _bracket_frame(
+            session.path, e, view.sidecars[e["file"]], view.darks.get(e["exposure_index"]), session.rig
+        )
+        for e in view.frames
+    ]
+    within = object_window(session.rig.camera, mesh.vertices, view_pose(session, view).turntable_deg)
+    noise = {"black_level_dn": sensor.black_level_dn, "read_noise_dn": sensor.read_noise_dn}
+    agreement = exposure_agreement(frames, **noise, within=within)
+    for pair in agreement:
+        if not (pair.ratio > 0 and abs(math.log(pair.ratio)) <= math.log1p(EXPOSURE_TOLERANCE)):
+            a, b = view.frames[pair.longer], view.frames[pair.shorter]
+            raise InputError(
+                f"{a['file']} ({frames[pair.longer].exposure_s:g} s) is {pair.ratio:.3g}× as bright per second of "
+                f"exposure as {b['file']} ({frames[pair.shorter].exposure_s:g} s) of the same pose, where a linear "
+                "camera under a steady lamp gives 1: the frames are not the exposures their sidecars record "
+                f"(swapped, or the lamp changed within the bracket). Delete pose {view.pose}'s frames to have "
+                "hlr-lab acquire retake them",
+                path=session.path,
             )
-            for e in view.frames
-        ],
-        sensitivity=sensor.sensitivity,
-        black_level_dn=sensor.black_level_dn,
-        read_noise_dn=sensor.read_noise_dn,
-        within=object_window(session.rig.camera, mesh.vertices, view_pose(session, view).turntable_deg),
-    )
+    merged = merge_bracket(frames, sensitivity=sensor.sensitivity, **noise, within=within)
+    return replace(merged, agreement=tuple(agreement))
 
 
 def view_pose(session: Session, view: View) -> PoseGeometry:
@@ -325,18 +348,27 @@ def fit_session(
     caster = RayCaster(mesh)
     pooled: dict[int, _Pooled] = defaultdict(_Pooled)
     times = StageTimes()
+    offsets: list[float] = []  # the black level's error each bracket implies (DN)
     for i, view in enumerate(session.views):
         progress(FitStep("poses", i, len(session.views), f"pose {view.pose}: HDR, geometry, selection"))
         with times("hdr"):
             radiance = view_radiance(session, view, mesh)
+        offsets += [radiance.agreement[0].black_offset_dn] if radiance.agreement else []
         samples = pose_samples(
             plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection, times
         )
         for rid in np.unique(samples.region):
             pooled[int(rid)].add(view.pose, samples, samples.region == rid)
+    if pooled and not any(np.any(p.stacked("intensity") > 0) for p in pooled.values()):
+        raise InputError(
+            f"every pixel of the object is black in every frame of its {len(session.views)} pose(s): the lamp lit "
+            "nothing — check that it is connected and switched by the rig, the exposures, and the lens cap",
+            path=session.path,
+        )
 
     entries: list[MaterialEntry] = []
-    diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": []}
+    diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": [],
+                         "black_level": black_level_check(offsets, rig.file.sensor.black_level_dn)}  # fmt: skip
     fits: dict[int, RegionFit] = {}
     for i, region in enumerate(plan.object.regions):
         progress(FitStep("regions", i, len(plan.object.regions), f"region {region.id}: fitting"))
@@ -368,6 +400,26 @@ def fit_session(
     return FitResult(materials, diagnostics, fits, dict(times))
 
 
+def black_level_check(offsets: list[float], assumed_dn: float) -> dict:
+    """What the brackets say of the rig file's black level: the median of the errors they imply (DN;
+    :func:`~hlr_lab.reflectance.hdr.exposure_agreement`), over how many brackets, and a ``warning`` when it
+    is further from 0 than ``BLACK_LEVEL_WARNING_DN`` (the dark regions' Rd and every Rs are then biased).
+    Frames with dark frames subtracted cannot tell (their brackets imply 0)."""
+    out: dict = {"rig_dn": assumed_dn, "brackets": len(offsets)}
+    if not offsets:
+        return out
+    offset = float(np.median(offsets))
+    out["offset_dn"] = round(offset, 2)
+    if abs(offset) > BLACK_LEVEL_WARNING_DN:
+        out["warning"] = (
+            f"the exposure brackets put the sensor's black level {offset:+.1f} DN from the rig file's [sensor] "
+            f"black_level_dn = {assumed_dn:g} (median of {len(offsets)} brackets): every pixel then reads that "
+            "much too bright or dark, which biases the dark regions' Rd most; measure it (hlr-lab calibrate "
+            "radiometric)"
+        )
+    return out
+
+
 def _fit_one(
     region: RegionEntry, p: _Pooled, theta_c_deg, method: EstimatorName
 ) -> tuple[MaterialEntry | None, dict, RegionFit | None]:
@@ -376,6 +428,10 @@ def _fit_one(
     intensity, irradiance = p.stacked("intensity"), p.stacked("irradiance")
     cos_alpha, cos_beta = p.stacked("cos_alpha"), p.stacked("cos_beta")
     diag = {"id": region.id, "samples": len(cos_beta), "samples_per_pose": p.per_view}
+    unlit = _not_lit(intensity, irradiance, cos_alpha, cos_beta)
+    if unlit:
+        diag["note"] = unlit
+        return None, diag, None
     try:
         fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=theta_c_deg, method=method)
     except (InsufficientSamples, DegenerateSamples) as exc:
@@ -385,7 +441,7 @@ def _fit_one(
             diag["note"], entry = entry, None
         return entry, diag, None
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
-    if rs < SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
+    if not rs > SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
         reason = (
             f"no significant highlight in {fit.n_highlight} pixels within θc = {fit.theta_c_deg:.3g}° "
             f"(Rs = {rs:.2g} ± {rs_se:.2g}); plan a light whose highlight falls on this region"
@@ -402,6 +458,32 @@ def _fit_one(
         diag["note"] = wrong
         return None, diag, None
     return measured_entry(region, fit), diag, fit
+
+
+def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
+    """Why a region's pixels (intensity (N, C), irradiance, cos α, cos β (N,)) cannot be a surface lit by
+    the lamp, or None: all black, or not brightening where the light falls more directly (Pearson r of the
+    mean channel with L·cos α below ``FOLLOWS_LIGHT``, over the pixels beyond the highlight cone, where
+    L·cos α varies enough to tell)."""
+    far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    use = far if far.sum() >= MIN_DIFFUSE else np.ones_like(far)
+    x, y = irradiance[use] * cos_alpha[use], intensity[use].mean(axis=1)
+    if not np.any(y > 0):
+        return (
+            f"every one of its {len(y)} pixels is black in every frame: the lamp lit nothing (check that it is "
+            "connected and switched by the rig, the exposures, and the lens cap)"
+        )
+    if len(x) < MIN_DIFFUSE or np.std(x) < SPREAD * np.mean(x):
+        return None
+    r = float(np.corrcoef(x, y)[0, 1]) if np.std(y) > 0 else 0.0
+    if r >= FOLLOWS_LIGHT:
+        return None
+    return (
+        f"its {len(y)} pixels do not brighten where the lamp's light falls more directly (correlation r = "
+        f"{r:.2f} with L·cos α; a lit surface gives nearly 1): the frames do not show this object lit by this "
+        "lamp — check the lamp, light from elsewhere (dark frames), and that the object photographed is the "
+        "plan's, placed as planned"
+    )
 
 
 def _unphysical(rd: np.ndarray) -> str | None:

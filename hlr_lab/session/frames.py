@@ -12,6 +12,7 @@ import hashlib
 import json
 import re
 import struct
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,9 +96,16 @@ def load_frame(session: Path, event: JournalLine, size: tuple[int, int] | None =
             "aside when hlr-lab acquire runs on the session again",
             path=session,
         )
-    pixels = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
+    damage = png_damage(image)  # libpng would print its own line to the console, then OpenCV return None
+    pixels = None if damage else cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
     if pixels is None:
-        raise InputError(f"{event['file']} is not a PNG image although its checksum matches", path=session)
+        why = damage or "OpenCV cannot decode it"
+        raise InputError(
+            f"{event['file']} is not a whole PNG image although its checksum matches ({why}); restore the "
+            "session's frame, or delete it and its journal line is set aside when hlr-lab acquire runs on the "
+            "session again",
+            path=session,
+        )
     return pixels[..., ::-1] if pixels.ndim == 3 else pixels
 
 
@@ -107,6 +115,37 @@ def png_size(image: bytes) -> tuple[int, int] | None:
         return None
     width, height = struct.unpack(">II", image[16:24])
     return width, height
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_damage(image: bytes) -> str | None:
+    """What makes ``image`` not a whole PNG (a chunk cut short or failing its CRC, a chunk missing), or None.
+    Checked before decoding so that a damaged or truncated frame is one clear error, not libpng's own line on
+    the console. The CRCs cost ~1 ms a frame; inflating the image data to check it too would double the
+    decoding time of every fit, so a stream damaged *and* given fresh CRCs is left to libpng."""
+    if not image.startswith(_PNG_SIGNATURE):
+        return "no PNG signature"
+    at, kinds = len(_PNG_SIGNATURE), []
+    while at < len(image):
+        if at + 12 > len(image):
+            return f"cut short at byte {at}"
+        (length,) = struct.unpack(">I", image[at : at + 4])
+        kind, body = image[at + 4 : at + 8], image[at + 8 : at + 8 + length]
+        name = repr(kind)[2:-1]  # four bytes of anything: a line break is shown escaped
+        if len(body) < length or at + 12 + length > len(image):
+            return f"its {name} chunk is cut short"
+        (crc,) = struct.unpack(">I", image[at + 8 + length : at + 12 + length])
+        if zlib.crc32(kind + body) != crc:
+            return f"its {name} chunk fails its CRC"
+        kinds.append(kind)
+        at += 12 + length
+        if kind == b"IEND":
+            break
+    if not kinds or kinds[0] != b"IHDR" or kinds[-1] != b"IEND" or b"IDAT" not in kinds:
+        return "it lacks its IHDR, IDAT or IEND chunk"
+    return None
 
 
 # what a journal frame line and its sidecar must both say
