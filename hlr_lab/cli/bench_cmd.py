@@ -155,6 +155,30 @@ def bench_session_fit(poses) -> None:
     _print(session_fit_report(f, frames))
 
 
+@bench.command("image-formation")
+@click.argument("session", type=FOLDER)
+@click.option("--sub", type=click.IntRange(1, 8), default=3, show_default=True,
+              help="Rays per pixel side for the box and remap predictions.")  # fmt: skip
+def bench_image_formation(session: Path, sub: int) -> None:
+    """Where the fit's one ray per pixel centre parts from how the simulated camera forms a pixel: the
+    SESSION's pixels against the true model (the default simulated world: acquire --sim without --scene)
+    predicted at the pixel centre, over the pixel's box, and as the simulator forms the image (box-filtered
+    film, bilinearly remapped), by β; and the n and Rs each prediction gives the fit.
+
+    \b
+    Example:
+      hlr-lab paint --mesh stanford-bunny.obj -o bunny8.ply
+      hlr-lab plan --mesh bunny8.ply --sim -o plan.json
+      hlr-lab acquire --plan plan.json --sim --out bunny-session
+      hlr-lab bench image-formation bunny-session
+    """
+    from benchmarks.image_formation import image_formation, image_formation_lines  # the simulator: CLI only
+
+    with console.status("comparing the pixels with the true model"):
+        result = image_formation(session, sub)
+    _print(image_formation_lines(result))
+
+
 @bench.command("soak")
 @click.option("--poses", type=click.IntRange(20, 100_000), default=500)
 @click.option("--kills", type=click.IntRange(0, 1000), default=10, help="SIGKILLs at random moments.")

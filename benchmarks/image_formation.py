@@ -1,0 +1,187 @@
+"""``hlr-lab bench image-formation``: how far the fit's picture of a pixel (one ray through its centre) is
+from how the simulated camera forms it, and what that costs in n and Rs (issue 21, §1).
+
+The simulated camera renders an undistorted film whose pixels are box-filtered (Mitsuba's ``box``
+reconstruction filter), then remaps it bilinearly into the distorted camera image. A pixel's value is
+therefore the mean of the surface's radiance over a patch — the pixel's box, widened by the remap's
+tent — whose normal varies on a curved object, while the fit evaluates the model once, at the centre.
+A lobe averaged over varying normals is lower and wider than the lobe at the mean normal: n and Rs come
+out low, more so for sharp lobes and curved surfaces.
+
+For a session of the default simulated world (the plan's mesh, each planned region with the world's
+default material: the truth is known), every pixel the fit would use is compared against three
+predictions of the true model: at the pixel centre (the fit's), averaged over the pixel's box (K × K
+rays), and averaged as the simulator forms the image (box-filtered film pixels, bilinearly remapped).
+Each prediction is also fitted, noise-free, with the centre-ray geometry the fit uses: the n and Rs it
+gives are what that part of image formation alone does to the fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from hlr_lab.fitting import fit_region
+from hlr_lab.formats.planned_object import region_ids
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.object.raycast import RayCaster
+from hlr_lab.reflectance.session_fit import Session, open_session, placed_mesh, view_pose, view_radiance
+from hlr_lab.reflectance.views import DEFAULT_SELECTION, pose_geometry
+from sim.render.camera import CameraSpec, PinholeFilm
+from sim.render.scene import Material
+from worlds.plan_world import sim_scene
+
+MODELS = ("centre ray", "pixel box", "box + remap")  # the predictions, in the order of their columns
+BETA_BINS_DEG = (0, 2, 4, 6, 8, 10, 14, 20, 30, 90)
+
+
+@dataclass(frozen=True)
+class RegionFigures:
+    """One region: its true n and grey Rs, and (n, grey Rs) fitted to the data and to each prediction."""
+
+    region: int
+    truth: tuple[float, float]
+    data: tuple[float, float]
+    worlds: tuple[tuple[float, float], ...]  # one per MODELS entry
+
+
+@dataclass(frozen=True)
+class ImageFormation:
+    """Residuals (data − prediction) / prediction in % per β bin (rows: BETA_BINS_DEG[i]…[i + 1]; columns:
+    MODELS), the samples per bin, and the per-region fits."""
+
+    residual_pct: np.ndarray  # (B, 3)
+    samples: np.ndarray  # (B,)
+    regions: list[RegionFigures]
+
+
+def image_formation(session_path: Path, sub: int = 3) -> ImageFormation:
+    """Compare ``session_path``'s pixels (a session of the default simulated world, acquired on the nominal
+    rig) with the true model under the three models of image formation; ``sub``: rays per pixel side."""
+    s = open_session(session_path)
+    scene = sim_scene(s.plan, s.plan_path, None)
+    truth = dict(zip(region_ids(s.plan).tolist(), scene.materials, strict=True))
+    mesh = placed_mesh(s)
+    caster = RayCaster(mesh)
+    parts = [_view_samples(s, view, caster, mesh, truth, sub) for view in s.views]
+    cb, data, irradiance, cos_alpha, region, *predictions = (
+        np.concatenate(p) for p in zip(*parts, strict=True)
+    )
+    ok = np.all([np.isfinite(p).all(axis=1) for p in predictions], axis=0)
+    beta = np.degrees(np.arccos(cb))
+    edges = np.asarray(BETA_BINS_DEG)
+    which = np.digitize(beta, edges) - 1
+    residual = np.full((len(edges) - 1, len(MODELS)), np.nan)
+    counts = np.zeros(len(edges) - 1, np.int64)
+    for b in range(len(edges) - 1):
+        m = ok & (which == b)
+        counts[b] = m.sum()
+        for k, p in enumerate(predictions):
+            if m.any():
+                residual[b, k] = 100 * (data[m].sum() - p[m].sum()) / p[m].sum()
+    regions = []
+    for r in sorted(set(region.tolist())):
+        m = ok & (region == r)
+        fits = [
+            fit_region(y[m], irradiance[m], cos_alpha[m], cb[m], theta_c_deg="auto")
+            for y in (data, *predictions)
+        ]
+        pairs = tuple((float(f.n), float(np.mean(f.rs))) for f in fits)
+        regions.append(RegionFigures(r, (truth[r].n, float(np.mean(truth[r].rs))), pairs[0], pairs[1:]))
+    return ImageFormation(residual, counts, regions)
+
+
+def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Material], sub: int):
+    """One view's samples as the fit selects them: cos β, data (N, 3), irradiance, cos α, region, and the
+    three predictions (N, 3) each."""
+    radiance = view_radiance(s, view, mesh)
+    pose = view_pose(s, view)
+    camera = s.rig.camera
+    g = pose_geometry(s.plan, mesh, caster, camera, pose, radiance.usable)
+    sel = DEFAULT_SELECTION
+    keep = (
+        g.lit
+        & g.interior(sel.border_px)
+        & (g.cos_alpha >= np.cos(np.radians(sel.max_alpha_deg)))
+        & (g.cos_view >= np.cos(np.radians(sel.max_view_deg)))
+    )
+    pixels, region = g.pixel[keep].astype(np.float64), g.region[keep]
+    world_from_tt = rotation_z(np.radians(pose.turntable_deg))
+    cam = camera.in_frame(world_from_tt)
+    light = world_from_tt[:3, :3].T @ (pose.light_world - world_from_tt[:3, 3])
+    rd, rs = (np.array([getattr(truth[int(r)], k) for r in region]) for k in ("rd", "rs"))
+    n = np.array([truth[int(r)].n for r in region])
+
+    def predict(at: np.ndarray) -> np.ndarray:  # the true model along the rays through ``at`` (N, 2)
+        surface = caster.surface(cam, at)
+        to_light = light - surface.point
+        d2 = np.einsum("ij,ij->i", to_light, to_light)
+        l_dir = to_light / np.sqrt(d2)[:, None]
+        v_dir = cam.centre - surface.point
+        v_dir /= np.linalg.norm(v_dir, axis=1, keepdims=True)
+        half = (l_dir + v_dir) / np.linalg.norm(l_dir + v_dir, axis=1, keepdims=True)
+        ca = np.clip(np.einsum("ij,ij->i", surface.normal, l_dir), 0, None)
+        cb = np.clip(np.einsum("ij,ij->i", surface.normal, half), 0, 1)
+        value = pose.power / d2[:, None] * (rd * ca[:, None] + rs * (cb**n)[:, None])
+        return np.where(surface.hit[:, None], value, np.nan)
+
+    offsets = (np.arange(sub) + 0.5) / sub - 0.5
+    grid = [np.array([dx, dy]) for dx in offsets for dy in offsets]
+    centre = predict(pixels)
+    box = np.mean([predict(pixels + d) for d in grid], axis=0)
+    remapped = _remapped(camera, pixels, lambda film: np.mean([predict(film(d)) for d in grid], axis=0))
+    geometry = caster.surface(cam, pixels)
+    to_light = light - geometry.point
+    d2 = np.einsum("ij,ij->i", to_light, to_light)
+    cos_alpha = np.einsum("ij,ij->i", geometry.normal, to_light / np.sqrt(d2)[:, None])
+    cos_beta = g.cos_beta[keep]
+    data = radiance.value[g.pixel[keep, 1], g.pixel[keep, 0]].astype(np.float64)
+    return cos_beta, data, pose.power / d2, cos_alpha, region, centre, box, remapped
+
+
+def _remapped(camera: Camera, pixels: np.ndarray, box_mean) -> np.ndarray:
+    """The simulator's image formation at camera ``pixels`` (N, 2): each is the bilinear mix of the four
+    film pixels around where it lands on the undistorted film (:class:`sim.render.camera.PinholeFilm`),
+    each film pixel the mean over its box (``box_mean(film)``, ``film(offset)`` giving camera-pixel
+    coordinates of those film pixels' points at ``offset``)."""
+    spec = CameraSpec(camera.matrix, camera.distortion, np.eye(3), np.zeros(3), camera.width, camera.height)
+    film = PinholeFilm(spec)
+    k = np.asarray(camera.matrix, np.float64)
+    dist = np.zeros(5)
+    dist[: len(np.ravel(camera.distortion))] = np.ravel(camera.distortion)
+    ix, iy = pixels[:, 0].astype(np.int64), pixels[:, 1].astype(np.int64)
+    ideal = film.map[iy, ix].astype(np.float64)  # (N, 2) film coordinates
+    base, frac = np.floor(ideal), ideal - np.floor(ideal)
+
+    def film_to_camera(points: np.ndarray) -> np.ndarray:
+        rays = np.stack([(points[:, 0] - film.cx) / film.f, (points[:, 1] - film.cy) / film.f,
+                         np.ones(len(points))], axis=1)  # fmt: skip
+        out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, dist)
+        return out.reshape(-1, 2)
+
+    total = np.zeros((len(pixels), 3))
+    for jx in (0, 1):
+        for jy in (0, 1):
+            weight = (frac[:, 0] if jx else 1 - frac[:, 0]) * (frac[:, 1] if jy else 1 - frac[:, 1])
+            corner = base + np.array([jx, jy])
+            total += weight[:, None] * box_mean(lambda d, c=corner: film_to_camera(c + d))
+    return total
+
+
+def image_formation_lines(result: ImageFormation) -> list[str]:
+    """The residual table and the per-region fits, for the console."""
+    lines = ["data against the true model, (data − prediction) / prediction, % (grey):",
+             f"{'β (°)':>9} {'pixels':>8} " + " ".join(f"{m:>12}" for m in MODELS)]  # fmt: skip
+    for b, count in enumerate(result.samples):
+        cells = " ".join(f"{v:+12.3f}" for v in result.residual_pct[b])
+        lines.append(f"{BETA_BINS_DEG[b]:>4}–{BETA_BINS_DEG[b + 1]:<4} {count:8d} {cells}")
+    lines += ["", "n and grey Rs fitted with the fit's centre-ray geometry (noise-free predictions: the effect alone):",
+              f"{'region':>6} {'truth':>14} {'data':>14} " + " ".join(f"{m:>14}" for m in MODELS)]  # fmt: skip
+    for r in result.regions:
+        cells = " ".join(f"{n:7.2f} {rs:.4f}"[:14].rjust(14) for n, rs in (r.truth, r.data, *r.worlds))
+        lines.append(f"{r.region:>6} {cells}")
+    return lines
