@@ -132,7 +132,7 @@ def exposure_agreement(
     are left out; an empty list when no pair can be told."""
     where = np.ones(frames[0].pixels.shape[:2], bool) if within is None else within
     order = sorted(range(len(frames)), key=lambda i: _kt(frames[i]))  # shortest first
-    pairs = []  # (longer, shorter, q, x, y, e)
+    pairs = []  # (longer, shorter, q, x, y, spread of y, black-level error)
     for shorter, longer in itertools.pairwise(order):
         a, b = frames[shorter], frames[longer]
         q = _kt(b) / _kt(a)
@@ -148,7 +148,8 @@ def exposure_agreement(
         # the shorter's signal regressed on the longer's: chosen by the longer, which does not bias this
         # regression; the longer's noise flattens it (errors in the regressor), less the wider its span
         spread = float(np.var(y))
-        intercept = np.mean(x) - np.cov(y, x)[0, 1] / spread * np.mean(y) if spread > 0 else np.nan
+        slope = float(np.mean((y - y.mean()) * (x - x.mean()))) / spread if spread > 0 else np.nan
+        intercept = x.mean() - slope * y.mean()
         pairs.append((longer, shorter, q, x, y, spread, intercept * q / (q - 1)))
     if not pairs:
         return []
@@ -156,9 +157,14 @@ def exposure_agreement(
     offset = float(widest[6]) if widest[5] > 0 else 0.0  # (every value alike: no line, no black level)
     # each pair's ratio from its sums once that black is allowed for: a sum is not biased by noise
     return [
-        PairAgreement(longer, shorter, float((y - offset).sum() / q / (x - offset).sum()), float(offset))
+        PairAgreement(longer, shorter, _ratio((y - offset).sum() / q, (x - offset).sum()), float(offset))
         for longer, shorter, q, x, y, _, _ in pairs
     ]
+
+
+def _ratio(a: float, b: float) -> float:
+    """a / b, or 0 where b is not above 0 (frames that cannot be compared: they disagree)."""
+    return float(a / b) if b > 0 else 0.0
 
 
 def _kt(f: BracketFrame) -> float:
