@@ -41,12 +41,14 @@ BETA_BINS_DEG = (0, 2, 4, 6, 8, 10, 14, 20, 30, 90)
 
 @dataclass(frozen=True)
 class RegionFigures:
-    """One region: its true n and grey Rs, and (n, grey Rs) fitted to the data and to each prediction."""
+    """One region: its true n and grey Rs, and (n, grey Rs) fitted to the data (at the pixel centres, and
+    with the pixel's footprint modelled as ``hlr-lab fit`` does) and to each prediction."""
 
     region: int
     truth: tuple[float, float]
-    data: tuple[float, float]
+    data: tuple[float, float]  # fitted at the pixel centres
     worlds: tuple[tuple[float, float], ...]  # one per MODELS entry
+    footprint: tuple[float, float]  # the data fitted as ``hlr-lab fit`` does: each pixel's box modelled
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ def image_formation(session_path: Path, sub: int = 3) -> ImageFormation:
     mesh = placed_mesh(s)
     caster = RayCaster(mesh)
     parts = [_view_samples(s, view, caster, mesh, truth, sub) for view in s.views]
-    cb, data, irradiance, cos_alpha, region, *predictions = (
+    cb, data, irradiance, cos_alpha, region, nodes, *predictions = (
         np.concatenate(p) for p in zip(*parts, strict=True)
     )
     ok = np.all([np.isfinite(p).all(axis=1) for p in predictions], axis=0)
@@ -90,14 +92,18 @@ def image_formation(session_path: Path, sub: int = 3) -> ImageFormation:
             fit_region(y[m], irradiance[m], cos_alpha[m], cb[m], theta_c_deg="auto")
             for y in (data, *predictions)
         ]
+        fits.append(
+            fit_region(data[m], irradiance[m], cos_alpha[m], cb[m], theta_c_deg="auto", footprint=nodes[m])
+        )
         pairs = tuple((float(f.n), float(np.mean(f.rs))) for f in fits)
-        regions.append(RegionFigures(r, (truth[r].n, float(np.mean(truth[r].rs))), pairs[0], pairs[1:]))
+        truths = (truth[r].n, float(np.mean(truth[r].rs)))
+        regions.append(RegionFigures(r, truths, pairs[0], pairs[1:-1], pairs[-1]))
     return ImageFormation(residual, counts, regions)
 
 
 def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Material], sub: int):
-    """One view's samples as the fit selects them: cos β, data (N, 3), irradiance, cos α, region, and the
-    three predictions (N, 3) each."""
+    """One view's samples as the fit selects them: cos β, data (N, 3), irradiance, cos α, region, the
+    footprint's log cos β (N, 4), and the three predictions (N, 3) each."""
     radiance = view_radiance(s, view, mesh)
     pose = view_pose(s, view)
     camera = s.rig.camera
@@ -140,7 +146,8 @@ def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Ma
     cos_alpha = np.einsum("ij,ij->i", geometry.normal, to_light / np.sqrt(d2)[:, None])
     cos_beta = g.cos_beta[keep]
     data = radiance.value[g.pixel[keep, 1], g.pixel[keep, 0]].astype(np.float64)
-    return cos_beta, data, pose.power / d2, cos_alpha, region, centre, box, remapped
+    nodes = g.footprint.nodes[keep]
+    return cos_beta, data, pose.power / d2, cos_alpha, region, nodes, centre, box, remapped
 
 
 def _remapped(camera: Camera, pixels: np.ndarray, box_mean) -> np.ndarray:
@@ -179,9 +186,13 @@ def image_formation_lines(result: ImageFormation) -> list[str]:
     for b, count in enumerate(result.samples):
         cells = " ".join(f"{v:+12.3f}" for v in result.residual_pct[b])
         lines.append(f"{BETA_BINS_DEG[b]:>4}–{BETA_BINS_DEG[b + 1]:<4} {count:8d} {cells}")
-    lines += ["", "n and grey Rs fitted with the fit's centre-ray geometry (noise-free predictions: the effect alone):",
-              f"{'region':>6} {'truth':>14} {'data':>14} " + " ".join(f"{m:>14}" for m in MODELS)]  # fmt: skip
+    lines += ["", "n and grey Rs fitted with the centre-ray geometry (noise-free predictions: the effect alone); "
+              "last, the data as hlr-lab fit fits them (each pixel's box modelled):",
+              f"{'region':>6} {'truth':>14} {'data':>14} " + " ".join(f"{m:>14}" for m in MODELS)
+              + f" {'data, box fit':>14}"]  # fmt: skip
     for r in result.regions:
-        cells = " ".join(f"{n:7.2f} {rs:.4f}"[:14].rjust(14) for n, rs in (r.truth, r.data, *r.worlds))
+        cells = " ".join(
+            f"{n:7.2f} {rs:.4f}"[:14].rjust(14) for n, rs in (r.truth, r.data, *r.worlds, r.footprint)
+        )
         lines.append(f"{r.region:>6} {cells}")
     return lines

@@ -14,7 +14,7 @@ from hlr_lab.formats.plan import read_plan
 from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.reflectance.hdr import BracketFrame, exposure_agreement, merge_bracket
 from hlr_lab.reflectance.session_fit import _fit_one, _Pooled
-from hlr_lab.reflectance.views import PoseSamples
+from hlr_lab.reflectance.views import Footprint, PoseSamples
 from worlds.plan_world import sim_scene
 
 SENSITIVITY, READ_NOISE, BITS = 4095.0, 1.5, 12
@@ -115,6 +115,7 @@ def test_a_region_without_highlight_pixels_gets_its_diffuse_colour_and_a_reason(
         r.irradiance[far],
         r.cos_alpha[far],
         r.cos_beta[far],
+        Footprint.at_centre(r.cos_beta[far]),
     )
     pooled = _Pooled()
     pooled.add("p000", part, np.ones(n, bool))

@@ -99,8 +99,12 @@ def fit_region(
     cos_beta,
     theta_c_deg: float | Literal["auto"] = 20.0,
     method: EstimatorName = DEFAULT_ESTIMATOR,
+    footprint: np.ndarray | None = None,
 ) -> RegionFit:
     """Fit (Rd, Rs, n) of eq. (1) to one region's pixels; see the module docstring for the arguments.
+    ``footprint``: (N, K) log cos β at K nodes over each pixel's area, so that the robust estimator fits
+    the lobe as the pixels saw it (the mean of its values there) (the paper's estimator takes the pixel centre, as the
+    paper does); None: every pixel a point sample.
 
     Raises InputError for malformed input, InsufficientSamples when fewer than MIN_DIFFUSE diffuse-only
     or MIN_HIGHLIGHT highlight pixels remain, DegenerateSamples when the highlight pixels span too little
@@ -108,7 +112,7 @@ def fit_region(
     """
     if method not in ESTIMATORS:
         raise InputError(f"unknown method {method!r}; use one of {', '.join(ESTIMATORS)}", field="method")
-    s = check_samples(intensity, irradiance, cos_alpha, cos_beta)
+    s = check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint if method == "robust" else None)
     estimator = ESTIMATORS[method].fit
     if theta_c_deg == "auto":
         theta, est = _auto_theta_c(s, estimator, refit=ESTIMATORS[method].per_theta_c)

@@ -41,12 +41,15 @@ class DegenerateSamples(HlrLabError):
 
 @dataclass(frozen=True, eq=False)
 class Samples:
-    """One region's pixels: intensity (N, 3), irradiance (N, 1) or (N, 3), cos_alpha (N,), cos_beta (N,)."""
+    """One region's pixels: intensity (N, 3), irradiance (N, 1) or (N, 3), cos_alpha (N,), cos_beta (N,) at
+    the pixel centre, and ``footprint`` (N, K): log cos β at K quadrature nodes over each pixel's area, whose
+    mean lobe is the one the pixel saw (None: every pixel a point sample)."""
 
     intensity: np.ndarray
     irradiance: np.ndarray
     cos_alpha: np.ndarray
     cos_beta: np.ndarray
+    footprint: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.cos_alpha)
@@ -58,16 +61,45 @@ class Samples:
 
     @cached_property
     def log_cos_beta(self) -> np.ndarray:
-        return np.log(self.cos_beta)
+        """(N,) log cos β at the pixel centre (its mean over the pixel's nodes when those are known)."""
+        return np.log(self.cos_beta) if self.footprint is None else self.footprint.mean(axis=1)
+
+    @cached_property
+    def _spread(self) -> np.ndarray:
+        """(N,) bool: the pixels whose nodes differ (elsewhere one value serves)."""
+        assert self.footprint is not None
+        return np.ptp(self.footprint, axis=1) > 0
+
+    def lobe(self, n: float, which: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """The lobe as the pixels ``which`` saw it — cosⁿβ, or its mean over each pixel's nodes — and its
+        log-derivative in n (log cos β, or the nodes' lobe-weighted mean of it), (M,) each."""
+        m = self.log_cos_beta[which]
+        e = np.exp(n * m)
+        if self.footprint is None:
+            return e, m
+        spread = self._spread[which]
+        nodes = self.footprint[which][spread]  # (K, nodes)
+        lobes = np.exp(n * nodes)
+        e[spread] = lobes.mean(axis=1)
+        slope = m.copy()
+        with np.errstate(invalid="ignore", divide="ignore"):  # a lobe 0 at every node: its centre's slope
+            weighted = (nodes * lobes).mean(axis=1) / e[spread]
+        slope[spread] = np.where(e[spread] > 0, weighted, m[spread])
+        return e, slope
 
     def subset(self, which: np.ndarray) -> Samples:
         return Samples(
-            self.intensity[which], self.irradiance[which], self.cos_alpha[which], self.cos_beta[which]
+            self.intensity[which],
+            self.irradiance[which],
+            self.cos_alpha[which],
+            self.cos_beta[which],
+            None if self.footprint is None else self.footprint[which],
         )
 
 
-def check_samples(intensity, irradiance, cos_alpha, cos_beta) -> Samples:
-    """Convert and validate; one InputError naming the argument and how many values are wrong."""
+def check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint=None) -> Samples:
+    """Convert and validate; one InputError naming the argument and how many values are wrong.
+    ``footprint``: (N, K) log cos β at K nodes over each pixel's area, or None."""
     i = _array("intensity", intensity)
     if i.ndim != 2 or i.shape[1] != 3:
         raise InputError(f"must have shape (N, 3), got {i.shape}", field="intensity")
@@ -84,7 +116,14 @@ def check_samples(intensity, irradiance, cos_alpha, cos_beta) -> Samples:
     _count_bad("irradiance", ~np.all(irr > 0, axis=1), "≤ 0 (unlit pixels do not belong in a fit)")
     _count_bad("cos_alpha", ~((ca > 0) & (ca <= 1 + 1e-9)), "outside (0, 1] (the light must be in front)")
     _count_bad("cos_beta", ~((cb > 0) & (cb <= 1 + 1e-9)), "outside (0, 1]")
-    return Samples(i, irr, np.minimum(ca, 1.0), np.minimum(cb, 1.0))
+    nodes = None
+    if footprint is not None:
+        nodes = _array("footprint", footprint)
+        if nodes.ndim != 2 or len(nodes) != n or nodes.shape[1] == 0:
+            raise InputError(f"must have shape ({n}, K) like intensity, got {nodes.shape}", field="footprint")
+        _count_bad("footprint", np.any(nodes > 1e-9, axis=1), "above 0 (a log cos β)")
+        nodes = np.minimum(nodes, 0.0)
+    return Samples(i, irr, np.minimum(ca, 1.0), np.minimum(cb, 1.0), nodes)
 
 
 def _array(name: str, value) -> np.ndarray:

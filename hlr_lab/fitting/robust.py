@@ -43,7 +43,7 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
     n1, rd1, rs1 = _profile_n(sub, sub_weight, n0, n_range)
     noise = _noise_model(sub, rd1, rs1, n1)
     start = np.concatenate([rd1, rs1, [n1]])
-    p, cov, rms = _gauss_newton(s, start, _Variance(noise, start, s.log_cos_beta), n_range)
+    p, cov, rms = _gauss_newton(s, start, _Variance(noise, start, s), n_range)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     # the noise at the lobe's peak; a lobe fitted below zero (no highlight seen) has none: the floor's
     mu_peak = max(float(np.mean(p[3:6]) * np.median(s.irradiance)), 0.0)
@@ -98,7 +98,7 @@ def _subsample(s: Samples, highlight: np.ndarray, seed: int) -> tuple[Samples, n
 
 def _linear_given_n(s: Samples, w: np.ndarray, n: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted LS for (Rd, Rs) per channel at fixed n; returns rd, rs (3,) and residuals (N, 3)."""
-    e = np.exp(n * s.log_cos_beta)
+    e = s.lobe(n)[0]
     a, b = s.irradiance * s.cos_alpha[:, None], s.irradiance * e[:, None]  # (N, 3) each (broadcast)
     a, b = np.broadcast_to(a, s.intensity.shape), np.broadcast_to(b, s.intensity.shape)
     wa, wb = w[:, None] * a, w[:, None] * b
@@ -145,7 +145,7 @@ def _profile_n(s: Samples, w: np.ndarray, n0: float, n_range) -> tuple[float, np
 
 def _noise_model(s: Samples, rd, rs, n) -> np.ndarray:
     """(a, b) of var = a + b·μ from the robust variance of residuals in bins of the model value μ."""
-    e = np.exp(n * s.log_cos_beta)
+    e = s.lobe(n)[0]
     mu = (s.irradiance * (s.cos_alpha[:, None] * rd + e[:, None] * rs)).ravel()
     r = (s.intensity - mu.reshape(s.intensity.shape)).ravel()
     edges = np.quantile(mu, np.linspace(0, 1, _NOISE_BINS + 1))
@@ -171,9 +171,9 @@ class _Variance:
     lobe cosⁿ⁰β is kept (8 bytes a pixel) rather than recomputed every pass.
     """
 
-    def __init__(self, noise: np.ndarray, p: np.ndarray, log_cos_beta: np.ndarray):
+    def __init__(self, noise: np.ndarray, p: np.ndarray, s: Samples):
         self.noise, self.p = noise, p
-        self.lobe = np.exp(p[6] * log_cos_beta)
+        self.lobe = s.lobe(float(p[6]))[0]
 
     def __call__(self, mu_start: np.ndarray) -> np.ndarray:
         return self.noise[0] + self.noise[1] * np.maximum(mu_start, 0.0)
@@ -246,8 +246,8 @@ def _assemble_vector(grads: np.ndarray, rs: np.ndarray) -> np.ndarray:
 def _chunk_sums(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
     rd, rs, n = p[:3], p[3:6], p[6]
     rd0, rs0 = noise.p[:3], noise.p[3:6]
-    ca, lb = s.cos_alpha[sl], s.log_cos_beta[sl]
-    e = np.exp(n * lb)
+    ca = s.cos_alpha[sl]
+    e, lb = s.lobe(n, sl)  # the lobe as the pixels see it, and d(log lobe)/dn
     shared_light = s.irradiance.shape[1] == 1
     jac = np.empty((3, len(ca)))
     hess, meat, grads = np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), np.zeros((3, 3))

@@ -149,21 +149,24 @@ class LampRecord:
 
 @dataclass
 class _Pooled:
-    """One region's samples over all views, kept compact (float32: 24 bytes a sample, the fit's only
+    """One region's samples over all views, kept compact (float32: 40 bytes a sample, the fit's only
     memory that grows with the session), and how many came from each view."""
 
     parts: list[dict[str, np.ndarray]] = field(default_factory=list)
     per_view: dict[str, int] = field(default_factory=dict)
 
     def add(self, view: str, samples: PoseSamples, mask: np.ndarray) -> None:
-        self.parts.append({name: getattr(samples, name)[mask].astype(np.float32) for name in _KEPT})
+        arrays = {name: getattr(samples, name) for name in _KEPT[:-1]} | {
+            "footprint": samples.footprint.nodes
+        }
+        self.parts.append({name: a[mask].astype(np.float32) for name, a in arrays.items()})
         self.per_view[view] = self.per_view.get(view, 0) + int(mask.sum())
 
     def stacked(self, name: str) -> np.ndarray:
         return np.concatenate([p[name] for p in self.parts]).astype(np.float64)
 
 
-_KEPT = ("intensity", "irradiance", "cos_alpha", "cos_beta")
+_KEPT = ("intensity", "irradiance", "cos_alpha", "cos_beta", "footprint")
 
 
 @dataclass(frozen=True)
@@ -427,13 +430,15 @@ def _fit_one(
     when its specular was measured."""
     intensity, irradiance = p.stacked("intensity"), p.stacked("irradiance")
     cos_alpha, cos_beta = p.stacked("cos_alpha"), p.stacked("cos_beta")
+    footprint = p.stacked("footprint")
     diag = {"id": region.id, "samples": len(cos_beta), "samples_per_pose": p.per_view}
     unlit = _not_lit(intensity, irradiance, cos_alpha, cos_beta)
     if unlit:
         diag["note"] = unlit
         return None, diag, None
     try:
-        fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=theta_c_deg, method=method)
+        fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=theta_c_deg, method=method,
+                         footprint=footprint)  # fmt: skip
     except (InsufficientSamples, DegenerateSamples) as exc:
         entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, str(exc), method)
         diag["specular"] = f"unmeasured: {exc}"

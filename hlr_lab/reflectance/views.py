@@ -60,6 +60,35 @@ class PoseSamples:
     irradiance: np.ndarray  # (N,) Φ/d²
     cos_alpha: np.ndarray  # (N,)
     cos_beta: np.ndarray  # (N,) β between the normal and the half vector
+    footprint: Footprint  # log cos β over each pixel's area
+
+
+@dataclass(frozen=True, eq=False)
+class Footprint:
+    """log cos β over each pixel's area: its values (N, 4) at the four two-point Gauss–Legendre nodes of the
+    pixel's box (``_FOOTPRINT_NODES``; the centre ray's value four times where one ray serves). A pixel
+    integrates the surface over its box, whose normal turns on a curved object (~1.5° across a pixel on the
+    bunny's ears): the lobe it records is the mean of cosⁿβ over the box, lower and wider than the centre
+    ray's cosⁿβ, so a fit at the centre gives n and Rs low (docs/fitting.md, "The pixel's footprint")."""
+
+    nodes: np.ndarray  # (N, 4) log cos β
+
+    @classmethod
+    def at_centre(cls, cos_beta: np.ndarray) -> Footprint:
+        """Point samples: every node the centre ray's cos β (N,) (0 and below: the floor, a lobe of 0)."""
+        with np.errstate(divide="ignore"):
+            centre = np.maximum(np.log(cos_beta), _LOG_COS_FLOOR)
+        return cls(np.repeat(centre[:, None], len(_FOOTPRINT_NODES), axis=1))
+
+    def __getitem__(self, which: np.ndarray) -> Footprint:
+        return Footprint(self.nodes[which])
+
+
+# two-point Gauss–Legendre nodes per axis: the mean over the pixel's box of anything cubic across it is
+# exact from these four rays
+_FOOTPRINT_NODES = np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]]) / (2 * np.sqrt(3))
+FOOTPRINT_BETA_DEG = 40.0  # beyond this β no lobe worth fitting changes over a pixel: the centre ray serves
+_LOG_COS_FLOOR = np.log(1e-6)  # a sub-ray past 90° (the half vector below the surface): the lobe is 0 there
 
 
 @dataclass(frozen=True)
@@ -83,6 +112,7 @@ class PixelGeometry:
     cos_alpha: np.ndarray  # (N,) may be ≤ 0: facing away from the lamp
     cos_view: np.ndarray  # (N,)
     cos_beta: np.ndarray  # (N,) β between the normal and the half vector
+    footprint: Footprint  # log cos β over each pixel's area
     lit: np.ndarray  # (N,) bool: faces the lamp and nothing lies between
     labels: np.ndarray  # (H, W) region id per pixel, −1 off the object
     normals: np.ndarray  # (H, W, 3) shading normal per pixel, NaN off the object
@@ -107,7 +137,7 @@ def pose_geometry(
     consider: those with usable radiance (``session_fit.view_radiance`` limits them to the object's window).
 
     mesh and caster: the object in the turntable frame; camera: the rig's calibrated camera (world).
-    timer: adds the seconds of the "g-buffer" and "shadows" stages.
+    timer: adds the seconds of the "g-buffer", "shadows" and "footprint" stages.
     """
     timer = timer if timer is not None else StageTimes()
     world_from_tt = rotation_z(np.radians(pose.turntable_deg))
@@ -121,19 +151,10 @@ def pose_geometry(
         labels[ys, xs] = surface_regions(plan, mesh, surface)
     hit = surface.hit
     point, normal = surface.point[hit], surface.normal[hit]
-    if pose.directional_from is None:
-        to_light = light - point
-        d2 = np.einsum("ij,ij->i", to_light, to_light)
-        l_dir = to_light / np.sqrt(d2)[:, None]
-        irradiance = pose.power / d2
-    else:
-        towards = to_tt @ (pose.light_world - pose.directional_from)
-        l_dir = np.broadcast_to(towards / np.linalg.norm(towards), point.shape)
-        irradiance = np.full(len(point), pose.power)
-    v_dir = cam.centre - point
-    v_dir /= np.linalg.norm(v_dir, axis=1, keepdims=True)
-    half = l_dir + v_dir
-    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    directional = (
+        None if pose.directional_from is None else to_tt @ (pose.light_world - pose.directional_from)
+    )
+    l_dir, v_dir, irradiance, cos_beta = _towards(point, normal, light, cam.centre, directional, pose.power)
     cos_alpha = np.einsum("ij,ij->i", normal, l_dir)
     lit = cos_alpha > 0
     with timer("shadows"):
@@ -144,17 +165,61 @@ def pose_geometry(
             lit[lit] = ~caster.segment_blocked(
                 point[lit] + normal[lit] * (SURFACE_OFFSET * caster.scale), far
             )
+    pixel = np.stack([xs[hit], ys[hit]], axis=1)
+    with timer("footprint"):
+        footprint = _footprint(caster, cam, pixel, cos_beta, lit, light, directional, pose.power)
     return PixelGeometry(
-        pixel=np.stack([xs[hit], ys[hit]], axis=1),
+        pixel=pixel,
         region=labels[ys[hit], xs[hit]],
         irradiance=irradiance,
         cos_alpha=cos_alpha,
         cos_view=np.einsum("ij,ij->i", normal, v_dir),
-        cos_beta=np.clip(np.einsum("ij,ij->i", normal, half), 0.0, 1.0),
+        cos_beta=cos_beta,
+        footprint=footprint,
         lit=lit,
         labels=labels,
         normals=_normal_image(labels.shape, xs[hit], ys[hit], normal),
     )
+
+
+def _towards(points, normals, light, camera_centre, directional, power):
+    """Unit directions to the lamp and to the camera (N, 3), the irradiance (N,) and cos β (N,) at surface
+    ``points`` (N, 3) with ``normals``; ``directional``: the light's direction of travel reversed (a
+    distant lamp), or None for the point lamp at ``light`` (3,)."""
+    if directional is None:
+        to_light = light - points
+        d2 = np.einsum("ij,ij->i", to_light, to_light)
+        l_dir = to_light / np.sqrt(d2)[:, None]
+        irradiance = power / d2
+    else:
+        l_dir = np.broadcast_to(directional / np.linalg.norm(directional), points.shape)
+        irradiance = np.full(len(points), power)
+    v_dir = camera_centre - points
+    v_dir /= np.linalg.norm(v_dir, axis=1, keepdims=True)
+    half = l_dir + v_dir
+    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    return l_dir, v_dir, irradiance, np.clip(np.einsum("ij,ij->i", normals, half), 0.0, 1.0)
+
+
+def _footprint(caster, cam, pixel, cos_beta, lit, light, directional, power) -> Footprint:
+    """log cos β at the four nodes of each pixel's box (``_FOOTPRINT_NODES``) for the lit pixels within
+    ``FOOTPRINT_BETA_DEG`` of a highlight; elsewhere the centre ray's value. A pixel whose rays do not all
+    meet the surface (a silhouette runs through it) keeps its centre ray too."""
+    nodes = Footprint.at_centre(cos_beta).nodes
+    near = np.flatnonzero(lit & (cos_beta >= np.cos(np.radians(FOOTPRINT_BETA_DEG))))
+    if len(near) == 0:
+        return Footprint(nodes)
+    values, whole = np.empty((len(near), len(_FOOTPRINT_NODES))), np.ones(len(near), bool)
+    for k, offset in enumerate(_FOOTPRINT_NODES):
+        sub = caster.surface(cam, pixel[near] + offset)
+        whole &= sub.hit
+        point = np.where(sub.hit[:, None], sub.point, 0.0)
+        normal = np.where(sub.hit[:, None], sub.normal, [0.0, 0.0, 1.0])
+        cb = _towards(point, normal, light, cam.centre, directional, power)[3]
+        with np.errstate(divide="ignore"):
+            values[:, k] = np.maximum(np.log(cb), _LOG_COS_FLOOR)
+    nodes[near[whole]] = values[whole]
+    return Footprint(nodes)
 
 
 def pose_samples(
@@ -187,6 +252,7 @@ def pose_samples(
             irradiance=g.irradiance[keep],
             cos_alpha=g.cos_alpha[keep],
             cos_beta=g.cos_beta[keep],
+            footprint=g.footprint[keep],
         )
 
 
