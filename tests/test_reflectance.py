@@ -234,3 +234,24 @@ def test_report_before_fit_says_to_fit_first(tmp_path, capsys):
     assert main(["report", str(session)]) == 1
     assert "run hlr-lab fit on it first" in capsys.readouterr().err
     assert not (session / "report.html").exists()
+
+
+def test_a_channel_whose_rs_comes_out_below_zero_is_a_note_not_an_internal_error():
+    """A highlight measured in red and green whose blue channel darkens instead (a lobe these pixels do not
+    follow: the truth here has Rs = −0.05 in blue): materials.json cannot hold it; the region gets no entry
+    and a note naming Rs, where an entry failed validation (exit 70) before."""
+    truth = Truth(np.array([0.5, 0.3, 0.2]), np.array([0.3, 0.3, -0.05]), 60.0)
+    r = synthetic_region(
+        truth, shape="sphere", pixels=20_000, bits=12, read_noise_dn=1, full_scale=1.5, seed=3
+    )
+    n = len(r.cos_beta)
+    part = PoseSamples(np.zeros(n, int), r.intensity, r.irradiance, r.cos_alpha, r.cos_beta,
+                       Footprint.at_centre(r.cos_beta))  # fmt: skip
+    pooled = _Pooled()
+    pooled.add("p000", part, np.ones(n, bool))
+    entry, diag, fit = _fit_one(
+        RegionEntry(id=0, color=[200, 120, 90], vertices=10), pooled, "auto", "robust"
+    )
+    assert entry is None
+    assert fit is None
+    assert diag["note"].startswith("the fit gave Rs = "), diag["note"]

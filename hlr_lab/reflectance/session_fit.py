@@ -458,7 +458,7 @@ def _fit_one(
         return entry, diag, None
     diag["residual_rms"] = fit.residual_rms
     diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
-    wrong = _unphysical(fit.rd)
+    wrong = _unphysical(fit.rd) or _unphysical(fit.rs, "Rs")  # materials.json holds neither
     if wrong:
         diag["note"] = wrong
         return None, diag, None
@@ -486,26 +486,27 @@ def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
     return (
         f"its {len(y)} pixels do not brighten where the lamp's light falls more directly (correlation r = "
         f"{r:.2f} with L·cos α; a lit surface gives nearly 1): the frames do not show this object lit by this "
-        "lamp — check the lamp, light from elsewhere (dark frames), and that the object photographed is the "
-        "plan's, placed as planned"
+        "lamp as the rig file places it — check the lamp, light from elsewhere (dark frames), the rig file's "
+        "calibration (its [sensor] black level, camera and gantry: hlr-lab calibrate), and that the object "
+        "photographed is the plan's, placed as planned"
     )
 
 
-def _unphysical(rd: np.ndarray) -> str | None:
-    """Why a fitted Rd (C,) cannot be a reflectance (a channel below 0, or above the 1.5 materials.json
-    allows), or None. The pixels then do not follow the model: most often a black level or a
+def _unphysical(values: np.ndarray, name: str = "Rd") -> str | None:
+    """Why a fitted Rd or Rs (C,) cannot be a reflectance (a channel below 0, or above the 1.5
+    materials.json allows), or None. The pixels then do not follow the model: most often a black level or a
     sensitivity × power that is not the rig's."""
-    rd = np.asarray(rd)
-    if np.all((rd >= 0) & (rd <= 1.5)):
+    values = np.asarray(values)
+    if np.all((values >= 0) & (values <= 1.5)):
         return None
-    values = ", ".join(f"{v:.3g}" for v in rd)
-    if np.any(rd < 0):
+    shown = ", ".join(f"{v:.3g}" for v in values)
+    if np.any(values < 0):
         return (
-            f"the fit gave Rd = {values} (below 0): these pixels do not follow the model; check [sensor] "
+            f"the fit gave {name} = {shown} (below 0): these pixels do not follow the model; check [sensor] "
             "black_level_dn against dark frames (hlr-lab calibrate radiometric)"
         )
     return (
-        f"the fit gave Rd = {values} (above 1.5: more light than falls on it): check [sensor] sensitivity and "
+        f"the fit gave {name} = {shown} (above 1.5: more light than falls on it): check [sensor] sensitivity and "
         "[light] power (hlr-lab calibrate radiometric)"
     )
 
