@@ -2,6 +2,7 @@
 session acquired from the simulated rig, against the simulated world's true materials."""
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -255,3 +256,29 @@ def test_a_channel_whose_rs_comes_out_below_zero_is_a_note_not_an_internal_error
     assert entry is None
     assert fit is None
     assert diag["note"].startswith("the fit gave Rs = "), diag["note"]
+
+
+def test_the_report_and_materials_json_agree_on_every_region(finished_session, tmp_path):
+    """materials.json with one region measured as fitted, one unmeasured (its Rd from β > 35°) and one
+    without an entry (the diagnostics say why): the report shows each as materials.json has it — θc only
+    for a measured lobe, the β–Is curve only for a measured lobe, the missing region with the fit's reason."""
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    assert main(["fit", str(session)]) == 0
+    doc = json.loads((session / "materials.json").read_text())
+    one = doc["regions"][1]
+    for key in ("rs", "rs_se", "n", "n_se"):
+        one.pop(key)
+    one.update(specular="unmeasured", reason="a test's unmeasured lobe", theta_c_deg=35.0)
+    gone = doc["regions"].pop(3)["id"]
+    (session / "materials.json").write_text(json.dumps(doc))
+    diagnostics = json.loads((session / "fit-diagnostics.json").read_text())
+    next(d for d in diagnostics["regions"] if d["id"] == gone)["note"] = "a test's reason for no entry"
+    (session / "fit-diagnostics.json").write_text(json.dumps(diagnostics))
+    assert main(["report", str(session)]) == 0
+    page = (session / "report.html").read_text()
+    assert f"Regions without an entry: region {gone}: a test&#x27;s reason for no entry" in page
+    assert "— (Rd from β &gt; 35°)" in page or "— (Rd from β > 35°)" in page
+    measured = [e["id"] for e in doc["regions"] if e["specular"] == "measured"]
+    charted = sorted(int(i) for i in re.findall(r">region (\d+)</text>", page))
+    assert charted == sorted(measured), (charted, measured)

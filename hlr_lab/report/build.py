@@ -69,9 +69,9 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
         f"<h1>hlr-lab report: {h.escape(session.path.name)}</h1>",
         _meta(session),
         "<h2>Materials</h2>",
-        _materials(session, materials),
+        _materials(session, materials, diagnostics),
         "<h2>Highlights: β against the specular part, with the fitted lobe</h2>",
-        _curves(diagnostics),
+        _curves(diagnostics, {e.id for e in materials.regions if e.specular == "measured"}),
         "<h2>Photographs and the fitted materials rendered back</h2>",
         '<p class="note">Left: the captured bracket merged to linear radiance. Middle: the fitted materials '
         "rendered from the same geometry (measured turntable angle and lamp position, calibrated camera). "
@@ -154,7 +154,9 @@ def _lamp(session: Session) -> str:
     )
 
 
-def _materials(session: Session, materials: MaterialsFile) -> str:
+def _materials(session: Session, materials: MaterialsFile, diagnostics: dict) -> str:
+    """The materials table, as materials.json has them, and each planned region without an entry with the
+    fit's reason (fit-diagnostics.json)."""
     rows = []
     for e in materials.regions:
         rd = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
@@ -165,29 +167,39 @@ def _materials(session: Session, materials: MaterialsFile) -> str:
             n = f"{e.n:.2f} ± {e.n_se:.2f}"
         else:
             rs, n = f"unmeasured: {h.escape(e.reason)}", "—"
+        # an unmeasured lobe has no θc: its Rd came from the pixels beyond this β
+        theta = (
+            f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else f"— (Rd from β > {e.theta_c_deg:.0f}°)"
+        )
         rows.append(
             [
                 f"{e.id} {h.swatch(e.color)}",
                 rd,
                 rs,
                 n,
-                f"{e.theta_c_deg:.1f}°",
+                theta,
                 f"{e.pixels.diffuse} / {e.pixels.highlight}",
                 f"{e.residual_rms:.3g}",
             ]
         )
-    seen = {e.id for e in materials.regions}
-    missing = [r.id for r in session.plan.object.regions if r.id not in seen]
-    note = f'<p class="note">Regions not seen in any usable pixel: {missing}.</p>' if missing else ""
+    entries = {e.id for e in materials.regions}
+    why = {d["id"]: d.get("note", "") for d in diagnostics.get("regions", [])}
+    missing = [
+        f"region {r.id}: {h.escape(why.get(r.id) or 'not fitted (no diagnostics)')}"
+        for r in session.plan.object.regions
+        if r.id not in entries
+    ]
+    note = f'<p class="note">Regions without an entry: {"; ".join(missing)}.</p>' if missing else ""
     headers = ["region", "Rd (linear)", "Rs", "n", "θc", "pixels diffuse / highlight", "residual RMS"]
     return h.table(headers, rows) + note
 
 
-def _curves(diagnostics: dict) -> str:
+def _curves(diagnostics: dict, measured: set[int]) -> str:
+    """The β–Is curve of each region whose lobe materials.json holds as measured."""
     charts = []
     for d in diagnostics.get("regions", []):
         curve = d.get("beta_curve")
-        if not curve:
+        if not curve or d["id"] not in measured:
             continue
         beta, mean, lobe = curve["beta_deg"], curve["mean_is"], curve["fitted_lobe"]
         points = [(b, m, "") for b, m in zip(beta, mean, strict=True) if m is not None]
