@@ -234,7 +234,7 @@ def pose_samples(
 ) -> PoseSamples:
     """The pose's samples: lit, visible, not grazing, usable radiance, away from borders.
 
-    timer: adds the seconds of the "g-buffer", "shadows" and "selection" stages.
+    timer: adds the seconds of the "g-buffer", "shadows", "footprint" and "selection" stages.
     """
     timer = timer if timer is not None else StageTimes()
     g = pose_geometry(plan, mesh, caster, camera, pose, radiance.usable, timer)
