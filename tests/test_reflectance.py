@@ -282,3 +282,23 @@ def test_the_report_and_materials_json_agree_on_every_region(finished_session, t
     measured = [e["id"] for e in doc["regions"] if e["specular"] == "measured"]
     charted = sorted(int(i) for i in re.findall(r">region (\d+)</text>", page))
     assert charted == sorted(measured), (charted, measured)
+
+
+def test_a_region_seen_only_in_its_highlight_is_not_taken_for_one_the_lamp_does_not_light():
+    """Pixels all within 25° of the mirror direction (as Spot's pupils, seen in one pose's highlight): their
+    brightness follows β, not cos α, so they say nothing about whether the lamp lit them; the region is
+    judged by the fit (too few diffuse pixels), not refused as unlit."""
+    truth = Truth(np.array([0.01, 0.01, 0.01]), np.array([0.25, 0.25, 0.25]), 40.0)
+    r = synthetic_region(truth, shape="torus", light="point", pixels=200_000, bits=12, read_noise_dn=1,
+                         full_scale=1.5, seed=4)  # fmt: skip
+    near = r.cos_beta > np.cos(np.radians(25))
+    n = int(near.sum())
+    part = PoseSamples(np.zeros(n, int), r.intensity[near], r.irradiance[near], r.cos_alpha[near],
+                       r.cos_beta[near], Footprint.at_centre(r.cos_beta[near]))  # fmt: skip
+    x = r.irradiance[near] * r.cos_alpha[near]
+    assert np.std(x) > 0.05 * np.mean(x)  # L·cos α varies enough to judge by, as the check used to (r 0.43)
+    assert np.corrcoef(x, r.intensity[near].mean(axis=1))[0, 1] < 0.5
+    pooled = _Pooled()
+    pooled.add("p000", part, np.ones(n, bool))
+    _, diag, _ = _fit_one(RegionEntry(id=0, color=[20, 20, 20], vertices=10), pooled, "auto", "robust")
+    assert "do not brighten" not in diag.get("note", ""), diag

@@ -468,16 +468,17 @@ def _fit_one(
 def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
     """Why a region's pixels (intensity (N, C), irradiance, cos α, cos β (N,)) cannot be a surface lit by
     the lamp, or None: all black, or not brightening where the light falls more directly (Pearson r of the
-    mean channel with L·cos α below ``FOLLOWS_LIGHT``, over the pixels beyond the highlight cone, where
-    L·cos α varies enough to tell)."""
-    far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
-    use = far if far.sum() >= MIN_DIFFUSE else np.ones_like(far)
-    x, y = irradiance[use] * cos_alpha[use], intensity[use].mean(axis=1)
-    if not np.any(y > 0):
+    mean channel with L·cos α below ``FOLLOWS_LIGHT``, over the pixels beyond the highlight cone, when there
+    are enough of them and L·cos α varies enough to tell)."""
+    if not np.any(intensity > 0):
         return (
-            f"every one of its {len(y)} pixels is black in every frame: the lamp lit nothing (check that it is "
-            "connected and switched by the rig, the exposures, and the lens cap)"
+            f"every one of its {len(intensity)} pixels is black in every frame: the lamp lit nothing (check that "
+            "it is connected and switched by the rig, the exposures, and the lens cap)"
         )
+    # only pixels outside the highlight can tell: inside it brightness follows β, not cos α (Spot's pupils,
+    # seen only in their highlight, are anti-correlated with L·cos α, r = −0.96)
+    far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    x, y = irradiance[far] * cos_alpha[far], intensity[far].mean(axis=1)
     if len(x) < MIN_DIFFUSE or np.std(x) < SPREAD * np.mean(x):
         return None
     r = float(np.corrcoef(x, y)[0, 1]) if np.std(y) > 0 else 0.0
