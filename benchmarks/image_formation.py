@@ -27,10 +27,9 @@ import numpy as np
 from hlr_lab.fitting import fit_region
 from hlr_lab.formats.planned_object import region_ids
 from hlr_lab.geometry.camera import Camera
-from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.session_fit import Session, open_session, placed_mesh, view_pose, view_radiance
-from hlr_lab.reflectance.views import DEFAULT_SELECTION, pose_geometry
+from hlr_lab.reflectance.views import pixel_footprint, pose_frame, pose_geometry, selected
 from sim.render.camera import CameraSpec, PinholeFilm
 from sim.render.scene import Material
 from worlds.plan_world import sim_scene
@@ -108,17 +107,9 @@ def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Ma
     pose = view_pose(s, view)
     camera = s.rig.camera
     g = pose_geometry(s.plan, mesh, caster, camera, pose, radiance.usable)
-    sel = DEFAULT_SELECTION
-    keep = (
-        g.lit
-        & g.interior(sel.border_px)
-        & (g.cos_alpha >= np.cos(np.radians(sel.max_alpha_deg)))
-        & (g.cos_view >= np.cos(np.radians(sel.max_view_deg)))
-    )
+    keep = selected(g)
     pixels, region = g.pixel[keep].astype(np.float64), g.region[keep]
-    world_from_tt = rotation_z(np.radians(pose.turntable_deg))
-    cam = camera.in_frame(world_from_tt)
-    light = world_from_tt[:3, :3].T @ (pose.light_world - world_from_tt[:3, 3])
+    cam, light, _ = pose_frame(camera, pose)  # the default world's lamp is a point
     rd, rs = (np.array([getattr(truth[int(r)], k) for r in region]) for k in ("rd", "rs"))
     n = np.array([truth[int(r)].n for r in region])
 
@@ -140,14 +131,9 @@ def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Ma
     centre = predict(pixels)
     box = np.mean([predict(pixels + d) for d in grid], axis=0)
     remapped = _remapped(camera, pixels, lambda film: np.mean([predict(film(d)) for d in grid], axis=0))
-    geometry = caster.surface(cam, pixels)
-    to_light = light - geometry.point
-    d2 = np.einsum("ij,ij->i", to_light, to_light)
-    cos_alpha = np.einsum("ij,ij->i", geometry.normal, to_light / np.sqrt(d2)[:, None])
-    cos_beta = g.cos_beta[keep]
     data = radiance.value[g.pixel[keep, 1], g.pixel[keep, 0]].astype(np.float64)
-    nodes = g.footprint.nodes[keep]
-    return cos_beta, data, pose.power / d2, cos_alpha, region, nodes, centre, box, remapped
+    nodes = pixel_footprint(caster, camera, pose, pixels, g.cos_beta[keep]).nodes  # as hlr-lab fit casts them
+    return g.cos_beta[keep], data, g.irradiance[keep], g.cos_alpha[keep], region, nodes, centre, box, remapped
 
 
 def _remapped(camera: Camera, pixels: np.ndarray, box_mean) -> np.ndarray:

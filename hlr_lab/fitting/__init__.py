@@ -103,8 +103,8 @@ def fit_region(
 ) -> RegionFit:
     """Fit (Rd, Rs, n) of eq. (1) to one region's pixels; see the module docstring for the arguments.
     ``footprint``: (N, K) log cos β at K nodes over each pixel's area, so that the robust estimator fits
-    the lobe as the pixels saw it (the mean of its values there) (the paper's estimator takes the pixel centre, as the
-    paper does); None: every pixel a point sample.
+    the lobe as the pixels saw it, the mean of its values at the nodes; None: every pixel a point sample.
+    The paper's estimator takes the pixel centre, as the paper does.
 
     Raises InputError for malformed input, InsufficientSamples when fewer than MIN_DIFFUSE diffuse-only
     or MIN_HIGHLIGHT highlight pixels remain, DegenerateSamples when the highlight pixels span too little

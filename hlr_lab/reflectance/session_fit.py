@@ -156,17 +156,21 @@ class _Pooled:
     per_view: dict[str, int] = field(default_factory=dict)
 
     def add(self, view: str, samples: PoseSamples, mask: np.ndarray) -> None:
-        arrays = {name: getattr(samples, name) for name in _KEPT[:-1]} | {
-            "footprint": samples.footprint.nodes
-        }
+        arrays = {name: getattr(samples, name) for name in _COLUMNS} | {"footprint": samples.footprint.nodes}
         self.parts.append({name: a[mask].astype(np.float32) for name, a in arrays.items()})
         self.per_view[view] = self.per_view.get(view, 0) + int(mask.sum())
 
     def stacked(self, name: str) -> np.ndarray:
         return np.concatenate([p[name] for p in self.parts]).astype(np.float64)
 
+    def any_light(self) -> bool:
+        """Whether any of the region's pixels read above black (without stacking them)."""
+        return any(bool(np.any(p["intensity"] > 0)) for p in self.parts)
 
-_KEPT = ("intensity", "irradiance", "cos_alpha", "cos_beta", "footprint")
+
+_COLUMNS = ("intensity", "irradiance", "cos_alpha", "cos_beta")  # the PoseSamples arrays kept as they are
+# a lamp that lit nothing: what to look at
+_DARK_ADVICE = "check that it is connected and switched by the rig, the exposures, and the lens cap"
 
 
 @dataclass(frozen=True)
@@ -362,10 +366,10 @@ def fit_session(
         )
         for rid in np.unique(samples.region):
             pooled[int(rid)].add(view.pose, samples, samples.region == rid)
-    if pooled and not any(np.any(p.stacked("intensity") > 0) for p in pooled.values()):
+    if pooled and not any(p.any_light() for p in pooled.values()):
         raise InputError(
             f"every pixel of the object is black in every frame of its {len(session.views)} pose(s): the lamp lit "
-            "nothing — check that it is connected and switched by the rig, the exposures, and the lens cap",
+            f"nothing — {_DARK_ADVICE}",
             path=session.path,
         )
 
@@ -472,8 +476,8 @@ def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
     are enough of them and L·cos α varies enough to tell)."""
     if not np.any(intensity > 0):
         return (
-            f"every one of its {len(intensity)} pixels is black in every frame: the lamp lit nothing (check that "
-            "it is connected and switched by the rig, the exposures, and the lens cap)"
+            f"every one of its {len(intensity)} pixels is black in every frame: the lamp lit nothing "
+            f"({_DARK_ADVICE})"
         )
     # only pixels outside the highlight can tell: inside it brightness follows β, not cos α (Spot's pupils,
     # seen only in their highlight, are anti-correlated with L·cos α, r = −0.96)

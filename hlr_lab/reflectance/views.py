@@ -112,7 +112,6 @@ class PixelGeometry:
     cos_alpha: np.ndarray  # (N,) may be ≤ 0: facing away from the lamp
     cos_view: np.ndarray  # (N,)
     cos_beta: np.ndarray  # (N,) β between the normal and the half vector
-    footprint: Footprint  # log cos β over each pixel's area
     lit: np.ndarray  # (N,) bool: faces the lamp and nothing lies between
     labels: np.ndarray  # (H, W) region id per pixel, −1 off the object
     normals: np.ndarray  # (H, W, 3) shading normal per pixel, NaN off the object
@@ -137,13 +136,10 @@ def pose_geometry(
     consider: those with usable radiance (``session_fit.view_radiance`` limits them to the object's window).
 
     mesh and caster: the object in the turntable frame; camera: the rig's calibrated camera (world).
-    timer: adds the seconds of the "g-buffer", "shadows" and "footprint" stages.
+    timer: adds the seconds of the "g-buffer" and "shadows" stages.
     """
     timer = timer if timer is not None else StageTimes()
-    world_from_tt = rotation_z(np.radians(pose.turntable_deg))
-    cam = camera.in_frame(world_from_tt)  # the camera seen from the turntable
-    to_tt = world_from_tt[:3, :3].T  # world → turntable (a rotation about the table's axis)
-    light = to_tt @ (pose.light_world - world_from_tt[:3, 3])
+    cam, light, directional = pose_frame(camera, pose)
     with timer("g-buffer"):
         ys, xs = np.nonzero(within)
         surface = caster.surface(cam, np.stack([xs, ys], axis=1).astype(np.float64))
@@ -151,9 +147,6 @@ def pose_geometry(
         labels[ys, xs] = surface_regions(plan, mesh, surface)
     hit = surface.hit
     point, normal = surface.point[hit], surface.normal[hit]
-    directional = (
-        None if pose.directional_from is None else to_tt @ (pose.light_world - pose.directional_from)
-    )
     l_dir, v_dir, irradiance, cos_beta = _towards(point, normal, light, cam.centre, directional, pose.power)
     cos_alpha = np.einsum("ij,ij->i", normal, l_dir)
     lit = cos_alpha > 0
@@ -165,17 +158,13 @@ def pose_geometry(
             lit[lit] = ~caster.segment_blocked(
                 point[lit] + normal[lit] * (SURFACE_OFFSET * caster.scale), far
             )
-    pixel = np.stack([xs[hit], ys[hit]], axis=1)
-    with timer("footprint"):
-        footprint = _footprint(caster, cam, pixel, cos_beta, lit, light, directional, pose.power)
     return PixelGeometry(
-        pixel=pixel,
+        pixel=np.stack([xs[hit], ys[hit]], axis=1),
         region=labels[ys[hit], xs[hit]],
         irradiance=irradiance,
         cos_alpha=cos_alpha,
         cos_view=np.einsum("ij,ij->i", normal, v_dir),
         cos_beta=cos_beta,
-        footprint=footprint,
         lit=lit,
         labels=labels,
         normals=_normal_image(labels.shape, xs[hit], ys[hit], normal),
@@ -201,12 +190,28 @@ def _towards(points, normals, light, camera_centre, directional, power):
     return l_dir, v_dir, irradiance, np.clip(np.einsum("ij,ij->i", normals, half), 0.0, 1.0)
 
 
-def _footprint(caster, cam, pixel, cos_beta, lit, light, directional, power) -> Footprint:
-    """log cos β at the four nodes of each pixel's box (``_FOOTPRINT_NODES``) for the lit pixels within
-    ``FOOTPRINT_BETA_DEG`` of a highlight; elsewhere the centre ray's value. A pixel whose rays do not all
-    meet the surface (a silhouette runs through it) keeps its centre ray too."""
+def pose_frame(camera: Camera, pose: PoseGeometry) -> tuple[Camera, np.ndarray, np.ndarray | None]:
+    """The pose seen from the turntable, where the mesh sits still: the camera, the lamp's position (3,)
+    and, for a distant lamp, the direction toward it (3,; None for a point lamp)."""
+    world_from_tt = rotation_z(np.radians(pose.turntable_deg))
+    to_tt = world_from_tt[:3, :3].T  # world → turntable (a rotation about the table's axis)
+    light = to_tt @ (pose.light_world - world_from_tt[:3, 3])
+    directional = (
+        None if pose.directional_from is None else to_tt @ (pose.light_world - pose.directional_from)
+    )
+    return camera.in_frame(world_from_tt), light, directional
+
+
+def pixel_footprint(
+    caster: RayCaster, camera: Camera, pose: PoseGeometry, pixel: np.ndarray, cos_beta: np.ndarray
+) -> Footprint:
+    """log cos β at the four nodes of each of the lit ``pixel`` (N, 2) boxes (``_FOOTPRINT_NODES``) for those
+    within ``FOOTPRINT_BETA_DEG`` of a highlight (``cos_beta`` (N,), the centre ray's); elsewhere the
+    centre ray's value. A pixel whose rays do not all meet the surface (a silhouette runs through it) keeps
+    its centre ray too."""
+    cam, light, directional = pose_frame(camera, pose)
     nodes = Footprint.at_centre(cos_beta).nodes
-    near = np.flatnonzero(lit & (cos_beta >= np.cos(np.radians(FOOTPRINT_BETA_DEG))))
+    near = np.flatnonzero(cos_beta >= np.cos(np.radians(FOOTPRINT_BETA_DEG)))
     if len(near) == 0:
         return Footprint(nodes)
     values, whole = np.empty((len(near), len(_FOOTPRINT_NODES))), np.ones(len(near), bool)
@@ -215,11 +220,21 @@ def _footprint(caster, cam, pixel, cos_beta, lit, light, directional, power) -> 
         whole &= sub.hit
         point = np.where(sub.hit[:, None], sub.point, 0.0)
         normal = np.where(sub.hit[:, None], sub.normal, [0.0, 0.0, 1.0])
-        cb = _towards(point, normal, light, cam.centre, directional, power)[3]
+        cb = _towards(point, normal, light, cam.centre, directional, pose.power)[3]
         with np.errstate(divide="ignore"):
             values[:, k] = np.maximum(np.log(cb), _LOG_COS_FLOOR)
     nodes[near[whole]] = values[whole]
     return Footprint(nodes)
+
+
+def selected(g: PixelGeometry, selection: Selection = DEFAULT_SELECTION) -> np.ndarray:
+    """(N,) bool: the pixels of ``g`` a fit may use — lit, not grazing in light or view, away from borders."""
+    return (
+        g.lit
+        & g.interior(selection.border_px)
+        & (g.cos_alpha >= np.cos(np.radians(selection.max_alpha_deg)))
+        & (g.cos_view >= np.cos(np.radians(selection.max_view_deg)))
+    )
 
 
 def pose_samples(
@@ -239,21 +254,18 @@ def pose_samples(
     timer = timer if timer is not None else StageTimes()
     g = pose_geometry(plan, mesh, caster, camera, pose, radiance.usable, timer)
     with timer("selection"):
-        x, y = g.pixel[:, 0], g.pixel[:, 1]
-        keep = (
-            g.lit
-            & g.interior(selection.border_px)
-            & (g.cos_alpha >= np.cos(np.radians(selection.max_alpha_deg)))
-            & (g.cos_view >= np.cos(np.radians(selection.max_view_deg)))
-        )
-        return PoseSamples(
-            region=g.region[keep],
-            intensity=radiance.value[y[keep], x[keep]].astype(np.float64),
-            irradiance=g.irradiance[keep],
-            cos_alpha=g.cos_alpha[keep],
-            cos_beta=g.cos_beta[keep],
-            footprint=g.footprint[keep],
-        )
+        keep = selected(g, selection)
+        pixel = g.pixel[keep]
+    with timer("footprint"):  # only for the samples kept: the rays are the stage's cost
+        footprint = pixel_footprint(caster, camera, pose, pixel.astype(np.float64), g.cos_beta[keep])
+    return PoseSamples(
+        region=g.region[keep],
+        intensity=radiance.value[pixel[:, 1], pixel[:, 0]].astype(np.float64),
+        irradiance=g.irradiance[keep],
+        cos_alpha=g.cos_alpha[keep],
+        cos_beta=g.cos_beta[keep],
+        footprint=footprint,
+    )
 
 
 def _normal_image(shape: tuple[int, int], xs: np.ndarray, ys: np.ndarray, normal: np.ndarray) -> np.ndarray:

@@ -127,17 +127,16 @@ def png_damage(image: bytes) -> str | None:
     decoding time of every fit, so a stream damaged *and* given fresh CRCs is left to libpng."""
     if not image.startswith(_PNG_SIGNATURE):
         return "no PNG signature"
-    at, kinds = len(_PNG_SIGNATURE), []
+    at, kinds, view = len(_PNG_SIGNATURE), [], memoryview(image)  # a view: the image data is not copied
     while at < len(image):
         if at + 12 > len(image):
             return f"cut short at byte {at}"
-        (length,) = struct.unpack(">I", image[at : at + 4])
-        kind, body = image[at + 4 : at + 8], image[at + 8 : at + 8 + length]
+        (length, kind) = struct.unpack(">I4s", view[at : at + 8])
         name = repr(kind)[2:-1]  # four bytes of anything: a line break is shown escaped
-        if len(body) < length or at + 12 + length > len(image):
+        if at + 12 + length > len(image):
             return f"its {name} chunk is cut short"
-        (crc,) = struct.unpack(">I", image[at + 8 + length : at + 12 + length])
-        if zlib.crc32(kind + body) != crc:
+        (crc,) = struct.unpack(">I", view[at + 8 + length : at + 12 + length])
+        if zlib.crc32(view[at + 8 : at + 8 + length], zlib.crc32(kind)) != crc:
             return f"its {name} chunk fails its CRC"
         kinds.append(kind)
         at += 12 + length
