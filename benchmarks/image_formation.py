@@ -1,17 +1,17 @@
 """``hlr-lab bench image-formation``: how far the fit's picture of a pixel (one ray through its centre) is
 from how the simulated camera forms it, and what that costs in n and Rs (issue 21, §1).
 
-The simulated camera renders an undistorted film whose pixels are box-filtered (Mitsuba's ``box``
-reconstruction filter), then remaps it bilinearly into the distorted camera image. A pixel's value is
-therefore the mean of the surface's radiance over a patch — the pixel's box, widened by the remap's
-tent — whose normal varies on a curved object, while the fit evaluates the model once, at the centre.
+The simulated camera renders on its own pixel grid, each pixel box-filtered (Mitsuba's ``box``
+reconstruction filter, rays undistorted where they leave the camera: :mod:`sim.render.opencv_sensor`), as
+a real sensor's pixel integrates the light over its square. A pixel's value is therefore the mean of the
+surface's radiance over a patch whose normal varies on a curved object, while one ray evaluates the
+model once, at the centre.
 A lobe averaged over varying normals is lower and wider than the lobe at the mean normal: n and Rs come
 out low, more so for sharp lobes and curved surfaces.
 
 For a session of the default simulated world (the plan's mesh, each planned region with the world's
 default material: the truth is known), every pixel the fit would use is compared against three
-predictions of the true model: at the pixel centre (the fit's), averaged over the pixel's box (K × K
-rays), and averaged as the simulator forms the image (box-filtered film pixels, bilinearly remapped).
+predictions of the true model: at the pixel centre, and averaged over the pixel's box (K × K rays).
 Each prediction is also fitted, noise-free, with the centre-ray geometry the fit uses: the n and Rs it
 gives are what that part of image formation alone does to the fit.
 """
@@ -21,20 +21,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from hlr_lab.fitting import fit_region
 from hlr_lab.formats.planned_object import region_ids
-from hlr_lab.geometry.camera import Camera
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.session_fit import Session, open_session, placed_mesh, view_pose, view_radiance
 from hlr_lab.reflectance.views import pixel_footprint, pose_frame, pose_geometry, selected
-from sim.render.camera import CameraSpec, PinholeFilm
 from sim.render.scene import Material
 from worlds.plan_world import sim_scene
 
-MODELS = ("centre ray", "pixel box", "box + remap")  # the predictions, in the order of their columns
+MODELS = ("centre ray", "pixel box")  # the predictions, in the order of their columns
 BETA_BINS_DEG = (0, 2, 4, 6, 8, 10, 14, 20, 30, 90)
 
 
@@ -62,7 +59,7 @@ class ImageFormation:
 
 def image_formation(session_path: Path, sub: int = 3) -> ImageFormation:
     """Compare ``session_path``'s pixels (a session of the default simulated world, acquired on the nominal
-    rig) with the true model under the three models of image formation; ``sub``: rays per pixel side."""
+    rig) with the true model under each model of image formation (MODELS); ``sub``: rays per pixel side."""
     s = open_session(session_path)
     scene = sim_scene(s.plan, s.plan_path, None)
     truth = dict(zip(region_ids(s.plan).tolist(), scene.materials, strict=True))
@@ -102,7 +99,7 @@ def image_formation(session_path: Path, sub: int = 3) -> ImageFormation:
 
 def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Material], sub: int):
     """One view's samples as the fit selects them: cos β, data (N, 3), irradiance, cos α, region, the
-    footprint's log cos β (N, 4), and the three predictions (N, 3) each."""
+    footprint's log cos β (N, 4), and the predictions (N, 3) each, in MODELS' order."""
     radiance = view_radiance(s, view, mesh)
     pose = view_pose(s, view)
     camera = s.rig.camera
@@ -130,39 +127,9 @@ def _view_samples(s: Session, view, caster: RayCaster, mesh, truth: dict[int, Ma
     grid = [np.array([dx, dy]) for dx in offsets for dy in offsets]
     centre = predict(pixels)
     box = np.mean([predict(pixels + d) for d in grid], axis=0)
-    remapped = _remapped(camera, pixels, lambda film: np.mean([predict(film(d)) for d in grid], axis=0))
     data = radiance.value[g.pixel[keep, 1], g.pixel[keep, 0]].astype(np.float64)
     nodes = pixel_footprint(caster, camera, pose, pixels, g.cos_beta[keep]).nodes  # as hlr-lab fit casts them
-    return g.cos_beta[keep], data, g.irradiance[keep], g.cos_alpha[keep], region, nodes, centre, box, remapped
-
-
-def _remapped(camera: Camera, pixels: np.ndarray, box_mean) -> np.ndarray:
-    """The simulator's image formation at camera ``pixels`` (N, 2): each is the bilinear mix of the four
-    film pixels around where it lands on the undistorted film (:class:`sim.render.camera.PinholeFilm`),
-    each film pixel the mean over its box (``box_mean(film)``, ``film(offset)`` giving camera-pixel
-    coordinates of those film pixels' points at ``offset``)."""
-    spec = CameraSpec(camera.matrix, camera.distortion, np.eye(3), np.zeros(3), camera.width, camera.height)
-    film = PinholeFilm(spec)
-    k = np.asarray(camera.matrix, np.float64)
-    dist = np.zeros(5)
-    dist[: len(np.ravel(camera.distortion))] = np.ravel(camera.distortion)
-    ix, iy = pixels[:, 0].astype(np.int64), pixels[:, 1].astype(np.int64)
-    ideal = film.map[iy, ix].astype(np.float64)  # (N, 2) film coordinates
-    base, frac = np.floor(ideal), ideal - np.floor(ideal)
-
-    def film_to_camera(points: np.ndarray) -> np.ndarray:
-        rays = np.stack([(points[:, 0] - film.cx) / film.f, (points[:, 1] - film.cy) / film.f,
-                         np.ones(len(points))], axis=1)  # fmt: skip
-        out, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), k, dist)
-        return out.reshape(-1, 2)
-
-    total = np.zeros((len(pixels), 3))
-    for jx in (0, 1):
-        for jy in (0, 1):
-            weight = (frac[:, 0] if jx else 1 - frac[:, 0]) * (frac[:, 1] if jy else 1 - frac[:, 1])
-            corner = base + np.array([jx, jy])
-            total += weight[:, None] * box_mean(lambda d, c=corner: film_to_camera(c + d))
-    return total
+    return g.cos_beta[keep], data, g.irradiance[keep], g.cos_alpha[keep], region, nodes, centre, box
 
 
 def image_formation_lines(result: ImageFormation) -> list[str]:

@@ -158,12 +158,12 @@ def bench_session_fit(poses) -> None:
 @bench.command("image-formation")
 @click.argument("session", type=FOLDER)
 @click.option("--sub", type=click.IntRange(1, 8), default=3, show_default=True,
-              help="Rays per pixel side for the box and remap predictions.")  # fmt: skip
+              help="Rays per pixel side for the box prediction.")  # fmt: skip
 def bench_image_formation(session: Path, sub: int) -> None:
     """Where the fit's one ray per pixel centre parts from how the simulated camera forms a pixel: the
     SESSION's pixels against the true model (the default simulated world: acquire --sim without --scene)
-    predicted at the pixel centre, over the pixel's box, and as the simulator forms the image (box-filtered
-    film, bilinearly remapped), by β; and the n and Rs each prediction gives the fit.
+    predicted at the pixel centre and over the pixel's box (as the simulated camera forms it), by β; and
+    the n and Rs each prediction gives the fit.
 
     \b
     Example:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.render.camera import CameraSpec, PinholeFilm
+from sim.render.camera import CameraFilm, CameraSpec
 from sim.render.llvm import load_mitsuba
 from sim.render.scene import SceneSpec
 
@@ -26,11 +26,12 @@ class Renderer:
         max_depth: int = 4,
     ):
         self.mi = mi = load_mitsuba()
-        from sim.render import phong
+        from sim.render import opencv_sensor, phong
 
         phong.register()
+        opencv_sensor.register()
         self.spec, self.camera, self.spp = scene, camera, spp
-        self.film = PinholeFilm(camera)
+        self.film = CameraFilm(camera)
         m = scene.mesh_to_turntable
         vertices = scene.vertices @ m[:3, :3].T + m[:3, 3]
         normals = scene.vertex_normals() @ np.linalg.inv(m[:3, :3])
@@ -180,11 +181,11 @@ class Renderer:
             p["light.irradiance.value"] = mi.Color3f([self._strength if lamp_on else 0.0] * 3)
         p.update()
         crop = np.asarray(mi.render(self.scene, seed=seed, spp=self.spp), dtype=np.float32)
-        # the scene holds only the object (and patches): outside their box the film is exactly 0 (box filter)
+        # the scene holds only the object (and patches): outside their box the image is exactly 0 (box filter)
         x, y, w, h = self._crop
-        film = np.zeros((self.film.height, self.film.width, 3), np.float32)
-        film[y : y + h, x : x + w] = crop
-        return self.film.to_camera_image(film)
+        image = np.zeros((self.film.height, self.film.width, 3), np.float32)
+        image[y : y + h, x : x + w] = crop
+        return image
 
 
 _CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float64)  # a ball's box
