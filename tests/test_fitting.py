@@ -179,12 +179,16 @@ def test_highlights_at_a_single_angle_cannot_give_n(paper_42):
 
 def test_a_region_darker_toward_its_mirror_direction_keeps_a_finite_theta_c(paper_42):
     """Pixels darker where the highlight should be (a black level or a rig far from the bench makes a
-    region look so): the robust fit finds Rs < 0, and θc stays a number — the noise at a peak below zero
-    is the noise floor — so the caller can say that no highlight was seen, within which angle."""
+    region look so): the robust fit holds Rs at 0 (a reflectance) and says how far below its unbounded
+    value went — hundreds of standard errors, no near-black surface — and θc stays a number (the noise at
+    a peak below zero is the noise floor), so the caller can say that no highlight was seen, within which
+    angle, and that the pixels are wrong."""
     r, t = paper_42, PAPER_42
     dimmed = r.intensity - 2 * predict(np.zeros(3), t.rs, t.n, r.irradiance, r.cos_alpha, r.cos_beta)
     f = fit_region(dimmed, r.irradiance, r.cos_alpha, r.cos_beta, theta_c_deg="auto", method="robust")
-    assert np.mean(f.rs) < 0
+    assert np.all(f.rs == 0)
+    assert np.all(f.held_at_zero[3:] < -100)
+    assert np.isnan(f.held_at_zero[:3]).all()
     assert np.isfinite(f.theta_c_deg)
     assert np.isfinite(f.noise_sigma)
 

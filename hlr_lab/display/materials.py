@@ -29,7 +29,7 @@ def materials_table(materials: MaterialsFile) -> Table:
             n = f"{e.n:.1f}±{e.n_se:.1f}"
         else:
             rs, n = "unmeasured", escape(e.reason or "")
-        theta = f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else f"— (β > {e.theta_c_deg:.0f}°)"
+        theta = f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else "—"  # an unmeasured lobe has none
         t.add_row(str(e.id), rd, rs, n, theta, f"{e.pixels.diffuse} / {e.pixels.highlight}")
     return t
 

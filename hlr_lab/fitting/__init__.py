@@ -13,7 +13,7 @@ light); cos_alpha, cos_beta (N,). ``theta_c_deg`` is a float or "auto"; ``method
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal, get_args
 
 import numpy as np
@@ -90,6 +90,9 @@ class RegionFit:
     method: EstimatorName
     residual_rms: float  # RMS of I − model over all pixels, intensity units
     noise_sigma: float  # estimated per-pixel noise at the highlight
+    # (6,) the Rd, Rs channels held at 0 because the unbounded fit went below (a near-black surface): the
+    # unbounded value in its standard errors there, NaN elsewhere
+    held_at_zero: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
 
 
 def fit_region(
@@ -143,6 +146,7 @@ def fit_region(
         method,
         est.residual_rms,
         est.noise_sigma,
+        np.full(6, np.nan) if est.held_at_zero is None else est.held_at_zero,
     )
 
 

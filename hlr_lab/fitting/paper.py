@@ -44,6 +44,9 @@ class Estimate:
     n_highlight: int
     noise_sigma: float  # per-pixel noise at the highlight, intensity units (grey)
     residual_rms: float  # of I − model over all pixels, intensity units
+    # (6,) the Rd, Rs channels held at 0 where the unbounded fit went below: its value there in its
+    # standard errors (< 0), NaN where not held (None: the estimator does not bound them)
+    held_at_zero: np.ndarray | None = None
 
 
 def fit_paper(s: Samples, highlight: np.ndarray, n_range: tuple[float, float]) -> Estimate:

@@ -11,6 +11,9 @@
    lose their pull instead of biasing Rd, and no division by cosⁿβ ever amplifies noise. From the
    subsample's start one pass usually suffices (see ``_gauss_newton``).
 5. Standard errors from the sandwich covariance H⁻¹ (Σ ψ² J Jᵀ/σ²) H⁻¹.
+6. Rd and Rs are reflectances: a channel that comes out below 0 (a near-black surface, whose noise
+   straddles 0) is held at 0 and the others fitted again (an active set: the bounded least-squares
+   solution); its standard error stays the unbounded fit's, the scale of what the pixels can tell.
 
 Every full pass runs in chunks (memory beyond the inputs stays constant) and does its 3×3 blocks per
 channel with BLAS; the starting values and the n search use the subsample only.
@@ -33,6 +36,9 @@ _ONE_PASS_SE = 10.0  # a Newton step this small (in standard errors) needs no ch
 _ONE_PASS_RELATIVE = 1e-3  # … nor one this small relative to the parameters: Newton's error after a step
 # is second order in the start's error, so a start within 0.1 % lands within ~1e-6
 _NOISE_BINS = 12
+_MAX_GRID_MOVES = 4  # the n search's grid spans a factor 12 either side of its centre; moved this often
+_MAX_RESTARTS = 3  # Newton again, the noise model at its answer, while n moves more than …
+_RESTART_N = 1e-3  # … this fraction from where the noise model was taken
 
 
 def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], seed: int = 0) -> Estimate:
@@ -43,8 +49,24 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
     n1, rd1, rs1 = _profile_n(sub, sub_weight, n0, n_range)
     noise = _noise_model(sub, rd1, rs1, n1)
     start = np.concatenate([rd1, rs1, [n1]])
-    p, cov, rms = _gauss_newton(s, start, _Variance(noise, start, s), n_range)
+    variance = _Variance(noise, start, s)
+    p, cov, rms = _gauss_newton(s, start, variance, n_range)
+    for _ in range(_MAX_RESTARTS):
+        # the noise model is the start's: from a start far off (a sharp lobe whose first guess was a
+        # broad one) its σ at the peak is wrong, Huber's weights with it, and n ends biased (measured: +4 %
+        # at n = 485, 15 of its standard errors); taken again where Newton ended, it is right
+        if abs(p[6] - variance.p[6]) <= _RESTART_N * variance.p[6]:
+            break
+        variance = _Variance(_noise_model(sub, p[:3], p[3:6], p[6]), p.copy(), s)
+        p, cov, rms = _gauss_newton(s, p, variance, n_range)
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    held, held_z = np.zeros(7, bool), np.full(6, np.nan)
+    while np.any(p[:6] < 0) and not held[:6].all():  # each pass holds at least one more channel
+        below = np.flatnonzero(p[:6] < 0)
+        held_z[below] = p[below] / np.maximum(se[below], 1e-300)
+        held[below] = True
+        p, cov, rms = _gauss_newton(s, np.where(held, 0.0, p), variance, n_range, held=held)
+        se = np.where(held, se, np.sqrt(np.clip(np.diag(cov), 0, None)))
     # the noise at the lobe's peak; a lobe fitted below zero (no highlight seen) has none: the floor's
     mu_peak = max(float(np.mean(p[3:6]) * np.median(s.irradiance)), 0.0)
     sigma = float(np.sqrt(max(noise[0] + noise[1] * mu_peak, 0.0)))
@@ -59,6 +81,7 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
         int(highlight.sum()),
         sigma,
         rms,
+        held_z,
     )
 
 
@@ -129,8 +152,15 @@ def _profile_n(s: Samples, w: np.ndarray, n0: float, n_range) -> tuple[float, np
         rho = np.where(t <= HUBER_K, 0.5 * t * t, HUBER_K * t - 0.5 * HUBER_K**2)
         return float((w[:, None] * rho).sum())
 
-    grid = np.linspace(max(lo, np.log(n0) - 2.5), min(hi, np.log(n0) + 2.5), 9)
-    k = int(np.argmin([cost(g) for g in grid]))
+    def search(centre: float) -> tuple[np.ndarray, int]:
+        grid = np.linspace(max(lo, centre - 2.5), min(hi, centre + 2.5), 9)
+        return grid, int(np.argmin([cost(g) for g in grid]))
+
+    grid, k = search(np.log(n0))
+    for _ in range(_MAX_GRID_MOVES):  # a minimum at the grid's edge lies beyond it: move the grid there
+        if 0 < k < len(grid) - 1 or grid[k] in (lo, hi):
+            break
+        grid, k = search(grid[k])
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
     # the full-data passes polish n; 0.1 % here is plenty
     log_n = (
@@ -179,21 +209,29 @@ class _Variance:
         return self.noise[0] + self.noise[1] * np.maximum(mu_start, 0.0)
 
 
-def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range):
-    """Newton on the Huber cost Σ ρ(r/σ) from a close start.
+def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range, held: np.ndarray | None = None):
+    """Newton on the Huber cost Σ ρ(r/σ) from a close start; the parameters ``held`` (7,) bool keep their
+    start's values (their rows and columns of the normal equations left out).
 
-    Hessian Σ ψ'(t) J Jᵀ/σ² (ψ' = 1 inside k, 0 beyond: quadratic convergence, unlike IRLS weights),
-    gradient Σ ψ(t) J/σ. A small step (``_ONE_PASS_SE`` standard errors, or ``_ONE_PASS_RELATIVE`` of the
-    parameters) is taken without another pass; a larger one is checked by the next pass (and halved if it
-    raised the cost). Standard errors: the sandwich H⁻¹ (Σ ψ(t)² J Jᵀ/σ²) H⁻¹, right whatever the share of outliers.
+    Steps from Σ w(t) J Jᵀ/σ² with IRLS's weights w = ψ(t)/t (1 inside k, k/|t| beyond), gradient
+    Σ ψ(t) J/σ: where most pixels lie inside k this is Newton's own step; where a start lies many σ from the
+    data at the lobe's peak (noise-free data, a sharp bright lobe), ψ' = 0 there would drop those pixels
+    from the step and leave n undetermined (measured: a noise-free n = 485 went to n = 1), while w keeps
+    them, and the step still lowers the cost (the weighted quadratic majorises Huber's). A small step
+    (``_ONE_PASS_SE`` standard errors, or ``_ONE_PASS_RELATIVE`` of the parameters) is taken without
+    another pass; a larger one is checked by the next pass, halved while it raises the cost, and given up
+    if halving does not help. Standard errors: the sandwich H⁻¹ (Σ ψ(t)² J Jᵀ/σ²) H⁻¹ with H = Σ ψ'(t) J
+    Jᵀ/σ², right whatever the share of outliers.
 
     Returns p, the covariance, and the plain residual RMS.
     """
+    free = np.ones(7) if held is None else (~held).astype(float)
+    mask = np.outer(free, free)
     sums = _normal_equations(s, p, noise)
     for _ in range(_MAX_PASSES):
-        hessian, grad, cost, meat, rss = sums
-        h_inv = np.linalg.pinv(hessian)
-        step = h_inv @ grad
+        hessian, weighted, grad, cost, meat, rss = sums
+        h_inv = np.linalg.pinv(hessian * mask)
+        step = np.linalg.pinv(weighted * mask) @ (grad * free)
         se = np.sqrt(np.clip(np.diag(h_inv @ meat @ h_inv), 1e-300, None))
         trial = p + step
         trial[6] = float(np.clip(trial[6], *n_range))
@@ -204,28 +242,40 @@ def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range):
             break
         t = _normal_equations(s, trial, noise)
         for _halving in range(_MAX_HALVINGS):
-            if t[2] <= cost * (1 + 1e-9):
+            if t[3] <= cost * (1 + 1e-9):
                 break
             step = step / 2
             trial = p + step
+            trial[6] = float(
+                np.clip(trial[6], *n_range)
+            )  # half of a step past the range can still be past it
             t = _normal_equations(s, trial, noise)  # the sums are always the trial's own
+        if t[3] > cost * (1 + 1e-9):
+            break  # no step along this direction lowers the cost: p is as good as it gets
         p, sums = trial, t
-    hessian, _, _, meat, rss = sums
-    h_inv = np.linalg.pinv(hessian)
-    return p, h_inv @ meat @ h_inv, float(np.sqrt(rss / (3 * len(s))))
+    hessian, _, _, _, meat, rss = sums
+    h_inv = np.linalg.pinv(hessian * mask)
+    return p, h_inv @ (meat * mask) @ h_inv, float(np.sqrt(rss / (3 * len(s))))
 
 
 def _normal_equations(s: Samples, p: np.ndarray, noise: _Variance):
-    """At ``p``: Hessian (7, 7), gradient (7,), Huber cost, the sandwich's meat (7, 7) and the plain
-    residual sum of squares — one pass over the pixels in chunks (memory stays flat)."""
-    hess, meat, grads = np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), np.zeros((3, 3))  # per channel, [a, e, n']
+    """At ``p``: the Hessian with ψ' (7, 7), the same with IRLS weights ψ(t)/t (7, 7), gradient (7,),
+    Huber cost, the sandwich's meat (7, 7) and the plain residual sum of squares — one pass over the pixels
+    in chunks (memory stays flat)."""
+    hess, weighted, meat = (
+        np.zeros((3, 3, 3)),
+        np.zeros((3, 3, 3)),
+        np.zeros((3, 3, 3)),
+    )  # per channel, [a, e, n']
+    grads = np.zeros((3, 3))
     cost = rss = 0.0
     for start in range(0, len(s), _CHUNK):
-        h, m, g, c, r = _chunk_sums(s, p, noise, slice(start, start + _CHUNK))
-        hess, meat, grads = hess + h, meat + m, grads + g
+        h, hw, m, g, c, r = _chunk_sums(s, p, noise, slice(start, start + _CHUNK))
+        hess, weighted, meat, grads = hess + h, weighted + hw, meat + m, grads + g
         cost, rss = cost + c, rss + r
     rs = p[3:6]
-    return _assemble(hess, rs), _assemble_vector(grads, rs), cost, _assemble(meat, rs), rss
+    return (_assemble(hess, rs), _assemble(weighted, rs), _assemble_vector(grads, rs), cost,
+            _assemble(meat, rs), rss)  # fmt: skip
 
 
 def _assemble(blocks: np.ndarray, rs: np.ndarray) -> np.ndarray:
@@ -250,7 +300,8 @@ def _chunk_sums(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
     e, lb = s.lobe(n, sl)  # the lobe as the pixels see it, and d(log lobe)/dn
     shared_light = s.irradiance.shape[1] == 1
     jac = np.empty((3, len(ca)))
-    hess, meat, grads = np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), np.zeros((3, 3))
+    hess, weighted, meat = np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), np.zeros((3, 3, 3))
+    grads = np.zeros((3, 3))
     cost = rss = 0.0
     lobe0 = np.empty(0)  # the start's lobe under this light: set at c = 0, and per channel if lights differ
     for c in range(3):
@@ -272,6 +323,7 @@ def _chunk_sums(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
         psi = r * inv_var * shrink  # ψ(t)/σ
         rss += float(np.dot(r, r))
         hess[c] = (jac * ((beyond == 0) * inv_var)) @ jac.T  # ψ'(t)/σ²
+        weighted[c] = (jac * (shrink * inv_var)) @ jac.T  # ψ(t)/(t σ²)
         meat[c] = (jac * (psi * psi)) @ jac.T  # ψ(t)²/σ²
         grads[c] = jac @ psi
-    return hess, meat, grads, cost, rss
+    return hess, weighted, meat, grads, cost, rss

@@ -13,6 +13,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from hlr_lab.geometry.clipping import clipped
@@ -61,21 +62,27 @@ def merge_bracket(
     kts = [sensitivity * 10 ** (f.gain_db / 20) * f.exposure_s for f in by_length]
     signals = [_signal(f, black_level_dn, where) for f in by_length]  # (N, C) float32 each
     clips = [clipped(f.pixels[where], f.bits, channels=f.pixels.ndim == 3) for f in by_length]  # (N,) each
-    # the longest unclipped frame is always used; a shorter one only where the longest predicts it above
-    # the noise floor. Deciding from another frame's value, never from the value itself: thresholding a
-    # noisy value on its own noise would bias the mean (upwards near the floor)
+    # the longest unclipped frame is always used; a shorter one only where the pixel's neighbours, in their
+    # longest unclipped frames, predict it above the noise floor. Never from the pixel's own values:
+    # thresholding a noisy value on its own noise biases the mean (upwards near the floor), and so does
+    # deciding from a frame that is then averaged in (it is given less weight where its noise is up:
+    # measured 0.1 DN low, 0.3 % of a 30 DN value, where the longest frame decided)
     longest = np.full(len(clips[0]), -1)
     for i, clip in enumerate(clips):
         longest[~clip] = i
     rough = np.full(signals[0].shape, np.nan, np.float32)  # radiance from the longest unclipped frame
     for i, (signal, kt) in enumerate(zip(signals, kts, strict=True)):
         rough[longest == i] = signal[longest == i] / kt
+    predicted = neighbour_mean(rough, where)
+    predicted = np.where(np.isfinite(predicted), predicted, rough)  # a pixel without usable neighbours
     total_dn = np.zeros(signals[0].shape, np.float32)
     total_kt = np.zeros(signals[0].shape, np.float32)
     used = np.zeros(len(longest), np.uint8)
     for i, (signal, kt, clip) in enumerate(zip(signals, kts, clips, strict=True)):
         with np.errstate(invalid="ignore"):
-            take = ~clip[:, None] & ((longest == i)[:, None] | (rough * kt >= noise_floor * read_noise_dn))
+            take = ~clip[:, None] & (
+                (longest == i)[:, None] | (predicted * kt >= noise_floor * read_noise_dn)
+            )
         total_dn += signal * take
         total_kt += kt * take
         used += take.any(axis=-1)
@@ -88,6 +95,28 @@ def merge_bracket(
     frames_used = np.zeros(shape[:2], np.uint8)
     frames_used[where] = used
     return Radiance(value, usable, frames_used)
+
+
+def neighbour_mean(values: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """(N, C) values at the pixels of ``where`` (H, W) bool, in its row-major order → (N, C): at each pixel
+    the mean of the finite values of its 8 neighbours (NaN where none has one). Pixel noise being
+    independent, this predicts a pixel's value without its own noise."""
+    ys, xs = np.nonzero(where)
+    if len(ys) == 0:
+        return values.copy()
+    y, x = ys - ys.min() + 1, xs - xs.min() + 1  # a margin of one pixel all round
+    shape = (int(y.max()) + 2, int(x.max()) + 2, values.shape[1])
+    finite = np.isfinite(values)
+    total, count = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+    total[y, x] = np.where(finite, values, 0)
+    count[y, x] = finite
+    ring = np.ones((3, 3), np.float32)
+    ring[1, 1] = 0  # the neighbours only
+    sums = [cv2.filter2D(a[..., c], -1, ring, borderType=cv2.BORDER_CONSTANT) for a in (total, count)
+            for c in range(shape[2])]  # fmt: skip
+    s, n = np.stack(sums[: shape[2]], axis=-1)[y, x], np.stack(sums[shape[2] :], axis=-1)[y, x]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, s / n, np.nan).astype(np.float32)
 
 
 def _signal(f: BracketFrame, black_level_dn: float, where: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ from hlr_lab.fitting import (
     RegionFit,
     fit_region,
 )
-from hlr_lab.fitting.inputs import MIN_DIFFUSE
+from hlr_lab.fitting.inputs import MIN_DIFFUSE, normal_mad
 from hlr_lab.formats.materials import (
     MaterialEntry,
     MaterialsFile,
@@ -60,6 +60,8 @@ from hlr_lab.session.metadata import SESSION, read_record, session_plan
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
+CLEAR_OF_NOISE = 3.0  # pixels whose mean is below this many noise σ are too dark to say whether they are lit
+BELOW_BLACK = 3.0  # an Rd this many standard errors below 0 is no near-black surface: the pixels are wrong
 # a bracket's frames may disagree about radiance by this much (relative) before they are refused: a linear
 # sensor under a steady lamp agrees within 1 % (the simulated rig: 1.000–1.008); two exposures of the default
 # bracket swapped disagree by 4× and 16×, any two confused by at least their ratio (≥ 2 in a useful bracket)
@@ -171,6 +173,10 @@ class _Pooled:
 _COLUMNS = ("intensity", "irradiance", "cos_alpha", "cos_beta")  # the PoseSamples arrays kept as they are
 # a lamp that lit nothing: what to look at
 _DARK_ADVICE = "check that it is connected and switched by the rig, the exposures, and the lens cap"
+_BELOW_BLACK_ADVICE = (
+    "the pixels read darker than black; check [sensor] black_level_dn against dark frames (hlr-lab "
+    "calibrate radiometric)"
+)
 
 
 @dataclass(frozen=True)
@@ -449,17 +455,25 @@ def _fit_one(
         if isinstance(entry, str):
             diag["note"], entry = entry, None
         return entry, diag, None
+    held, below_black = _held_note(fit.held_at_zero)
+    if below_black:  # no near-black surface: pixels that do not follow the model get no entry
+        diag["note"] = held
+        return None, diag, None
+    if held:
+        diag["held_at_zero"] = held
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
     if not rs > SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
         reason = (
             f"no significant highlight in {fit.n_highlight} pixels within θc = {fit.theta_c_deg:.3g}° "
             f"(Rs = {rs:.2g} ± {rs_se:.2g}); plan a light whose highlight falls on this region"
         )
-        entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, reason, method)
         diag["specular"] = f"unmeasured: {reason}"
-        if isinstance(entry, str):
-            diag["note"], entry = entry, None
-        return entry, diag, None
+        # Rd as the full fit has it: with a lobe too faint to measure still in the model, its tail beyond
+        # any β cone is not taken for diffuse light (Rd from β > 35° alone came out 0.8 % high, 9 σ, on a
+        # faint n = 15 lobe), and Rd's standard error carries what the unmeasured lobe leaves uncertain
+        pixels = PixelCounts(diffuse=fit.n_diffuse, highlight=fit.n_highlight)
+        return unmeasured_entry(region, fit.rd, fit.rd_se, reason=reason, theta_c_deg=fit.theta_c_deg,
+                                pixels=pixels, residual_rms=fit.residual_rms, estimator=method), diag, None  # fmt: skip
     diag["residual_rms"] = fit.residual_rms
     diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
     wrong = _unphysical(fit.rd) or _unphysical(fit.rs, "Rs")  # materials.json holds neither
@@ -467,6 +481,23 @@ def _fit_one(
         diag["note"] = wrong
         return None, diag, None
     return measured_entry(region, fit), diag, fit
+
+
+def _held_note(held_z: np.ndarray) -> tuple[str | None, bool]:
+    """What the fit's channels held at 0 say (``held_z`` (6,): the unbounded values in standard errors,
+    NaN where not held), or None; and whether an Rd channel went further below than a near-black
+    surface's noise can take it (``BELOW_BLACK`` σ). Rs is not judged so: below 0 it says no highlight
+    was seen in that channel, and its standard error, with n then undetermined, says nothing (measured:
+    "−4e27 σ" on a region no highlight reached)."""
+    names = [f"{p} {c}" for p in ("Rd", "Rs") for c in "RGB"]
+    held = [(names[i], float(z)) for i, z in enumerate(held_z) if np.isfinite(z)]
+    if not held:
+        return None, False
+    cells = ", ".join(f"{name} ({z:+.2g} σ)" for name, z in held)
+    if min((z for name, z in held if name.startswith("Rd")), default=0.0) >= -BELOW_BLACK:
+        return f"held at 0 where the unbounded fit went below it: {cells}", False
+    return (f"the unbounded fit went below 0 by more than {BELOW_BLACK:g} σ: {cells} — these pixels do not "
+            f"follow the model; {_BELOW_BLACK_ADVICE}", True)  # fmt: skip
 
 
 def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
@@ -484,6 +515,12 @@ def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
     far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
     x, y = irradiance[far] * cos_alpha[far], intensity[far].mean(axis=1)
     if len(x) < MIN_DIFFUSE or np.std(x) < SPREAD * np.mean(x):
+        return None
+    # a black surface cannot tell either: its pixels there are noise about 0, lit or not (its highlight,
+    # if any, is the fit's to find); judged only where they stand clear of their own noise
+    dx = x - x.mean()
+    line = y.mean() + dx * (dx @ (y - y.mean())) / max(float(dx @ dx), 1e-300)
+    if y.mean() < CLEAR_OF_NOISE * float(normal_mad(y - line)):
         return None
     r = float(np.corrcoef(x, y)[0, 1]) if np.std(y) > 0 else 0.0
     if r >= FOLLOWS_LIGHT:
@@ -506,10 +543,7 @@ def _unphysical(values: np.ndarray, name: str = "Rd") -> str | None:
         return None
     shown = ", ".join(f"{v:.3g}" for v in values)
     if np.any(values < 0):
-        return (
-            f"the fit gave {name} = {shown} (below 0): these pixels do not follow the model; check [sensor] "
-            "black_level_dn against dark frames (hlr-lab calibrate radiometric)"
-        )
+        return f"the fit gave {name} = {shown} (below 0): {_BELOW_BLACK_ADVICE}"
     return (
         f"the fit gave {name} = {shown} (above 1.5: more light than falls on it): check [sensor] sensitivity and "
         "[light] power (hlr-lab calibrate radiometric)"
@@ -527,12 +561,19 @@ def _diffuse_only(
         return f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
     y = intensity[far]  # (M, C)
     rd = (x[:, None] * y).sum(axis=0) / (x @ x)
+    resid = y - x[:, None] * rd
+    sigma2 = (resid**2).sum(axis=0) / max(len(x) - 1, 1)
+    rd_se = np.sqrt(sigma2 / (x @ x))
+    if np.any(rd < -BELOW_BLACK * rd_se):
+        shown = ", ".join(f"{v:.3g} ± {e:.1g}" for v, e in zip(rd, rd_se, strict=True))
+        return f"the fit gave Rd = {shown}, below 0 by more than {BELOW_BLACK:g} σ: {_BELOW_BLACK_ADVICE}"
+    # a near-black surface: a channel whose noise straddles 0 is held there (one parameter per channel:
+    # the bounded least-squares solution is the clamped one)
+    rd = np.maximum(rd, 0.0)
     wrong = _unphysical(rd)
     if wrong:
         return wrong
     resid = y - x[:, None] * rd
-    sigma2 = (resid**2).sum(axis=0) / max(len(x) - 1, 1)
-    rd_se = np.sqrt(sigma2 / (x @ x))
     return unmeasured_entry(
         region,
         rd,

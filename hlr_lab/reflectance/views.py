@@ -115,12 +115,15 @@ class PixelGeometry:
     lit: np.ndarray  # (N,) bool: faces the lamp and nothing lies between
     labels: np.ndarray  # (H, W) region id per pixel, −1 off the object
     normals: np.ndarray  # (H, W, 3) shading normal per pixel, NaN off the object
+    cast_shadow: np.ndarray  # (H, W) bool: faces the lamp, but something lies between
 
     def interior(self, border_px: int) -> np.ndarray:
-        """(N,) bool: at least ``border_px`` pixels from a silhouette, a region border or a crease, where a
-        pixel mixes surfaces that the pixel-centre geometry does not describe."""
+        """(N,) bool: at least ``border_px`` pixels from a silhouette, a region border, a crease or a cast
+        shadow, where a pixel mixes surfaces (or light and shadow) that the pixel-centre geometry does not
+        describe."""
         x, y = self.pixel[:, 0], self.pixel[:, 1]
-        return _interior(self.labels, border_px)[y, x] & ~_near_crease(self.normals, border_px)[y, x]
+        near = _near_crease(self.normals, border_px) | _dilated(self.cast_shadow, border_px)
+        return _interior(self.labels, border_px)[y, x] & ~near[y, x]
 
 
 def pose_geometry(
@@ -158,6 +161,8 @@ def pose_geometry(
             lit[lit] = ~caster.segment_blocked(
                 point[lit] + normal[lit] * (SURFACE_OFFSET * caster.scale), far
             )
+    cast_shadow = np.zeros(labels.shape, bool)
+    cast_shadow[ys[hit], xs[hit]] = (cos_alpha > 0) & ~lit
     return PixelGeometry(
         pixel=np.stack([xs[hit], ys[hit]], axis=1),
         region=labels[ys[hit], xs[hit]],
@@ -168,6 +173,7 @@ def pose_geometry(
         lit=lit,
         labels=labels,
         normals=_normal_image(labels.shape, xs[hit], ys[hit], normal),
+        cast_shadow=cast_shadow,
     )
 
 
@@ -286,9 +292,15 @@ def _near_crease(normals: np.ndarray, border_px: int) -> np.ndarray:
     edge[:, :-1] |= across
     edge[1:] |= down
     edge[:-1] |= down
-    if border_px > 0:
-        edge = cv2.dilate(edge, np.ones((2 * border_px + 1, 2 * border_px + 1), np.uint8))
-    return edge.astype(bool)
+    return _dilated(edge, border_px)
+
+
+def _dilated(mask: np.ndarray, border_px: int) -> np.ndarray:
+    """(H, W) bool: within ``border_px`` (a square) of a pixel of ``mask`` (H, W)."""
+    if border_px <= 0:
+        return mask.astype(bool)
+    kernel = np.ones((2 * border_px + 1, 2 * border_px + 1), np.uint8)
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
 
 
 def _interior(labels: np.ndarray, border_px: int) -> np.ndarray:

@@ -167,10 +167,8 @@ def _materials(session: Session, materials: MaterialsFile, diagnostics: dict) ->
             n = f"{e.n:.2f} ± {e.n_se:.2f}"
         else:
             rs, n = f"unmeasured: {h.escape(e.reason)}", "—"
-        # an unmeasured lobe has no θc: its Rd came from the pixels beyond this β
-        theta = (
-            f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else f"— (Rd from β > {e.theta_c_deg:.0f}°)"
-        )
+        # an unmeasured lobe has no θc (its entry's is the cone in which a highlight was looked for)
+        theta = f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else "—"
         rows.append(
             [
                 f"{e.id} {h.swatch(e.color)}",
