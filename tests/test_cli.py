@@ -214,6 +214,30 @@ def test_session_fit_benchmark_prints_figures(capsys):
         assert f"{stage} " in out
 
 
+def test_materials_benchmark_compares_every_parameter_with_its_truth(capsys, tmp_path):
+    """One pebble scene with held-out materials: a line for the scene, the coverage table, and the results
+    file, whose every parameter is the fit's against the scene's truth (within 2 % here: the pebble is
+    the easy object)."""
+    require_renderer()
+    code, out, err = run(capsys, "bench", "materials", "--scenes", "1", "--out", str(tmp_path / "b"))
+    assert code == 0, err
+    assert re.search(r"scene +0 pebble *: worst rd +[\d.]+ %", out), out
+    assert re.search(r"^rd +12 ", out, re.M), out  # four regions, three channels each
+    results = json.loads((tmp_path / "b" / "materials-bench.json").read_text())
+    truth = json.loads((tmp_path / "b" / "scene-000-pebble" / "truth.json").read_text())
+    assert {p["parameter"] for p in results["parameters"]} == {"rd", "rs", "n"}
+    for p in results["parameters"]:
+        true = truth[str(p["region"])][p["parameter"]]
+        assert p["true"] == (true if p["parameter"] == "n" else true[p["channel"]])
+        assert abs(p["error_pct"]) < 2, p
+    materials = [truth[k] for k in truth]
+    assert all(8 <= m["n"] <= 500 and all(0.02 <= x <= 0.9 for x in m["rd"]) for m in materials)
+    assert all(max(m["rd"]) + m["rs"][0] <= 1.0 + 1e-4 or m["rs"][0] == 0.05 for m in materials)
+    code, out, err = run(capsys, "bench", "materials", "--objects", "teapot")
+    assert code != 0
+    assert "teapot" in err
+
+
 @pytest.mark.slow
 def test_fit_benchmark_prints_figures(capsys):
     code, out, err = run(capsys, "bench", "fit", "--no-grid", "--sizes", "200000")
