@@ -471,6 +471,10 @@ def _fit_one(
         # Rd as the full fit has it: with a lobe too faint to measure still in the model, its tail beyond
         # any β cone is not taken for diffuse light (Rd from β > 35° alone came out 0.8 % high, 9 σ, on a
         # faint n = 15 lobe), and Rd's standard error carries what the unmeasured lobe leaves uncertain
+        wrong = _unphysical(fit.rd)  # materials.json cannot hold it
+        if wrong:
+            diag["note"] = wrong
+            return None, diag, None
         pixels = PixelCounts(diffuse=fit.n_diffuse, highlight=fit.n_highlight)
         return unmeasured_entry(region, fit.rd, fit.rd_se, reason=reason, theta_c_deg=fit.theta_c_deg,
                                 pixels=pixels, residual_rms=fit.residual_rms, estimator=method), diag, None  # fmt: skip
