@@ -145,9 +145,8 @@ def run_scene(
     ids = [r.id for r in plan.object.regions]
     truth = held_out_materials(len(ids), rng)
     world = replace(sim_scene(plan, plan_path, None), materials=truth)
-    (folder / "truth.json").write_text(
-        json.dumps({str(i): asdict(m) for i, m in zip(ids, truth, strict=True)})
-    )
+    true_json = json.dumps({str(i): asdict(m) for i, m in zip(ids, truth, strict=True)})
+    atomic_write_text(folder / "truth.json", true_json)
     geometry = world_geometry(believed, true_rig)
     with SimRig(scene=world, speed_factor=speed_factor, seed=seed * 1000 + scene, **geometry) as sim:
         acquire_plan(plan_path, believed, folder / "session", links=world_links(sim))

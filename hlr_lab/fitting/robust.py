@@ -227,14 +227,19 @@ def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range, held: np
     """
     free = np.ones(7) if held is None else (~held).astype(float)
     mask = np.outer(free, free)
+
+    def along(step: np.ndarray) -> np.ndarray:  # p + step, n kept within its range
+        trial = p + step
+        trial[6] = float(np.clip(trial[6], *n_range))
+        return trial
+
     sums = _normal_equations(s, p, noise)
     for _ in range(_MAX_PASSES):
         hessian, weighted, grad, cost, meat, rss = sums
         h_inv = np.linalg.pinv(hessian * mask)
         step = np.linalg.pinv(weighted * mask) @ (grad * free)
         se = np.sqrt(np.clip(np.diag(h_inv @ meat @ h_inv), 1e-300, None))
-        trial = p + step
-        trial[6] = float(np.clip(trial[6], *n_range))
+        trial = along(step)
         if np.all(np.abs(step) <= _ONE_PASS_SE * se) or np.all(
             np.abs(step) <= _ONE_PASS_RELATIVE * np.abs(p)
         ):
@@ -245,10 +250,7 @@ def _gauss_newton(s: Samples, p: np.ndarray, noise: _Variance, n_range, held: np
             if t[3] <= cost * (1 + 1e-9):
                 break
             step = step / 2
-            trial = p + step
-            trial[6] = float(
-                np.clip(trial[6], *n_range)
-            )  # half of a step past the range can still be past it
+            trial = along(step)  # half of a step past the range can still be past it
             t = _normal_equations(s, trial, noise)  # the sums are always the trial's own
         if t[3] > cost * (1 + 1e-9):
             break  # no step along this direction lowers the cost: p is as good as it gets
@@ -262,11 +264,7 @@ def _normal_equations(s: Samples, p: np.ndarray, noise: _Variance):
     """At ``p``: the Hessian with ψ' (7, 7), the same with IRLS weights ψ(t)/t (7, 7), gradient (7,),
     Huber cost, the sandwich's meat (7, 7) and the plain residual sum of squares — one pass over the pixels
     in chunks (memory stays flat)."""
-    hess, weighted, meat = (
-        np.zeros((3, 3, 3)),
-        np.zeros((3, 3, 3)),
-        np.zeros((3, 3, 3)),
-    )  # per channel, [a, e, n']
+    hess, weighted, meat = (np.zeros((3, 3, 3)) for _ in range(3))  # per channel, [a, e, n']
     grads = np.zeros((3, 3))
     cost = rss = 0.0
     for start in range(0, len(s), _CHUNK):

@@ -112,9 +112,10 @@ def neighbour_mean(values: np.ndarray, where: np.ndarray) -> np.ndarray:
     count[y, x] = finite
     ring = np.ones((3, 3), np.float32)
     ring[1, 1] = 0  # the neighbours only
-    sums = [cv2.filter2D(a[..., c], -1, ring, borderType=cv2.BORDER_CONSTANT) for a in (total, count)
-            for c in range(shape[2])]  # fmt: skip
-    s, n = np.stack(sums[: shape[2]], axis=-1)[y, x], np.stack(sums[shape[2] :], axis=-1)[y, x]
+    # filter2D keeps up to 4 channels as they are, but returns one channel as (H, W): reshape
+    s, n = (
+        cv2.filter2D(a, -1, ring, borderType=cv2.BORDER_CONSTANT).reshape(shape)[y, x] for a in (total, count)
+    )
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, s / n, np.nan).astype(np.float32)
 
