@@ -24,7 +24,7 @@ about the axis commute), so the fit fixes them by convention:
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -48,6 +48,9 @@ class CameraPose:
     residuals_px: dict[int, np.ndarray]  # view index → (N, 2) projected − detected corners, px (views used)
     # (4,) standard errors of fx, fy, cx, cy, px: from the fit's Jacobian and its residuals' spread
     intrinsics_se_px: np.ndarray
+    # (14, 14) the covariance of the camera's pose and intrinsics in CAMERA_PARAMETERS' order (the boards'
+    # poses marginalised; the turn about the turntable axis no photograph sees has none)
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((14, 14)))
 
     @property
     def board_azimuth_deg(self) -> float:
@@ -176,8 +179,8 @@ def refine_pose(
     )
     rms = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
     by_view = {v: r[a:b] for v, a, b in zip(used, bounds[:-1], bounds[1:], strict=True)}
-    return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view, by_view,
-                      _standard_errors(fit.jac, fit.fun)[6:10])  # fmt: skip
+    se, covariance = _standard_errors(fit.jac, fit.fun)[6:10], _camera_covariance(fit.jac, fit.fun, fit.x[:3])
+    return CameraPose(k, dist, cam[:3, :3], cam[:3, 3], brds[0], rms, per_view, by_view, se, covariance)
 
 
 def _standard_errors(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
@@ -189,6 +192,26 @@ def _standard_errors(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
         return np.sqrt(np.diag(np.linalg.inv(jacobian.T @ jacobian)) * variance)
     except np.linalg.LinAlgError:
         return np.full(n, np.nan)
+
+
+def _camera_covariance(jacobian: np.ndarray, residuals: np.ndarray, rvec: np.ndarray) -> np.ndarray:
+    """(14, 14) the covariance of the fit's first 14 parameters (rvec, tvec, fx fy cx cy, k1 k2 p1 p2) with
+    the rotation vector's block turned into a turn ω of the camera's own axes (R' = exp(ω)·R: what
+    CAMERA_PARAMETERS means, and what the gauge turn about the axis, applied on the right, leaves alone).
+    The pseudo-inverse gives the gauge direction, which the residuals cannot see, no variance."""
+    m, n = jacobian.shape
+    variance = float(residuals @ residuals) / max(m - n, 1)
+    full = np.linalg.pinv(jacobian.T @ jacobian) * variance
+    cov = full[:14, :14]
+    r0 = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
+    turn = np.eye(14)
+    for i in range(3):  # ∂ω/∂rvec by central differences
+        step = np.zeros(3)
+        step[i] = 1e-6
+        plus = cv2.Rodrigues(cv2.Rodrigues(rvec + step)[0] @ r0.T)[0].ravel()
+        minus = cv2.Rodrigues(cv2.Rodrigues(rvec - step)[0] @ r0.T)[0].ravel()
+        turn[:3, i] = (plus - minus) / 2e-6
+    return turn @ cov @ turn.T
 
 
 def _pose(rvec, tvec) -> np.ndarray:

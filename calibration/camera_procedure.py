@@ -28,7 +28,7 @@ from calibration.exposure import ExposureGoal, exposed
 from calibration.images import PhotographFields, journaled_images, photograph_line
 from hlr_lab.errors import InputError
 from hlr_lab.instrument.instruments import Instruments
-from hlr_lab.rig.file import Rig
+from hlr_lab.rig.file import CAMERA_PARAMETERS, Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 
@@ -105,6 +105,9 @@ class CameraCalibration:
             "board_azimuth_deg": round(self.pose.board_azimuth_deg, 4),
             "focal_se_px": [round(float(v), 3) for v in self.pose.intrinsics_se_px[:2]],
             "principal_point_se_px": [round(float(v), 3) for v in self.pose.intrinsics_se_px[2:]],
+            # for the fit's systematic uncertainty (docs/fitting.md): the pose's and intrinsics' together
+            "covariance_of": list(CAMERA_PARAMETERS),
+            "covariance": [[float(f"{v:.4g}") for v in row] for row in self.pose.covariance],
         }
 
 

@@ -33,7 +33,7 @@ from calibration.mirror_ball import (
 from hlr_lab.errors import InputError
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.instrument.instruments import Instruments
-from hlr_lab.rig.file import Rig
+from hlr_lab.rig.file import GANTRY_PARAMETERS, Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
 
@@ -182,7 +182,10 @@ class GantryCalibration:
                 "worst_miss_mm": round(float(self.fit.miss_mm.max()), 3),
                 "ball_place_m": [round(float(v), 6) for v in self.fit.place_xy_m],
                 "arm_radius_se_mm": round(1e3 * se["arm_radius_m"], 3),
-                "zero_ticks_se": [round(se["zero_az_ticks"], 2), round(se["zero_el_ticks"], 2)]}  # fmt: skip
+                "zero_ticks_se": [round(se["zero_az_ticks"], 2), round(se["zero_el_ticks"], 2)],
+                # for the fit's systematic uncertainty (docs/fitting.md)
+                "covariance_of": list(GANTRY_PARAMETERS),
+                "covariance": [[float(f"{v:.4g}") for v in row] for row in self.fit.covariance]}  # fmt: skip
 
 
 def solve_gantry(frames: list[BallFrame], rig: Rig) -> GantryCalibration:

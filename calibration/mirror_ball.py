@@ -26,6 +26,7 @@ from scipy.optimize import least_squares
 
 from calibration.charuco import CalibrationError
 from hlr_lab.geometry.camera import Camera
+from hlr_lab.rig.file import GANTRY_PARAMETERS
 from hlr_lab.rig.kinematics import GantryKinematics
 
 OUTLINE_ARC_DEG = 70.0  # either side of straight up: the part of the outline against the plate
@@ -191,6 +192,7 @@ class GantryFit:
     place_xy_m: np.ndarray  # (2,) where the ball rests on the plate at turntable 0, as the fit puts it
     miss_mm: np.ndarray  # (N,) each lamp's distance from its ray at the fit
     standard_errors: dict[str, float]  # per fitted quantity, in its own unit (m; the axis's x/z, y/z; ticks)
+    covariance: np.ndarray  # (8, 8) of the kinematics' quantities, in GANTRY_PARAMETERS' order
 
 
 def fit_gantry(
@@ -243,5 +245,6 @@ def fit_gantry(
     axis = tuple(np.asarray(k.azimuth_axis) / np.linalg.norm(k.azimuth_axis))
     zero = (round(k.zero_ticks[0]), round(k.zero_ticks[1]))
     rounded = GantryKinematics(k.centre, k.arm_radius, zero, k.directions, k.ticks_per_rev, axis)
+    assert names[:8] == GANTRY_PARAMETERS
     return GantryFit(rounded, fit.x[8:10].copy(), 1e3 * np.linalg.norm(misses(fit.x), axis=1),
-                     dict(zip(names, se.tolist(), strict=True)))  # fmt: skip
+                     dict(zip(names, se.tolist(), strict=True)), covariance[:8, :8])  # fmt: skip

@@ -63,6 +63,7 @@ class WhiteReference:
     size_m: float
     place_m: tuple[float, float]
     thickness_m: float
+    reflectance_se: float = 0.0  # relative, from its certificate
 
 
 def white_spec(rig: Rig) -> WhiteReference:
@@ -76,7 +77,7 @@ def white_spec(rig: Rig) -> WhiteReference:
             field="calibration.white_reference",
         )
     x, y = w.place_m
-    return WhiteReference(np.asarray(w.reflectance, float), w.size_m, (x, y), w.thickness_m)
+    return WhiteReference(np.asarray(w.reflectance, float), w.size_m, (x, y), w.thickness_m, w.reflectance_se)
 
 
 def reference_pixels(rig: Rig, white: WhiteReference) -> tuple[np.ndarray, np.ndarray]:
@@ -264,6 +265,7 @@ class RadiometricCalibration:
     lamp: LampSensitivity
     power: float  # the rig file's [light] power, kept: sensitivity = S·Φ / power
     lamp_drift: float = 0.0  # the lamp's change over the white frames (divided out), a fraction
+    reflectance_se: float = 0.0  # the white reference's, relative (its certificate's)
 
     @property
     def sensitivity(self) -> float:
@@ -284,7 +286,10 @@ class RadiometricCalibration:
                 "worst_nonlinearity": round(self.transfer.worst_nonlinearity, 5),
                 "inverse_square_residual": round(self.lamp.inverse_square_residual, 5),
                 "lamp_drift_over_white_frames": round(self.lamp_drift, 5),
-                "follows_inverse_square": self.lamp.follows_inverse_square}  # fmt: skip
+                "follows_inverse_square": self.lamp.follows_inverse_square,
+                # what the fit's systematic uncertainty takes (docs/fitting.md, "Systematic uncertainty")
+                "sensitivity_se_rel": float(f"{self.lamp.relative_se(self.reflectance_se):.3g}"),
+                "black_level_se_dn": float(f"{self.dark.black_level_se_dn:.3g}")}  # fmt: skip
 
 
 def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCalibration:
@@ -348,7 +353,9 @@ def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCa
         dark,
     )
     drift = float(relative[-1] - 1)
-    return RadiometricCalibration(dark, transfer, sensitivity, rig.file.light.power, drift)
+    return RadiometricCalibration(
+        dark, transfer, sensitivity, rig.file.light.power, drift, white.reflectance_se
+    )
 
 
 def _pairs(frames: list[RadiometricFrame]) -> list[tuple[RadiometricFrame, RadiometricFrame]]:

@@ -11,7 +11,12 @@ measurable (and only it matters: it makes the fitted R absolute). Noise: read no
 noise of variance K · (DN − black), K the conversion gain in DN per electron.
 
 * **Dark frames** (lamp off, pairs at each exposure): the black level is their mean per channel; the
-  read noise is the spread of a pair's difference over √2 (fixed pattern cancels).
+  read noise is the spread of a pair's difference over √2 (fixed pattern cancels). A camera whose black
+  level sits at 0 DN clips half its dark noise there: the mean then lies above the black level (0.59 DN
+  at σ_r 1.5) and the spread below the read noise (by 40 %). Where more than ``CLIPPED_DARK`` of the
+  dark pixels read 0, both come from a censored fit instead: the integer values' histogram under a
+  normal of mean ``black`` and spread σ_r, rounded, everything below ½ DN read as 0 (maximum
+  likelihood).
 * **Photon transfer** (the white reference at several exposures, in pairs): the variance of a pair's
   difference over 2, less σ_r², against the mean signal: the slope is K. The means against the exposures
   (each divided by a reference frame taken just before it, so a lamp that drifts does not look like a
@@ -29,6 +34,7 @@ import numpy as np
 from calibration.charuco import CalibrationError
 
 LINEAR_WITHIN = 0.02  # a response further than this from linear is refused
+CLIPPED_DARK = 0.001  # dark frames with more than this share of pixels at 0 DN are clipped there
 INVERSE_SQUARE_WITHIN = 0.02  # a lamp whose S·Φ spreads more than this over the positions is flagged
 
 
@@ -44,6 +50,9 @@ class Dark:
 
     black_level_dn: np.ndarray  # (C,) per channel
     read_noise_dn: float
+    # the rig file's one black level (the channels' mean): its standard error, with each channel's offset
+    # from it (the fit takes that one number for every channel)
+    black_level_se_dn: float = 0.0
 
 
 def dark_statistics(pairs: list[tuple[np.ndarray, np.ndarray]]) -> Dark:
@@ -51,9 +60,55 @@ def dark_statistics(pairs: list[tuple[np.ndarray, np.ndarray]]) -> Dark:
     exposure."""
     if not pairs:
         raise CalibrationError("no dark frames: take them with the lamp off")
-    means = np.mean([[_channels(f).mean(axis=(0, 1)) for f in pair] for pair in pairs], axis=(0, 1))
+    frames = np.array([_channels(f).mean(axis=(0, 1)) for pair in pairs for f in pair])  # (F, C)
+    means = frames.mean(axis=0)
     spreads = [np.std(_channels(a) - _channels(b)) / np.sqrt(2) for a, b in pairs]
-    return Dark(means, float(np.sqrt(np.mean(np.square(spreads)))))
+    read_noise = float(np.sqrt(np.mean(np.square(spreads))))
+    counts = _histograms([f for pair in pairs for f in pair])  # (C, K) dark values per channel
+    if np.mean(counts[:, 0] / counts.sum(axis=1)) > CLIPPED_DARK:  # clipped at 0: see the docstring
+        fits = [censored_dark(c) for c in counts]
+        censored = np.array([b for b, _ in fits])
+        frames = frames - means + censored  # each frame's wander kept, about the censored level
+        means, read_noise = censored, float(np.sqrt(np.mean([s**2 for _, s in fits])))
+    # the frames' means wander (a black level that drifts with time or exposure) beyond what the read noise
+    # over all their pixels gives: the larger of the two is the mean's standard error
+    pixels = frames.shape[0] * np.prod(np.shape(pairs[0][0])[:2])
+    wander = np.std(frames, axis=0, ddof=1) / np.sqrt(len(frames))
+    se = np.maximum(wander, read_noise / np.sqrt(pixels))
+    offset = means - means.mean()
+    return Dark(means, read_noise, float(np.sqrt(np.mean(se**2) + np.mean(offset**2))))
+
+
+def censored_dark(counts: np.ndarray) -> tuple[float, float]:
+    """Black level and read noise (DN) from the histogram ``counts`` (K,) of integer dark values 0…K−1 that
+    the sensor clipped at 0: the maximum-likelihood normal (mean, σ) of the values before rounding and
+    clipping, every value below ½ DN read as 0."""
+    from scipy.optimize import minimize
+    from scipy.stats import norm
+
+    counts = np.asarray(counts, np.float64)
+    k = np.arange(len(counts), dtype=np.float64)
+    total = counts.sum()
+
+    def cost(x: np.ndarray) -> float:
+        black, sigma = x[0], np.exp(x[1])
+        upper = norm.cdf((k + 0.5 - black) / sigma)
+        lower = np.where(k == 0, 0.0, norm.cdf((k - 0.5 - black) / sigma))
+        return -float(counts @ np.log(np.maximum(upper - lower, 1e-300))) / total
+
+    mean = float(counts @ k / total)
+    spread = float(np.sqrt(max(counts @ (k - mean) ** 2 / total, 0.09)))
+    x = minimize(cost, np.array([mean, np.log(spread)]), method="Nelder-Mead",
+                 options={"xatol": 1e-6, "fatol": 1e-9}).x  # fmt: skip
+    return float(x[0]), float(np.exp(x[1]))
+
+
+def _histograms(frames: list[np.ndarray]) -> np.ndarray:
+    """(C, K) how many pixels of ``frames`` read each integer value 0…K−1, per channel."""
+    rows = [[np.bincount(np.clip(np.round(c[..., i]), 0, None).astype(np.int64).ravel()) for i in range(c.shape[-1])]
+            for c in map(_channels, frames)]  # fmt: skip
+    size = max(len(h) for row in rows for h in row)
+    return np.sum([[np.pad(h, (0, size - len(h))) for h in row] for row in rows], axis=0)
 
 
 @dataclass(frozen=True)
@@ -117,6 +172,16 @@ class LampSensitivity:
     @property
     def follows_inverse_square(self) -> bool:
         return self.inverse_square_residual <= INVERSE_SQUARE_WITHIN
+
+    def relative_se(self, reflectance_se: float = 0.0) -> float:
+        """The relative standard error of the rig file's one S · Φ (the channels' mean): the positions'
+        scatter over √K, each channel's offset from that mean (the fit takes one number for all), and the
+        white reference's own reflectance uncertainty (relative, from its certificate)."""
+        ratio = self.per_position / self.sensitivity_times_power  # (K, C)
+        k = len(ratio)
+        scatter = float(np.mean(np.std(ratio, axis=0, ddof=1) ** 2) / k) if k > 1 else 0.0
+        channel = self.sensitivity_times_power / self.sensitivity_times_power.mean() - 1
+        return float(np.sqrt(scatter + np.mean(channel**2) + reflectance_se**2))
 
 
 def lamp_sensitivity(

@@ -143,12 +143,14 @@ def fit_into(
     method: EstimatorName = DEFAULT_ESTIMATOR,
     allow_incomplete: bool = False,
     correct_lamp: bool = True,
+    systematic: bool = True,
     progress: Callable[[FitStep], None] = lambda _: None,
     on_gaps: Callable[[list[str], int], None] = lambda _notes, _missing: None,
 ) -> FitResult:
     """Fit ``session``'s frames and write materials.json (``output``, default SESSION/materials.json)
     with its diagnostics beside it; each pose's light scaled by the lamp's output the run measured
-    (unless not ``correct_lamp``). ``on_gaps(notes, missing frames)`` hears what was left out before the
+    (unless not ``correct_lamp``); the rig's own uncertainty propagated into ``*_sys`` unless not
+    ``systematic``. ``on_gaps(notes, missing frames)`` hears what was left out before the
     fit starts. Refuses a session without frames, and an output over one of the session's files."""
     output = output or session / MATERIALS
     diagnostics = output.with_name(DIAGNOSTICS)
@@ -157,7 +159,7 @@ def fit_into(
     on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
-    result = fit_session(s, theta_c_deg=theta_c_deg, method=method, progress=progress)
+    result = fit_session(s, theta_c_deg=theta_c_deg, method=method, systematic=systematic, progress=progress)
     # both or neither: materials.json without its diagnostics would be a fit the report cannot show
     atomic_write_all([(output, model_json(result.materials).encode()),
                       (diagnostics, (json.dumps(result.diagnostics, indent=1) + "\n").encode())])  # fmt: skip

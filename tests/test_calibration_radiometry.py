@@ -78,6 +78,23 @@ def test_the_sensor_and_the_lamp_are_recovered_from_frames_of_a_known_sensor():
     assert lamp.follows_inverse_square
 
 
+@pytest.mark.parametrize("black", [0.0, 0.5, 64.0])
+def test_a_black_level_at_zero_is_measured_through_the_clipping(black):
+    """The simulated sensor's dark frames (read noise 1.5 DN, clipped at 0 DN as builtin:bench-offsets'
+    camera does with its black level at 0): black level within 0.03 DN and read noise within 2 % of the
+    truth (3 pairs of 60 × 80 × 3 pixels: standard errors ~0.005 DN and 0.4 %). The plain mean and spread
+    were 0.59 DN high and 40 % low at a black level of 0, and the fit of every dark region with them."""
+    sensor = SensorModel(bits=12, sensitivity=4095.0, electrons_per_dn=1 / 0.31, read_noise_dn=1.5,
+                         black_level_dn=black)  # fmt: skip
+    rng = np.random.default_rng(5)
+    dark = np.zeros(SHAPE)
+    pairs = [(sensor.expose(dark, t, rng), sensor.expose(dark, t, rng)) for t in (0.01, 0.04, 0.16)]
+    found = dark_statistics(pairs)
+    np.testing.assert_allclose(found.black_level_dn, black, atol=0.03)
+    assert found.read_noise_dn == pytest.approx(1.5, rel=0.02)
+    assert found.black_level_se_dn < 0.03
+
+
 def test_a_response_that_is_not_linear_is_refused():
     gamma = SensorModel(
         bits=12, sensitivity=3600.0, electrons_per_dn=4.0, read_noise_dn=2.2, response="gamma"

@@ -303,7 +303,11 @@ def test_a_textured_mesh_without_a_scene_file_gets_the_default_world(tmp_path, s
     truth = dict(
         zip((r.id for r in planned.object.regions), sim_scene(planned, plan, None).materials, strict=True)
     )
-    measured = [e for e in read_materials(session / "materials.json").regions if e.specular == "measured"]
+    materials = read_materials(session / "materials.json")
+    # every planned region is in materials.json: a material, or why there is none
+    assert sorted([e.id for e in materials.regions] + [e.id for e in materials.not_measured]) == sorted(truth)
+    assert all(e.reason for e in materials.not_measured)
+    measured = [e for e in materials.regions if e.specular == "measured"]
     assert len(measured) >= 2
     for e in measured:
         t = truth[e.id]

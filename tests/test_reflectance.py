@@ -62,6 +62,33 @@ def test_the_merge_is_unbiased_where_a_shorter_frame_joins():
         assert np.all(np.abs(mean - level) < 4 * se), (level, mean, se)
 
 
+def test_the_merge_says_how_its_value_moves_with_the_black_level():
+    """Radiance.black_slope, the systematic uncertainty's black-level term (docs/fitting.md): merged again
+    with the black level 0.5 DN higher, every pixel whose frames were chosen alike moves by 0.5 × the
+    slope (to float32 rounding), and a bracket with its dark frames subtracted does not move at all."""
+    rng = np.random.default_rng(8)
+    radiance = np.geomspace(0.2, 400.0, 40_000).reshape(200, 200, 1) * np.ones((1, 1, 3))
+    bracket = [
+        BracketFrame(expose(radiance, t, rng) + np.uint16(64), t, 0.0, BITS) for t in (0.02, 0.005, 0.00125)
+    ]
+    merged = merge_bracket(bracket, sensitivity=SENSITIVITY, black_level_dn=64.0, read_noise_dn=READ_NOISE)
+    moved = merge_bracket(bracket, sensitivity=SENSITIVITY, black_level_dn=64.5, read_noise_dn=READ_NOISE)
+    assert merged.black_slope is not None
+    assert moved.black_slope is not None
+    same = merged.usable[..., None] & (merged.black_slope == moved.black_slope)  # the same frames chosen
+    assert same.mean() > 0.99
+    np.testing.assert_allclose((moved.value - merged.value)[same], 0.5 * merged.black_slope[same],
+                               rtol=1e-3, atol=1e-7)  # fmt: skip
+    assert np.all(merged.black_slope[merged.usable] < 0)
+    dark = np.full(radiance.shape, 64, np.uint16)
+    with_darks = [BracketFrame(f.pixels, f.exposure_s, 0.0, BITS, dark=dark) for f in bracket]
+    subtracted = merge_bracket(
+        with_darks, sensitivity=SENSITIVITY, black_level_dn=64.0, read_noise_dn=READ_NOISE
+    )
+    assert subtracted.black_slope is not None
+    assert np.all(subtracted.black_slope == 0)
+
+
 def test_a_pixel_clipped_in_every_frame_is_not_usable_and_dark_frames_are_subtracted():
     """Ambient light 2/3 of the lamp's contribution, removed by the dark frames: the mean of 4 000 pixels
     within 0.5 % (the per-pixel noise is ~8 %, so its mean's SE is ~0.13 %)."""
@@ -124,22 +151,24 @@ def test_a_black_level_that_is_not_the_rig_files_is_measured_and_does_not_look_l
     np.testing.assert_allclose([p.black_offset_dn for p in pairs], 64.0, atol=1.0)
 
 
+def pooled_of(intensity, irradiance, cos_alpha, cos_beta) -> _Pooled:
+    """One region's samples as a session's fit pools them, from one pose (pixels and points unused)."""
+    n = len(cos_beta)
+    part = PoseSamples(np.zeros(n, int), intensity, irradiance, cos_alpha, cos_beta, Footprint.at_centre(cos_beta),
+                       np.zeros((n, 2), int), np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1)),
+                       np.zeros((n, 3)))  # fmt: skip
+    pooled = _Pooled()
+    pooled.add(0, "p000", part, np.ones(n, bool))
+    return pooled
+
+
 def test_a_region_without_highlight_pixels_gets_its_diffuse_colour_and_a_reason():
     truth = Truth(np.array([0.5, 0.3, 0.2]), np.array([0.3, 0.3, 0.3]), 60.0)
     r = synthetic_region(truth, shape="sphere", pixels=6000, bits=12, read_noise_dn=1, full_scale=1.5, seed=2)
     far = r.cos_beta < np.cos(np.radians(40))  # the highlight was never photographed
     n = int(far.sum())
-    part = PoseSamples(
-        np.zeros(n, int),
-        r.intensity[far],
-        r.irradiance[far],
-        r.cos_alpha[far],
-        r.cos_beta[far],
-        Footprint.at_centre(r.cos_beta[far]),
-    )
-    pooled = _Pooled()
-    pooled.add("p000", part, np.ones(n, bool))
-    entry, diag, fit = _fit_one(
+    pooled = pooled_of(r.intensity[far], r.irradiance[far], r.cos_alpha[far], r.cos_beta[far])
+    entry, diag, fit, _ = _fit_one(
         RegionEntry(id=0, color=[200, 120, 90], vertices=10), pooled, "auto", "robust"
     )
     assert fit is None
@@ -188,6 +217,79 @@ def test_fit_recovers_the_simulated_materials(acquired, capsys):
     curve = diagnostics["regions"][0]["beta_curve"]
     assert len(curve["beta_deg"]) == len(curve["mean_is"]) == len(curve["fitted_lobe"])
     assert sum(curve["count"]) > 100
+
+
+def test_the_systematic_moves_are_what_refits_under_the_moved_rig_give(acquired, tmp_path):
+    """The session fitted under a rig file whose calibration records give covariances: each term's
+    first-order move of (Rd, Rs, n), the pixels held, against a full refit with the rig moved by that
+    term (its selection, HDR and all) — the largest camera mode, the largest gantry mode, the black level:
+    within 0.5 standard errors plus 20 % of the move. The refit's pixels move with the rig (at borders and
+    grazing angles they come and go), a jitter the first-order move, its pixels held, has not: measured
+    up to 0.5 SE at a 3 SE move here, 0.1–0.2 SE on the calibrated bench's smaller moves.
+    The sensitivity term moves Rd and Rs by its share exactly and n not at all; each entry's *_sys is the
+    terms' moves in quadrature."""
+    from dataclasses import replace
+
+    from hlr_lab.reflectance.session_fit import fit_session, open_session, placed_mesh
+    from hlr_lab.reflectance.systematic import rig_terms
+    from hlr_lab.rig.file import CAMERA_PARAMETERS
+    from tests.test_systematic import rig_with_records
+
+    camera = np.diag(np.square([2e-5, 2e-5, 2e-5, 1e-4, 1e-4, 1e-4, 0.5, 0.5, 0.3, 0.3, 0, 0, 0, 0]))
+    gantry = np.diag(np.square([2e-4, 2e-4, 2e-4, 5e-4, 3e-4, 3e-4, 0.5, 0.5]))
+    assert len(camera) == len(CAMERA_PARAMETERS)
+    rig = rig_with_records(tmp_path, camera, gantry, (0.004, 0.3))
+    session = replace(open_session(acquired[1]), rig=rig)
+    result = fit_session(session)
+    record = result.materials.systematic
+    assert record is not None
+    assert record.uncalibrated is None
+    names = [t.name for t in record.terms]
+    rows = {d["id"]: d["systematic"] for d in result.diagnostics["regions"]}
+    keys = [f"{p} {c}" for p in ("Rd", "Rs") for c in "RGB"] + ["n"]
+
+    def moved_by(term_index: int):
+        term = rig_terms(
+            rig,
+            placed_mesh(session).vertices,
+        )[term_index]
+        moved = rig
+        if term.camera is not None:
+            moved = replace(moved, camera=term.camera)
+        if term.kinematics is not None:
+            moved = replace(moved, gantry=replace(moved.gantry, kinematics=term.kinematics))
+        if term.black_level_dn is not None:
+            sensor = moved.file.sensor.model_copy(update={"black_level_dn": term.black_level_dn})
+            moved = replace(moved, file=moved.file.model_copy(update={"sensor": sensor}))
+        return fit_session(replace(session, rig=moved), systematic=False).materials
+
+    def size(index: int) -> float:
+        return float(np.sqrt(sum(rows[e.id][index]["n"] ** 2 for e in result.materials.regions)))
+
+    cameras = [i for i, n in enumerate(names) if n.startswith("camera")]
+    lamps = [i for i, n in enumerate(names) if n.startswith("gantry")]
+    for index in (max(cameras, key=size), max(lamps, key=size), names.index("black level")):
+        again = {e.id: e for e in moved_by(index).regions}
+        for e in result.materials.regions:
+            g = again[e.id]
+            assert e.rs is not None
+            assert e.rs_se is not None
+            assert g.rs is not None
+            assert e.n is not None
+            got = np.concatenate([np.subtract(g.rd, e.rd), np.subtract(g.rs, e.rs), [g.n - e.n]])
+            se = np.concatenate([e.rd_se, e.rs_se, [e.n_se]])
+            predicted = np.array([rows[e.id][index][k] for k in keys])
+            within = np.abs(predicted - got) <= 0.5 * se + 0.2 * np.abs(predicted)
+            assert np.all(within), (names[index], e.id, predicted / se, got / se)
+    share = 0.004 / 1.004
+    for e in result.materials.regions:
+        row = rows[e.id][names.index("sensitivity × power")]
+        np.testing.assert_allclose(
+            [row[k] for k in keys[:6]], -share * np.concatenate([e.rd, e.rs]), rtol=0.01
+        )
+        assert abs(row["n"]) < 1e-4 * e.n
+        total = np.sqrt(sum(np.square([r[k] for k in keys[:3]]) for r in rows[e.id]))
+        np.testing.assert_allclose(e.rd_sys, total, rtol=1e-9)
 
 
 def test_fit_refuses_what_is_not_a_session(tmp_path, capsys):
@@ -265,12 +367,8 @@ def test_a_channel_whose_rs_comes_out_below_zero_is_held_at_zero_with_a_note():
     r = synthetic_region(
         truth, shape="sphere", pixels=20_000, bits=12, read_noise_dn=1, full_scale=1.5, seed=3
     )
-    n = len(r.cos_beta)
-    part = PoseSamples(np.zeros(n, int), r.intensity, r.irradiance, r.cos_alpha, r.cos_beta,
-                       Footprint.at_centre(r.cos_beta))  # fmt: skip
-    pooled = _Pooled()
-    pooled.add("p000", part, np.ones(n, bool))
-    entry, diag, fit = _fit_one(
+    pooled = pooled_of(r.intensity, r.irradiance, r.cos_alpha, r.cos_beta)
+    entry, diag, fit, _ = _fit_one(
         RegionEntry(id=0, color=[200, 120, 90], vertices=10), pooled, "auto", "robust"
     )
     assert entry is not None
@@ -292,46 +390,45 @@ def test_a_near_black_region_is_measured_and_one_darker_than_black_names_the_bla
     rd, rs, n = np.zeros(3), np.full(3, 0.2), 40.0
     clean = predict(rd, rs, n, geometry.irradiance, geometry.cos_alpha, geometry.cos_beta)
     noisy = clean + rng.normal(0.0, 1.5 / 4095, clean.shape)  # read noise, no sensor clipping at 0
-    count = len(geometry.cos_beta)
 
     def fit_of(intensity):
-        part = PoseSamples(np.zeros(count, int), intensity, geometry.irradiance, geometry.cos_alpha,
-                           geometry.cos_beta, Footprint.at_centre(geometry.cos_beta))  # fmt: skip
-        pooled = _Pooled()
-        pooled.add("p000", part, np.ones(count, bool))
+        pooled = pooled_of(intensity, geometry.irradiance, geometry.cos_alpha, geometry.cos_beta)
         return _fit_one(RegionEntry(id=0, color=[5, 5, 5], vertices=10), pooled, "auto", "robust")
 
-    entry, diag, _ = fit_of(noisy)
+    entry, diag, _, _ = fit_of(noisy)
     assert entry is not None
     got, se = np.asarray(entry.rd), np.asarray(entry.rd_se)
     assert np.all(got >= 0)
     assert np.all(got < 3 * se), (got, se)
     assert "Rd " in diag["held_at_zero"], diag  # this seed's noise takes a channel below 0
-    entry, diag, _ = fit_of(noisy - 0.02)
+    entry, diag, _, _ = fit_of(noisy - 0.02)
     assert entry is None
     assert "black_level_dn" in diag["note"], diag
 
 
 def test_the_report_and_materials_json_agree_on_every_region(finished_session, tmp_path):
     """materials.json with one region measured as fitted, one unmeasured (no θc shown) and one
-    without an entry (the diagnostics say why): the report shows each as materials.json has it — θc only
-    for a measured lobe, the β–Is curve only for a measured lobe, the missing region with the fit's reason."""
+    without a material (its not_measured entry says why): the report shows each as materials.json has it —
+    θc only for a measured lobe, the β–Is curve only for a measured lobe, the missing region with its
+    reason and pixel count."""
     session = tmp_path / "session"
     shutil.copytree(finished_session, session)
     assert main(["fit", str(session)]) == 0
     doc = json.loads((session / "materials.json").read_text())
     one = doc["regions"][1]
-    for key in ("rs", "rs_se", "n", "n_se"):
+    for key in ("rs", "rs_se", "rs_sys", "n", "n_se", "n_sys"):
         one.pop(key)
     one.update(specular="unmeasured", reason="a test's unmeasured lobe", theta_c_deg=35.0)
-    gone = doc["regions"].pop(3)["id"]
+    assert doc["not_measured"] == []
+    gone = doc["regions"].pop(3)
+    doc["not_measured"] = [{"id": gone["id"], "color": gone["color"], "vertices": gone["vertices"],
+                            "samples": 7, "reason": "a test's reason for no entry"}]  # fmt: skip
     (session / "materials.json").write_text(json.dumps(doc))
-    diagnostics = json.loads((session / "fit-diagnostics.json").read_text())
-    next(d for d in diagnostics["regions"] if d["id"] == gone)["note"] = "a test's reason for no entry"
-    (session / "fit-diagnostics.json").write_text(json.dumps(diagnostics))
     assert main(["report", str(session)]) == 0
     page = (session / "report.html").read_text()
-    assert f"Regions without an entry: region {gone}: a test&#x27;s reason for no entry" in page
+    assert (
+        f"Regions without an entry: region {gone['id']}: a test&#x27;s reason for no entry (7 usable" in page
+    )
     row = re.search(rf'<tr><td class="">{one["id"]} <span.*?</tr>', page, re.S)
     assert row is not None
     assert ">—</td>" in row.group(0), row.group(0)  # an unmeasured lobe has no θc
@@ -339,6 +436,10 @@ def test_the_report_and_materials_json_agree_on_every_region(finished_session, t
     measured = [e["id"] for e in doc["regions"] if e["specular"] == "measured"]
     charted = sorted(int(i) for i in re.findall(r">region (\d+)</text>", page))
     assert charted == sorted(measured), (charted, measured)
+    # both uncertainties, and what the systematic one came from (builtin:sim has no calibration record)
+    first = doc["regions"][0]
+    assert f"{first['rd'][0]:.4f} ± {first['rd_se'][0]:.4f} ± {first['rd_sys'][0]:.4f}" in page
+    assert "no calibration record for the camera, gantry, sensor" in page
 
 
 def test_a_region_seen_only_in_its_highlight_is_not_taken_for_one_the_lamp_does_not_light():
@@ -349,13 +450,9 @@ def test_a_region_seen_only_in_its_highlight_is_not_taken_for_one_the_lamp_does_
     r = synthetic_region(truth, shape="torus", light="point", pixels=200_000, bits=12, read_noise_dn=1,
                          full_scale=1.5, seed=4)  # fmt: skip
     near = r.cos_beta > np.cos(np.radians(25))
-    n = int(near.sum())
-    part = PoseSamples(np.zeros(n, int), r.intensity[near], r.irradiance[near], r.cos_alpha[near],
-                       r.cos_beta[near], Footprint.at_centre(r.cos_beta[near]))  # fmt: skip
+    pooled = pooled_of(r.intensity[near], r.irradiance[near], r.cos_alpha[near], r.cos_beta[near])
     x = r.irradiance[near] * r.cos_alpha[near]
     assert np.std(x) > 0.05 * np.mean(x)  # L·cos α varies enough to judge by, as the check used to (r 0.43)
     assert np.corrcoef(x, r.intensity[near].mean(axis=1))[0, 1] < 0.5
-    pooled = _Pooled()
-    pooled.add("p000", part, np.ones(n, bool))
-    _, diag, _ = _fit_one(RegionEntry(id=0, color=[20, 20, 20], vertices=10), pooled, "auto", "robust")
+    _, diag, _, _ = _fit_one(RegionEntry(id=0, color=[20, 20, 20], vertices=10), pooled, "auto", "robust")
     assert "do not brighten" not in diag.get("note", ""), diag

@@ -61,15 +61,23 @@ def _theta_c(value: str) -> float | Literal["auto"]:
     help="Ignore the lamp's output the run measured (acquire --lamp-every): every pose under the rig "
     "file's power, to see what the correction is worth.",
 )
+@click.option(
+    "--no-systematic",
+    is_flag=True,
+    help="Leave out the systematic uncertainties (rd_sys, rs_sys, n_sys: what the rig file's calibration "
+    "leaves uncertain, propagated to first order); saves their time (docs/fitting.md).",
+)
 def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, output: Path | None,
-        allow_incomplete: bool, no_lamp_correction: bool) -> None:  # fmt: skip
+        allow_incomplete: bool, no_lamp_correction: bool, no_systematic: bool) -> None:  # fmt: skip
     """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
 
     Each pose's bracket is merged into linear radiance (no clipped or noise-dominated value used, dark
     frames subtracted), every pixel gets its geometry from the calibrated camera, the measured turntable
     angle and the measured lamp position, and lit, visible, non-grazing pixels away from silhouettes and
     region borders are pooled per region over all poses. A region without enough highlight pixels gets
-    its diffuse colour and "specular": "unmeasured" with the reason.
+    its diffuse colour and "specular": "unmeasured" with the reason. Each number gets a statistical
+    standard error (the pixels' noise) and a systematic one (the rig file's calibration records, or a
+    stated conservative default for a rig never calibrated).
 
     Every frame is checked against its journal line (checksums, what its sidecar says); a damaged
     journal line or a frame that does not check out is named and left out, and a session that lacks
@@ -81,12 +89,17 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
       hlr-lab fit plan-session
       hlr-lab fit sessions/bunny-1 --theta-c 10 --method paper -o bunny-materials.json
       hlr-lab fit sessions/stopped-run --allow-incomplete
+      hlr-lab fit sessions/quick-look --no-systematic
     """
     output = output or session / MATERIALS
     with stage_progress(console) as show:
         result = fit_into(session, output, theta_c_deg=theta_c, method=method, allow_incomplete=allow_incomplete,
-                          correct_lamp=not no_lamp_correction, progress=show, on_gaps=_say_gaps)  # fmt: skip
+                          correct_lamp=not no_lamp_correction, systematic=not no_systematic, progress=show,
+                          on_gaps=_say_gaps)  # fmt: skip
     console.print(materials_table(result.materials))
+    systematic = result.materials.systematic
+    if systematic is not None and systematic.uncalibrated:
+        console.print(f"[yellow]systematic:[/] {escape(systematic.uncalibrated)}", soft_wrap=True)
     if "warning" in result.diagnostics["black_level"]:
         console.print(f"[yellow]warning:[/] {escape(result.diagnostics['black_level']['warning'])}")
     for d in result.diagnostics["regions"]:

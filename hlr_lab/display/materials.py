@@ -15,23 +15,41 @@ from hlr_lab.reflectance.session_fit import FitStep
 
 
 def materials_table(materials: MaterialsFile) -> Table:
-    """One row per region: Rd (linear RGB) ± SE, Rs, n ± SE (or why the lobe is unmeasured), θc (°), and
-    the diffuse / highlight pixels used."""
-    t = Table(title="fitted materials (± standard error)", title_justify="left")
+    """One row per region: Rd (linear RGB), Rs and n each ± statistical standard error ± systematic (where
+    propagated; or why the lobe is unmeasured), θc (°), and the diffuse / highlight pixels used."""
+    systematic = any(e.rd_sys is not None for e in materials.regions)
+    title = (
+        "fitted materials (± statistical ± systematic)"
+        if systematic
+        else "fitted materials (± standard error)"
+    )
+    t = Table(title=title, title_justify="left")
     for column in ("region", "Rd (linear RGB)", "Rs", "n", "θc", "pixels diffuse / highlight"):
         t.add_column(column, justify="right")
     for e in materials.regions:
-        rd = " ".join(f"{v:.4f}±{s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
+        rd = " ".join(
+            _value(v, s, y, 4) for v, s, y in zip(e.rd, e.rd_se, e.rd_sys or [None] * 3, strict=True)
+        )
         if e.specular == "measured":
-            assert e.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
+            # materials.json's model: a measured lobe has rs, rs_se, n, n_se
+            assert e.rs is not None
+            assert e.rs_se is not None
             assert e.n is not None
-            rs = " ".join(f"{v:.4f}" for v in e.rs)
-            n = f"{e.n:.1f}±{e.n_se:.1f}"
+            assert e.n_se is not None
+            rs = " ".join(
+                _value(v, s, y, 4) for v, s, y in zip(e.rs, e.rs_se, e.rs_sys or [None] * 3, strict=True)
+            )
+            n = _value(e.n, e.n_se, e.n_sys, 1)
         else:
             rs, n = "unmeasured", escape(e.reason or "")
         theta = f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else "—"  # an unmeasured lobe has none
         t.add_row(str(e.id), rd, rs, n, theta, f"{e.pixels.diffuse} / {e.pixels.highlight}")
     return t
+
+
+def _value(v: float, se: float, sys: float | None, digits: int) -> str:
+    """``v±se`` and, where propagated, ``±sys``, to ``digits`` decimals."""
+    return f"{v:.{digits}f}±{se:.{digits}f}" + ("" if sys is None else f"±{sys:.{digits}f}")
 
 
 @contextlib.contextmanager

@@ -29,7 +29,7 @@ from hlr_lab.fitting.inputs import (
     check_samples,
 )
 from hlr_lab.fitting.model import lobe_angle
-from hlr_lab.fitting.paper import Estimate, fit_paper
+from hlr_lab.fitting.paper import Estimate, Response, fit_paper
 from hlr_lab.fitting.robust import fit_robust
 
 __all__ = [
@@ -39,7 +39,9 @@ __all__ = [
     "EstimatorName",
     "InsufficientSamples",
     "RegionFit",
+    "Response",
     "fit_region",
+    "fit_shift",
 ]
 
 
@@ -93,6 +95,9 @@ class RegionFit:
     # (6,) the Rd, Rs channels held at 0 because the unbounded fit went below (a near-black surface): the
     # unbounded value in its standard errors there, NaN elsewhere
     held_at_zero: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
+    # how (rd, rs, n) move when the inputs do (:class:`~hlr_lab.fitting.paper.Response`; the robust
+    # estimator's), for the systematic uncertainty; None where the estimator has none
+    response: Response | None = field(default=None, repr=False)
 
 
 def fit_region(
@@ -147,7 +152,17 @@ def fit_region(
         est.residual_rms,
         est.noise_sigma,
         np.full(6, np.nan) if est.held_at_zero is None else est.held_at_zero,
+        est.response,
     )
+
+
+def fit_shift(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, footprint=None) -> np.ndarray:
+    """(7,) how ``fit``'s (Rd[3], Rs[3], n) move, to first order, were its pixels' inputs these instead
+    (the same pixels in the same order as fitted, shapes as :func:`fit_region`'s: a rig quantity believed
+    a little differently). Raises ValueError for an estimator without a linearisation (the paper's)."""
+    if fit.response is None:
+        raise ValueError(f"the {fit.method} estimator gives no linearisation")
+    return fit.response.shift(check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint))
 
 
 def _run(s: Samples, estimator, theta_c_deg: float) -> Estimate:

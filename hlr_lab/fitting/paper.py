@@ -15,6 +15,7 @@ means says nothing about n, yet dominates the sum once θc is wider than the lob
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -47,6 +48,15 @@ class Estimate:
     # (6,) the Rd, Rs channels held at 0 where the unbounded fit went below: its value there in its
     # standard errors (< 0), NaN where not held (None: the estimator does not bound them)
     held_at_zero: np.ndarray | None = None
+    # the answer's first-order response to moved inputs (the robust estimator's; None: not linearised)
+    response: Response | None = None
+
+
+class Response(Protocol):
+    """How an estimate moves when its pixels' inputs move a little (the same pixels, in the same order):
+    ``shift(moved)`` → (7,) the change of (Rd[3], Rs[3], n), to first order."""
+
+    def shift(self, moved: Samples) -> np.ndarray: ...
 
 
 def fit_paper(s: Samples, highlight: np.ndarray, n_range: tuple[float, float]) -> Estimate:

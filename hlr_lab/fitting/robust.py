@@ -10,7 +10,9 @@
    standardised by that noise model (held at the starting fit): inter-reflections and the odd bad pixel
    lose their pull instead of biasing Rd, and no division by cosⁿβ ever amplifies noise. From the
    subsample's start one pass usually suffices (see ``_gauss_newton``).
-5. Standard errors from the sandwich covariance H⁻¹ (Σ ψ² J Jᵀ/σ²) H⁻¹.
+5. Standard errors from the sandwich covariance H⁻¹ (Σ ψ² J Jᵀ/σ²) H⁻¹; the answer's response to
+   moved inputs (a rig quantity believed a little wrong: docs/fitting.md, "Systematic uncertainty") by the
+   implicit function theorem, δp = H⁻¹ δg, the gradient's change at the answer (:class:`Linearised`).
 6. Rd and Rs are reflectances: a channel that comes out below 0 (a near-black surface, whose noise
    straddles 0) is held at 0 and the others fitted again (an active set: the bounded least-squares
    solution); its standard error stays the unbounded fit's, the scale of what the pixels can tell.
@@ -67,6 +69,7 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
         held[below] = True
         p, cov, rms = _gauss_newton(s, np.where(held, 0.0, p), variance, n_range, held=held)
         se = np.where(held, se, np.sqrt(np.clip(np.diag(cov), 0, None)))
+    response = Linearised(s, p, variance, held)
     # the noise at the lobe's peak; a lobe fitted below zero (no highlight seen) has none: the floor's
     mu_peak = max(float(np.mean(p[3:6]) * np.median(s.irradiance)), 0.0)
     sigma = float(np.sqrt(max(noise[0] + noise[1] * mu_peak, 0.0)))
@@ -82,7 +85,34 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
         sigma,
         rms,
         held_z,
+        response,
     )
+
+
+class Linearised:
+    """The fit's first-order response to its pixels' inputs moved (the same pixels, in the same order):
+    at the answer p the cost's gradient is 0; inputs moved by a little change it by δg, and the answer
+    moves by H⁻¹ δg (the implicit function theorem; H the Hessian with ψ', the held channels left out).
+    The noise model stays the fit's: what moves is the geometry or the radiometry believed, not the pixels'
+    noise. Exact to first order in the move; one pass over the pixels per call (and one, once, for the
+    fitted inputs' own gradient, which a converged fit leaves near but not exactly at 0)."""
+
+    def __init__(self, s: Samples, p: np.ndarray, variance: _Variance, held: np.ndarray):
+        self._s, self._p, self._variance = s, p.copy(), variance
+        self._free = (~held).astype(float)
+        self._at_answer: tuple[np.ndarray, np.ndarray] | None = None  # H⁻¹ and the gradient, when first asked
+
+    def shift(self, moved: Samples) -> np.ndarray:
+        """(7,) the change of (Rd[3], Rs[3], n) that ``moved`` (the fitted pixels, their inputs moved)
+        asks for."""
+        if len(moved) != len(self._s):
+            raise ValueError(f"moved inputs of {len(moved)} pixels for a fit of {len(self._s)}")
+        if self._at_answer is None:
+            hessian, _, grad, *_ = _normal_equations(self._s, self._p, self._variance)
+            self._at_answer = np.linalg.pinv(hessian * np.outer(self._free, self._free)), grad
+        h_inv, grad = self._at_answer
+        moved_grad = _normal_equations(moved, self._p, self._variance)[2]
+        return h_inv @ ((moved_grad - grad) * self._free)
 
 
 def _start_n(s: Samples, highlight: np.ndarray, n_range) -> float:

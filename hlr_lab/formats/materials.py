@@ -52,6 +52,11 @@ class MaterialEntry(OpenModel):
     rs_se: RGB | None = None
     n: float | None = Field(default=None, gt=0)
     n_se: float | None = Field(default=None, ge=0)
+    # systematic: what the rig file's own uncertainty (its calibration records) leaves uncertain; absent
+    # where the fit did not propagate it (docs/formats.md)
+    rd_sys: RGB | None = None
+    rs_sys: RGB | None = None
+    n_sys: float | None = Field(default=None, ge=0)
     specular: Literal["measured", "unmeasured"]
     reason: str | None = None
     theta_c_deg: float = Field(gt=0, lt=90)
@@ -63,6 +68,8 @@ class MaterialEntry(OpenModel):
     def _specular_consistent(self):
         measured = self.specular == "measured"
         given = [f for f in ("rs", "rs_se", "n", "n_se") if getattr(self, f) is not None]
+        if not measured and (self.rs_sys is not None or self.n_sys is not None):
+            raise ValueError("an unmeasured specular has no rs_sys or n_sys")
         if measured and len(given) < 4:
             raise ValueError("a measured specular needs rs, rs_se, n and n_se")
         if not measured and (given or not self.reason):
@@ -70,8 +77,38 @@ class MaterialEntry(OpenModel):
         return self
 
 
+class SystematicTerm(OpenModel):
+    """One independent one-σ move of the rig the fit believed: what it moves, by how much, and whether
+    its σ came from a calibration's covariance, its standard errors, or the uncalibrated default."""
+
+    name: str
+    size: str
+    source: Literal["covariance", "standard errors", "uncalibrated"]
+
+
+class Systematic(OpenModel):
+    """How ``*_sys`` came about: each term's move of the parameters (first order), added in quadrature."""
+
+    method: Literal["linearised"]
+    terms: list[SystematicTerm]
+    estimator: EstimatorName
+    uncalibrated: str | None = None  # what had no calibration record, and what to do
+
+
+class NotMeasured(OpenModel):
+    """A planned region without a material: how many usable samples it had and why nothing could be
+    told from them (never seen, too few pixels, pixels that do not follow the model)."""
+
+    id: int = Field(ge=0)
+    color: Colour8
+    vertices: int = Field(ge=0)
+    samples: int = Field(ge=0)
+    reason: str
+
+
 class MaterialsFile(OpenModel):
-    """``materials.json`` (docs/formats.md): the reflection model, the mesh, one entry per region."""
+    """``materials.json`` (docs/formats.md): the reflection model, the mesh, one entry per region — a
+    material, or in ``not_measured`` why there is none."""
 
     format: Literal["hlr-lab.materials"]
     version: Literal[1]
@@ -79,7 +116,10 @@ class MaterialsFile(OpenModel):
     equation: str = EQUATION
     mesh: str | None = None
     sha256: str | None = None
+    # how the entries' *_sys were propagated, and from which terms of the rig's uncertainty
+    systematic: Systematic | None = None
     regions: list[MaterialEntry] = Field(min_length=1)
+    not_measured: list[NotMeasured] = []
 
 
 def measured_entry(region: RegionEntry, fit: RegionFit) -> MaterialEntry:
@@ -132,16 +172,25 @@ def unmeasured_entry(
 
 
 def materials_file(
-    entries: list[MaterialEntry], *, mesh: str | None = None, sha256: str | None = None
+    entries: list[MaterialEntry],
+    *,
+    mesh: str | None = None,
+    sha256: str | None = None,
+    systematic: dict | None = None,
+    not_measured: list[NotMeasured] | None = None,
 ) -> MaterialsFile:
-    """``materials.json`` for ``entries`` (ordered by region id), naming the mesh they belong to."""
+    """``materials.json`` for ``entries`` (ordered by region id), naming the mesh they belong to;
+    ``systematic``: how their ``*_sys`` were propagated (:class:`Systematic`'s fields); ``not_measured``:
+    the planned regions without an entry, and why."""
     return MaterialsFile(
         format=MATERIALS_FORMAT,
         version=1,
         model="blinn-phong",
         mesh=mesh,
         sha256=sha256,
+        systematic=None if systematic is None else Systematic.model_validate(systematic),
         regions=sorted(entries, key=lambda e: e.id),
+        not_measured=sorted(not_measured or [], key=lambda e: e.id),
     )
 
 
@@ -154,9 +203,9 @@ def read_materials(path: str | Path) -> MaterialsFile:
     """Read and validate; an unknown format, version or model, or a malformed field, is one InputError."""
     path = Path(path)
     f = read_format(path, MATERIALS_FORMAT, MaterialsFile)
-    ids = [r.id for r in f.regions]
+    ids = [r.id for r in f.regions] + [r.id for r in f.not_measured]
     if len(set(ids)) != len(ids):
-        raise InputError("a region id appears twice", path=path, field="regions")
+        raise InputError("a region id appears twice (in regions or not_measured)", path=path, field="regions")
     return f
 
 

@@ -40,6 +40,9 @@ class Radiance:
     usable: np.ndarray  # (H, W) bool: some frame was usable
     frames_used: np.ndarray  # (H, W) uint8: how many frames went into the value
     agreement: tuple[PairAgreement, ...] = ()  # the bracket's frames compared (when the caller asked)
+    # (H, W, C) float32: how the value moves per DN of black level believed higher (−frames / Σ k·t of the
+    # frames without a dark frame subtracted; 0 where darks were: the black level cancels there)
+    black_slope: np.ndarray | None = None
 
 
 def merge_bracket(
@@ -77,6 +80,7 @@ def merge_bracket(
     predicted = np.where(np.isfinite(predicted), predicted, rough)  # a pixel without usable neighbours
     total_dn = np.zeros(signals[0].shape, np.float32)
     total_kt = np.zeros(signals[0].shape, np.float32)
+    black_frames = np.zeros(signals[0].shape, np.float32)
     used = np.zeros(len(longest), np.uint8)
     for i, (signal, kt, clip) in enumerate(zip(signals, kts, clips, strict=True)):
         with np.errstate(invalid="ignore"):
@@ -85,6 +89,8 @@ def merge_bracket(
             )
         total_dn += signal * take
         total_kt += kt * take
+        if by_length[i].dark is None:
+            black_frames += take
         used += take.any(axis=-1)
     ok = np.all(total_kt > 0, axis=-1)
     value = np.full(shape, np.nan, np.float32)
@@ -94,7 +100,10 @@ def merge_bracket(
     usable[where] = ok
     frames_used = np.zeros(shape[:2], np.uint8)
     frames_used[where] = used
-    return Radiance(value, usable, frames_used)
+    slope = np.zeros(shape, np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope[where] = np.where(ok[:, None], -black_frames / total_kt, 0.0)
+    return Radiance(value, usable, frames_used, black_slope=slope)
 
 
 def neighbour_mean(values: np.ndarray, where: np.ndarray) -> np.ndarray:

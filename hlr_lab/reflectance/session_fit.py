@@ -14,7 +14,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -26,11 +26,13 @@ from hlr_lab.fitting import (
     InsufficientSamples,
     RegionFit,
     fit_region,
+    fit_shift,
 )
 from hlr_lab.fitting.inputs import MIN_DIFFUSE, normal_mad
 from hlr_lab.formats.materials import (
     MaterialEntry,
     MaterialsFile,
+    NotMeasured,
     PixelCounts,
     materials_file,
     measured_entry,
@@ -43,12 +45,14 @@ from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, exposure_agreement, merge_bracket
+from hlr_lab.reflectance.systematic import RigTerm, rig_terms
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
     PoseGeometry,
     PoseSamples,
     Selection,
     StageTimes,
+    light_terms_again,
     pose_samples,
 )
 from hlr_lab.rig.file import Rig, rig_of_snapshot
@@ -73,6 +77,7 @@ SPREAD = 0.05  # … judged only where L·cos α varies by this much (relative �
 # a black level this far (DN) from the rig file's, as the brackets tell it, is worth a warning: the
 # brackets measure it within ~0.2 DN on the simulated rig (1.5 DN read noise)
 BLACK_LEVEL_WARNING_DN = 2.0
+_NUDGE = 1e-3  # the fraction of a systematic term the fit's linearisation is taken over (_systematic_shifts)
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,26 +156,47 @@ class LampRecord:
 
 @dataclass
 class _Pooled:
-    """One region's samples over all views, kept compact (float32: 40 bytes a sample, the fit's only
-    memory that grows with the session), and how many came from each view."""
+    """One region's samples over all views, kept compact (float32: ~80 bytes a sample, the fit's only
+    memory that grows with the session): each part one view's (its index in ``Session.views``), and how
+    many came from each view."""
 
-    parts: list[dict[str, np.ndarray]] = field(default_factory=list)
+    parts: list[tuple[int, PoseSamples]] = field(default_factory=list)
     per_view: dict[str, int] = field(default_factory=dict)
 
-    def add(self, view: str, samples: PoseSamples, mask: np.ndarray) -> None:
-        arrays = {name: getattr(samples, name) for name in _COLUMNS} | {"footprint": samples.footprint.nodes}
-        self.parts.append({name: a[mask].astype(np.float32) for name, a in arrays.items()})
+    def add(self, index: int, view: str, samples: PoseSamples, mask: np.ndarray) -> None:
+        self.parts.append((index, samples.compact(mask)))
         self.per_view[view] = self.per_view.get(view, 0) + int(mask.sum())
 
     def stacked(self, name: str) -> np.ndarray:
-        return np.concatenate([p[name] for p in self.parts]).astype(np.float64)
+        if name == "footprint":
+            return np.concatenate([p.footprint.nodes for _, p in self.parts]).astype(np.float64)
+        return np.concatenate([getattr(p, name) for _, p in self.parts]).astype(np.float64)
+
+    def inputs(self) -> _Inputs:
+        """The fit's inputs, stacked over the views (float64)."""
+        return _Inputs(*(self.stacked(name) for name in _Inputs._fields))
 
     def any_light(self) -> bool:
         """Whether any of the region's pixels read above black (without stacking them)."""
-        return any(bool(np.any(p["intensity"] > 0)) for p in self.parts)
+        return any(bool(np.any(p.intensity > 0)) for _, p in self.parts)
 
 
-_COLUMNS = ("intensity", "irradiance", "cos_alpha", "cos_beta")  # the PoseSamples arrays kept as they are
+class _Inputs(NamedTuple):
+    """A region's fit inputs (``fit_region``'s): intensity (N, C), irradiance, cos α, cos β (N,), the
+    footprint's log cos β (N, 4)."""
+
+    intensity: np.ndarray
+    irradiance: np.ndarray
+    cos_alpha: np.ndarray
+    cos_beta: np.ndarray
+    footprint: np.ndarray
+
+
+# how a region's entry moves when its inputs do: (7,) the change of (Rd[3], Rs[3], n), NaN where the entry
+# has no such number
+Respond = Callable[[_Inputs], np.ndarray]
+
+
 # a lamp that lit nothing: what to look at
 _DARK_ADVICE = "check that it is connected and switched by the rig, the exposures, and the lens cap"
 _BELOW_BLACK_ADVICE = (
@@ -342,13 +368,16 @@ def fit_session(
     theta_c_deg: float | Literal["auto"] = "auto",
     method: EstimatorName = DEFAULT_ESTIMATOR,
     selection: Selection = DEFAULT_SELECTION,
+    systematic: bool = True,
     progress: Callable[[FitStep], None] = lambda _: None,
 ) -> FitResult:
     """Fit every region of ``session``: each view's frames merged to radiance (HDR), its pixels placed
     on the mesh and kept or left out (``selection``: grazing light or view, borders, shadows), pooled per
     region over the views, then ``method``'s Phong fit of (Rd, Rs, n) with ``theta_c_deg`` (or chosen per
     region, "auto"). A region whose highlight was not measured gets its diffuse colour only, with the
-    reason; one never seen gets a diagnostics line. ``progress`` hears of each pose and region.
+    reason; one never seen gets a diagnostics line. ``systematic``: each entry also gets the systematic
+    uncertainty the rig file's own uncertainty gives it (``rd_sys``, …; :mod:`.systematic`; the robust
+    estimator's). ``progress`` hears of each pose, region and systematic term.
 
     Returns
     -------
@@ -371,7 +400,7 @@ def fit_session(
             plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection, times
         )
         for rid in np.unique(samples.region):
-            pooled[int(rid)].add(view.pose, samples, samples.region == rid)
+            pooled[int(rid)].add(i, view.pose, samples, samples.region == rid)
     if pooled and not any(p.any_light() for p in pooled.values()):
         raise InputError(
             f"every pixel of the object is black in every frame of its {len(session.views)} pose(s): the lamp lit "
@@ -383,6 +412,7 @@ def fit_session(
     diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": [],
                          "black_level": black_level_check(offsets, rig.file.sensor.black_level_dn)}  # fmt: skip
     fits: dict[int, RegionFit] = {}
+    responds: dict[int, Respond] = {}
     for i, region in enumerate(plan.object.regions):
         progress(FitStep("regions", i, len(plan.object.regions), f"region {region.id}: fitting"))
         p = pooled.get(region.id)
@@ -392,9 +422,11 @@ def fit_session(
             )
             continue
         with times("fitting"):
-            entry, diag, fit = _fit_one(region, p, theta_c_deg, method)
+            entry, diag, fit, respond = _fit_one(region, p, theta_c_deg, method)
         if entry is not None:
             entries.append(entry)
+            if respond is not None:
+                responds[region.id] = respond
         diagnostics["regions"].append(diag)
         if fit is not None:
             fits[region.id] = fit
@@ -405,7 +437,22 @@ def fit_session(
             "lamp, the exposures and the rig file's [sensor] against the photographs",
             path=session.path,
         )
-    materials = materials_file(entries, mesh=plan.object.mesh, sha256=plan.object.sha256)
+    record = None
+    if systematic and responds:
+        with times("systematic"):
+            terms = rig_terms(rig, mesh.vertices)
+            shifts = _systematic_shifts(session, caster, pooled, responds, terms, progress)
+        entries = [_with_systematic(e, shifts.get(e.id), terms) for e in entries]
+        record = _systematic_record(terms, shifts, diagnostics, method)
+    fitted = {e.id for e in entries}
+    notes = {d["id"]: d for d in diagnostics["regions"]}
+    missing = [
+        NotMeasured(id=r.id, color=list(r.color), vertices=r.vertices, samples=notes[r.id]["samples"],
+                    reason=notes[r.id].get("note", "no entry"))
+        for r in plan.object.regions if r.id not in fitted
+    ]  # fmt: skip
+    materials = materials_file(entries, mesh=plan.object.mesh, sha256=plan.object.sha256, systematic=record,
+                               not_measured=missing)  # fmt: skip
     if session.gaps.missing_frames:  # fitted with --allow-incomplete: the file says on what
         materials = MaterialsFile.model_validate(
             {**materials.model_dump(exclude_none=True), "incomplete": session.gaps.as_record()}
@@ -435,30 +482,27 @@ def black_level_check(offsets: list[float], assumed_dn: float) -> dict:
 
 def _fit_one(
     region: RegionEntry, p: _Pooled, theta_c_deg, method: EstimatorName
-) -> tuple[MaterialEntry | None, dict, RegionFit | None]:
-    """The region's entry (None when not even its diffuse colour can be told), diagnostics, and the fit
-    when its specular was measured."""
-    intensity, irradiance = p.stacked("intensity"), p.stacked("irradiance")
-    cos_alpha, cos_beta = p.stacked("cos_alpha"), p.stacked("cos_beta")
-    footprint = p.stacked("footprint")
+) -> tuple[MaterialEntry | None, dict, RegionFit | None, Respond | None]:
+    """The region's entry (None when not even its diffuse colour can be told), diagnostics, the fit when
+    its specular was measured, and how the entry's numbers move with its inputs (None where they cannot
+    be followed: no entry, or the paper's estimator)."""
+    intensity, irradiance, cos_alpha, cos_beta, footprint = p.inputs()
     diag = {"id": region.id, "samples": len(cos_beta), "samples_per_pose": p.per_view}
     unlit = _not_lit(intensity, irradiance, cos_alpha, cos_beta)
     if unlit:
         diag["note"] = unlit
-        return None, diag, None
+        return None, diag, None, None
     try:
         fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=theta_c_deg, method=method,
                          footprint=footprint)  # fmt: skip
     except (InsufficientSamples, DegenerateSamples) as exc:
-        entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, str(exc), method)
         diag["specular"] = f"unmeasured: {exc}"
-        if isinstance(entry, str):
-            diag["note"], entry = entry, None
-        return entry, diag, None
+        entry, diag, respond = _diffuse_outcome(region, p, str(exc), method, diag)
+        return entry, diag, None, respond
     held, below_black = _held_note(fit.held_at_zero)
     if below_black:  # no near-black surface: pixels that do not follow the model get no entry
         diag["note"] = held
-        return None, diag, None
+        return None, diag, None, None
     if held:
         diag["held_at_zero"] = held
     # a lobe no pixel saw: the nearest pixel lies beyond twice its half width (the fit then trades n for Rs
@@ -470,11 +514,9 @@ def _fit_one(
             f"no highlight seen: the pixel nearest the mirror direction lies at β = {nearest_deg:.3g}°, beyond "
             f"the lobe's reach; plan a light whose highlight falls on this region"
         )
-        entry = _diffuse_only(region, intensity, irradiance, cos_alpha, cos_beta, reason, method)
         diag["specular"] = f"unmeasured: {reason}"
-        if isinstance(entry, str):
-            diag["note"], entry = entry, None
-        return entry, diag, None
+        entry, diag, respond = _diffuse_outcome(region, p, reason, method, diag)
+        return entry, diag, None, respond
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
     if not rs > SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
         reason = (
@@ -488,17 +530,173 @@ def _fit_one(
         wrong = _unphysical(fit.rd)  # materials.json cannot hold it
         if wrong:
             diag["note"] = wrong
-            return None, diag, None
+            return None, diag, None, None
         pixels = PixelCounts(diffuse=fit.n_diffuse, highlight=fit.n_highlight)
-        return unmeasured_entry(region, fit.rd, fit.rd_se, reason=reason, theta_c_deg=fit.theta_c_deg,
-                                pixels=pixels, residual_rms=fit.residual_rms, estimator=method), diag, None  # fmt: skip
+        entry = unmeasured_entry(region, fit.rd, fit.rd_se, reason=reason, theta_c_deg=fit.theta_c_deg,
+                                 pixels=pixels, residual_rms=fit.residual_rms, estimator=method)  # fmt: skip
+        return entry, diag, None, _fit_response(fit, rd_only=True)
     diag["residual_rms"] = fit.residual_rms
     diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
     wrong = _unphysical(fit.rd) or _unphysical(fit.rs, "Rs")  # materials.json holds neither
     if wrong:
         diag["note"] = wrong
+        return None, diag, None, None
+    return measured_entry(region, fit), diag, fit, _fit_response(fit)
+
+
+def _fit_response(fit: RegionFit, *, rd_only: bool = False) -> Respond | None:
+    """How ``fit``'s numbers move with its inputs (``rd_only``: an entry that keeps only its Rd)."""
+    if fit.response is None:
+        return None
+
+    def respond(moved: _Inputs) -> np.ndarray:
+        shift = fit_shift(fit, *moved)
+        if rd_only:
+            shift[3:] = np.nan
+        return shift
+
+    return respond
+
+
+def _diffuse_outcome(
+    region: RegionEntry, p: _Pooled, reason: str, method: EstimatorName, diag: dict
+) -> tuple[MaterialEntry | None, dict, Respond | None]:
+    """A region whose highlight was not measured: its diffuse colour from the pixels beyond
+    ``DIFFUSE_ONLY_BETA_DEG`` (``_diffuse_only``), or the note why there is none; and how that Rd moves
+    with the inputs (the same pixels' least squares again)."""
+    inputs = p.inputs()
+    entry = _diffuse_only(region, inputs, reason, method)
+    if isinstance(entry, str):
+        diag["note"] = entry
         return None, diag, None
-    return measured_entry(region, fit), diag, fit
+    far = inputs.cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    base = _diffuse_rd(inputs, far)
+
+    def respond(moved: _Inputs) -> np.ndarray:
+        return np.concatenate([_diffuse_rd(moved, far) - base, np.full(4, np.nan)])
+
+    return entry, diag, respond
+
+
+def _diffuse_rd(inputs: _Inputs, far: np.ndarray) -> np.ndarray:
+    """(3,) Rd by least squares over the pixels ``far`` (I = L·Rd·cos α), not held at 0."""
+    x = inputs.irradiance[far] * inputs.cos_alpha[far]
+    return (x[:, None] * inputs.intensity[far]).sum(axis=0) / max(float(x @ x), 1e-300)
+
+
+def _systematic_shifts(
+    session: Session,
+    caster: RayCaster,
+    pooled: dict[int, _Pooled],
+    responds: dict[int, Respond],
+    terms: list[RigTerm],
+    progress: Callable[[FitStep], None],
+) -> dict[int, np.ndarray]:
+    """Per region, (T, 7) how its (Rd[3], Rs[3], n) move under each of the T ``terms`` (NaN where the entry
+    has no such number): its pixels held, their geometry and radiance taken again with the rig moved."""
+    poses = [view_pose(session, v) for v in session.views]
+    shifts: dict[int, list[np.ndarray]] = {rid: [] for rid in responds}
+    stacked: dict[int, _Inputs] = {}
+    for t, term in enumerate(terms):
+        progress(FitStep("systematic", t, len(terms), f"{term.name}: the fit moved"))
+        if term.fraction is not None:  # a share of each value, not a move: _with_systematic takes it
+            for rid in responds:
+                shifts[rid].append(np.full(7, np.nan))
+            continue
+        for rid, respond in responds.items():
+            parts = [_moved_inputs(term, caster, session.rig, session.views[i], poses[i], part)
+                     for i, part in pooled[rid].parts]  # fmt: skip
+            moved = _Inputs(*(np.concatenate(c) for c in zip(*parts, strict=True)))
+            fitted = stacked.setdefault(rid, pooled[rid].inputs())
+            # the derivative, not the move: Huber's ψ is linear only within the pixels' noise, which a whole
+            # σ of the rig can exceed (10 % of the sensitivity is far beyond it): the inputs moved by a
+            # thousandth of the term, the answer's move scaled back up
+            nudged = _Inputs(*(a + _NUDGE * (b - a) for a, b in zip(fitted, moved, strict=True)))
+            shifts[rid].append(respond(nudged) / _NUDGE)
+    return {rid: np.array(v) for rid, v in shifts.items()}
+
+
+def _moved_inputs(
+    term: RigTerm, caster: RayCaster, rig: Rig, view: View, pose: PoseGeometry, part: PoseSamples
+) -> _Inputs:
+    """One view's part of a region's inputs with the rig moved by ``term``: the same pixels, their light
+    terms taken again, their radiance under the moved black level (the merge's own slope) or sensitivity."""
+    intensity = part.intensity.astype(np.float64)
+    irradiance, cos_alpha = part.irradiance.astype(np.float64), part.cos_alpha.astype(np.float64)
+    cos_beta, nodes = part.cos_beta.astype(np.float64), part.footprint.nodes.astype(np.float64)
+    if term.black_level_dn is not None:
+        intensity = intensity + (term.black_level_dn - rig.file.sensor.black_level_dn) * part.black_slope
+    if term.sensitivity_factor is not None:
+        intensity = intensity / term.sensitivity_factor
+    if term.camera is not None or term.kinematics is not None:
+        moved_pose = pose
+        if term.kinematics is not None:
+            ticks = view.measured["gantry_ticks"]
+            moved_pose = replace(
+                pose,
+                light_world=term.kinematics.light_position((ticks[0], ticks[1])),
+                directional_from=None
+                if pose.directional_from is None
+                else np.asarray(term.kinematics.centre),
+            )
+        # the change, added to what the fit had (the same arithmetic either side: no rounding taken for a move)
+        base = light_terms_again(caster, rig.camera, pose, part, recast=False)
+        after = light_terms_again(
+            caster, term.camera or rig.camera, moved_pose, part, recast=term.camera is not None
+        )
+        irradiance = irradiance + (after.irradiance - base.irradiance)
+        cos_alpha = np.clip(cos_alpha + (after.cos_alpha - base.cos_alpha), 1e-6, 1.0)
+        cos_beta = np.clip(cos_beta + (after.cos_beta - base.cos_beta), 1e-6, 1.0)
+        nodes = np.minimum(nodes + (after.footprint - base.footprint), 0.0)
+    return _Inputs(intensity, np.maximum(irradiance, 1e-300), cos_alpha, cos_beta, nodes)
+
+
+def _with_systematic(entry: MaterialEntry, shifts: np.ndarray | None, terms: list[RigTerm]) -> MaterialEntry:
+    """``entry`` with ``rd_sys`` (and ``rs_sys``, ``n_sys`` where measured): the terms' moves (T, 7) in
+    quadrature, a term that is a share of each value (a device never calibrated) taken of the entry's
+    own; ``shifts`` gets those rows filled in."""
+    if shifts is None or len(shifts) == 0:
+        return entry
+    values = np.concatenate([entry.rd, entry.rs or [np.nan] * 3, [entry.n or np.nan]])
+    for t, term in enumerate(terms):
+        if term.fraction is not None:
+            share = np.repeat([term.fraction["rd"], term.fraction["rs"], term.fraction["n"]], [3, 3, 1])
+            shifts[t] = share * values
+    sys = np.sqrt(np.sum(np.square(shifts), axis=0))
+    update: dict = {"rd_sys": _listed(sys[:3])}
+    if entry.specular == "measured" and np.all(np.isfinite(sys[3:])):
+        update |= {"rs_sys": _listed(sys[3:6]), "n_sys": float(sys[6])}
+    return entry.model_copy(update=update)
+
+
+def _systematic_record(
+    terms: list[RigTerm], shifts: dict[int, np.ndarray], diagnostics: dict, method
+) -> dict:
+    """``materials.json``'s ``systematic``: how it was propagated and from what; each region's moves per
+    term go to the diagnostics (the largest first), for a reader asking what dominates."""
+    names = [f"{p} {c}" for p in ("Rd", "Rs") for c in "RGB"] + ["n"]
+    for d in diagnostics["regions"]:
+        moves = shifts.get(d["id"])
+        if moves is None:
+            continue
+        rows = []
+        for term, row in zip(terms, moves, strict=True):
+            cells = {name: float(v) for name, v in zip(names, row, strict=True) if np.isfinite(v)}
+            rows.append({"term": term.name, **cells})
+        d["systematic"] = rows
+    uncalibrated = sorted({t.device for t in terms if t.source == "uncalibrated"})
+    record = {"method": "linearised", "terms": [t.as_record() for t in terms], "estimator": method}
+    if uncalibrated:
+        record["uncalibrated"] = (
+            f"no calibration record for the {', '.join(uncalibrated)}: the rig file's drawing was taken to be "
+            "off by a conservative default (docs/fitting.md); calibrate (hlr-lab calibrate all) for figures that "
+            "are the rig's own"
+        )
+    return record
+
+
+def _listed(a: np.ndarray) -> list[float]:
+    return [float(x) for x in a]
 
 
 def _held_note(held_z: np.ndarray) -> tuple[str | None, bool]:
@@ -568,17 +766,15 @@ def _unphysical(values: np.ndarray, name: str = "Rd") -> str | None:
     )
 
 
-def _diffuse_only(
-    region, intensity, irradiance, cos_alpha, cos_beta, reason: str, method: EstimatorName
-) -> MaterialEntry | str:
+def _diffuse_only(region, inputs: _Inputs, reason: str, method: EstimatorName) -> MaterialEntry | str:
     """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE; or why
     there is none (too few such pixels, an Rd below 0)."""
-    far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
-    x = irradiance[far] * cos_alpha[far]  # (M,)
+    far = inputs.cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    x = inputs.irradiance[far] * inputs.cos_alpha[far]  # (M,)
     if len(x) < MIN_DIFFUSE:
         return f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
-    y = intensity[far]  # (M, C)
-    rd = (x[:, None] * y).sum(axis=0) / (x @ x)
+    y = inputs.intensity[far]  # (M, C)
+    rd = _diffuse_rd(inputs, far)
     resid = y - x[:, None] * rd
     sigma2 = (resid**2).sum(axis=0) / max(len(x) - 1, 1)
     rd_se = np.sqrt(sigma2 / (x @ x))

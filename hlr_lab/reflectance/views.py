@@ -61,6 +61,20 @@ class PoseSamples:
     cos_alpha: np.ndarray  # (N,)
     cos_beta: np.ndarray  # (N,) β between the normal and the half vector
     footprint: Footprint  # log cos β over each pixel's area
+    pixel: np.ndarray  # (N, 2) int (x, y)
+    point: np.ndarray  # (N, 3) what the pixel's centre ray meets, turntable frame (m)
+    normal: np.ndarray  # (N, 3) the shading normal there
+    black_slope: np.ndarray  # (N, C) how the intensity moves per DN of black level (Radiance.black_slope)
+
+    def compact(self, which: np.ndarray) -> PoseSamples:
+        """The samples ``which`` ((N,) bool), their floats as float32: what a session's fit keeps of a pose."""
+
+        def f(a: np.ndarray) -> np.ndarray:
+            return a[which].astype(np.float32)
+
+        return PoseSamples(self.region[which], f(self.intensity), f(self.irradiance), f(self.cos_alpha),
+                           f(self.cos_beta), Footprint(f(self.footprint.nodes)), self.pixel[which].astype(np.int32),
+                           f(self.point), f(self.normal), f(self.black_slope))  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,6 +122,8 @@ class PixelGeometry:
 
     pixel: np.ndarray  # (N, 2) int (x, y)
     region: np.ndarray  # (N,) region id
+    point: np.ndarray  # (N, 3) turntable frame (m)
+    normal: np.ndarray  # (N, 3) shading normal
     irradiance: np.ndarray  # (N,) Φ/d²
     cos_alpha: np.ndarray  # (N,) may be ≤ 0: facing away from the lamp
     cos_view: np.ndarray  # (N,)
@@ -166,6 +182,8 @@ def pose_geometry(
     return PixelGeometry(
         pixel=np.stack([xs[hit], ys[hit]], axis=1),
         region=labels[ys[hit], xs[hit]],
+        point=point,
+        normal=normal,
         irradiance=irradiance,
         cos_alpha=cos_alpha,
         cos_view=np.einsum("ij,ij->i", normal, v_dir),
@@ -175,6 +193,46 @@ def pose_geometry(
         normals=_normal_image(labels.shape, xs[hit], ys[hit], normal),
         cast_shadow=cast_shadow,
     )
+
+
+@dataclass(frozen=True, eq=False)
+class LightTerms:
+    """What the fit reads of N samples' geometry: irradiance Φ/d², cos α, cos β (N,) and log cos β at the
+    footprint's nodes (N, 4)."""
+
+    irradiance: np.ndarray
+    cos_alpha: np.ndarray
+    cos_beta: np.ndarray
+    footprint: np.ndarray
+
+
+def light_terms_again(
+    caster: RayCaster,
+    camera: Camera,
+    pose: PoseGeometry,
+    samples: PoseSamples,
+    *,
+    recast: bool,
+) -> LightTerms:
+    """The light terms of ``samples`` (one pose's, the same pixels) under ``camera`` and ``pose`` — a rig
+    believed a little differently (docs/fitting.md, "Systematic uncertainty"). ``recast``: the camera
+    moved, so each pixel's centre ray is cast again (a pixel whose ray now misses keeps its old point);
+    otherwise the samples' points and normals serve. The footprint's nodes move as the centre's log cos β
+    does (the rig's small moves turn the whole pixel's lobe alike)."""
+    cam, light, directional = pose_frame(camera, pose)
+    point, normal = samples.point.astype(np.float64), samples.normal.astype(np.float64)
+    if recast and len(point):
+        surface = caster.surface(cam, samples.pixel.astype(np.float64))
+        point = np.where(surface.hit[:, None], surface.point, point)
+        normal = np.where(surface.hit[:, None], surface.normal, normal)
+    l_dir, _, irradiance, cos_beta = _towards(point, normal, light, cam.centre, directional, pose.power)
+    cos_alpha = np.einsum("ij,ij->i", normal, l_dir)
+    with np.errstate(divide="ignore"):
+        moved = np.maximum(np.log(cos_beta), _LOG_COS_FLOOR) - np.maximum(
+            np.log(samples.cos_beta), _LOG_COS_FLOOR
+        )
+    nodes = np.clip(samples.footprint.nodes + moved[:, None], _LOG_COS_FLOOR, 0.0)
+    return LightTerms(irradiance, cos_alpha, cos_beta, nodes)
 
 
 def _towards(points, normals, light, camera_centre, directional, power):
@@ -264,13 +322,22 @@ def pose_samples(
         pixel = g.pixel[keep]
     with timer("footprint"):  # only for the samples kept: the rays are the stage's cost
         footprint = pixel_footprint(caster, camera, pose, pixel.astype(np.float64), g.cos_beta[keep])
+    intensity = radiance.value[pixel[:, 1], pixel[:, 0]].astype(np.float64)
     return PoseSamples(
         region=g.region[keep],
-        intensity=radiance.value[pixel[:, 1], pixel[:, 0]].astype(np.float64),
+        intensity=intensity,
         irradiance=g.irradiance[keep],
         cos_alpha=g.cos_alpha[keep],
         cos_beta=g.cos_beta[keep],
         footprint=footprint,
+        pixel=pixel,
+        point=g.point[keep],
+        normal=g.normal[keep],
+        black_slope=(
+            np.zeros_like(intensity)
+            if radiance.black_slope is None
+            else radiance.black_slope[pixel[:, 1], pixel[:, 0]].astype(np.float64)
+        ),
     )
 
 

@@ -159,12 +159,18 @@ def _materials(session: Session, materials: MaterialsFile, diagnostics: dict) ->
     fit's reason (fit-diagnostics.json)."""
     rows = []
     for e in materials.regions:
-        rd = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rd, e.rd_se, strict=True))
+        rd = "<br>".join(
+            _uncertain(v, s, y, 4) for v, s, y in zip(e.rd, e.rd_se, e.rd_sys or [None] * 3, strict=True)
+        )
         if e.specular == "measured":
             assert e.rs is not None  # materials.json's model: a measured lobe has rs, rs_se, n, n_se
             assert e.rs_se is not None
-            rs = "<br>".join(f"{v:.4f} ± {s:.4f}" for v, s in zip(e.rs, e.rs_se, strict=True))
-            n = f"{e.n:.2f} ± {e.n_se:.2f}"
+            assert e.n is not None
+            assert e.n_se is not None
+            rs = "<br>".join(
+                _uncertain(v, s, y, 4) for v, s, y in zip(e.rs, e.rs_se, e.rs_sys or [None] * 3, strict=True)
+            )
+            n = _uncertain(e.n, e.n_se, e.n_sys, 2)
         else:
             rs, n = f"unmeasured: {h.escape(e.reason)}", "—"
         # an unmeasured lobe has no θc (its entry's is the cone in which a highlight was looked for)
@@ -181,7 +187,9 @@ def _materials(session: Session, materials: MaterialsFile, diagnostics: dict) ->
             ]
         )
     entries = {e.id for e in materials.regions}
+    # why a region has no entry: materials.json's own word (older files: the diagnostics')
     why = {d["id"]: d.get("note", "") for d in diagnostics.get("regions", [])}
+    why |= {r.id: f"{r.reason} ({r.samples} usable pixels)" for r in materials.not_measured}
     missing = [
         f"region {r.id}: {h.escape(why.get(r.id) or 'not fitted (no diagnostics)')}"
         for r in session.plan.object.regions
@@ -189,7 +197,30 @@ def _materials(session: Session, materials: MaterialsFile, diagnostics: dict) ->
     ]
     note = f'<p class="note">Regions without an entry: {"; ".join(missing)}.</p>' if missing else ""
     headers = ["region", "Rd (linear)", "Rs", "n", "θc", "pixels diffuse / highlight", "residual RMS"]
-    return h.table(headers, rows) + note
+    return h.table(headers, rows) + _uncertainty_note(materials) + note
+
+
+def _uncertain(v: float, se: float, sys: float | None, digits: int) -> str:
+    """A value ± its statistical standard error, and ± its systematic one where the fit propagated it."""
+    return f"{v:.{digits}f} ± {se:.{digits}f}" + ("" if sys is None else f" ± {sys:.{digits}f}")
+
+
+def _uncertainty_note(materials: MaterialsFile) -> str:
+    """What the ± in the table are, and what the systematic part came from (materials.json's record)."""
+    record = materials.systematic
+    if record is None:
+        return (
+            '<p class="note">± the statistical standard error (the pixels\' noise); no systematic part.</p>'
+        )
+    sources = sorted({t.source for t in record.terms})
+    text = (
+        "Each value ± its statistical standard error (the pixels' noise) ± its systematic one: what the rig file's "
+        f"own uncertainty leaves uncertain ({len(record.terms)} independent terms, {', '.join(sources)}; "
+        "propagated to first order — docs/fitting.md). Combined: the square root of the sum of their squares."
+    )
+    if record.uncalibrated:
+        text += f" <b>{h.escape(record.uncalibrated)}.</b>"
+    return f'<p class="note">{text}</p>'
 
 
 def _curves(diagnostics: dict, measured: set[int]) -> str:

@@ -333,6 +333,7 @@ class _WhiteReferenceSection(StrictModel):
     plate (and, with ``run_place_m``, beside the object during runs)."""
 
     reflectance: Vec3 = [0.99, 0.99, 0.99]  # per channel (linear RGB), from its certificate
+    reflectance_se: float = Field(default=0.0, ge=0, le=0.5)  # the certificate's uncertainty, relative
     size_m: float = Field(default=0.1, gt=0, le=0.5)  # the square's side
     place_m: Annotated[list[float], _PAIR] = [0.0, 0.0]  # its centre on the plate at turntable 0° (x, y)
     thickness_m: float = Field(default=0.0, ge=0, le=0.05)  # its face above the plate
@@ -346,6 +347,17 @@ class _WhiteReferenceSection(StrictModel):
         if not all(0 < r <= 1 for r in v):
             raise ValueError("each channel's reflectance lies in (0, 1]")
         return v
+
+
+# the camera's parameters as [calibration.camera] covariance orders them (those of the calibration's
+# joint fit; hlr_lab.reflectance.systematic moves the camera by them): a turn ω applied to its rotation
+# (R' = exp(ω)·R, rad) with its translation t held (x_c = R x_w + t, m: a turn about the world's origin),
+# t itself, the intrinsics (px) and the distortion k1 k2 p1 p2
+CAMERA_PARAMETERS = ("rotation_x_rad", "rotation_y_rad", "rotation_z_rad", "translation_x_m", "translation_y_m",
+                     "translation_z_m", "fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2")  # fmt: skip
+# the gantry's, as [calibration.gantry] covariance orders them (the mirror-ball fit's own)
+GANTRY_PARAMETERS = ("centre_x_m", "centre_y_m", "centre_z_m", "arm_radius_m", "axis_x", "axis_y",
+                     "zero_az_ticks", "zero_el_ticks")  # fmt: skip
 
 
 class _Provenance(OpenModel):

@@ -36,7 +36,9 @@ class GantryKinematics:
 
     centre: np.ndarray  # (3,) m
     arm_radius: float
-    zero_ticks: tuple[int, int]  # azimuth, elevation servo readings at 0°
+    # azimuth, elevation servo readings at 0° (whole ticks in a rig file; fractional where the systematic
+    # uncertainty moves them, hlr_lab.reflectance.systematic)
+    zero_ticks: tuple[float, float]
     directions: tuple[int, int] = (1, 1)  # +1: ticks grow with the angle
     ticks_per_rev: int = 4096
     azimuth_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)  # world direction of the azimuth axis
@@ -91,7 +93,7 @@ class GantryKinematics:
         (az_lo, az_hi), (el_lo, el_hi) = self.tick_span(azimuth_limits_deg, elevation_limits_deg)
         return (max(az_lo, 0), min(az_hi, top)), (max(el_lo, 0), min(el_hi, top))
 
-    def light_position(self, ticks: tuple[int, int]) -> np.ndarray:
+    def light_position(self, ticks: tuple[float, float]) -> np.ndarray:
         """(3,) world position of the lamp for servo readings — the *measured* light of a frame."""
         az, el = np.radians(self.angles_for(ticks))
         return np.asarray(self.centre) + self.arm_radius * self.unit_direction(az, el)
