@@ -218,14 +218,16 @@ def save_results(path: Path, results: list[SceneResult]) -> None:
 
 
 def scene_line(r: SceneResult) -> str:
-    """One scene: its worst errors (per cent) and how many parameters lie within 2 σ."""
+    """One scene: its worst errors (per cent) and how many parameters lie within 2 σ (statistical, and
+    combined with the systematic)."""
     cells = []
     for p in PARAMETERS:
         errs = [abs(x.error_pct) for x in r.parameters if x.parameter == p]
         cells.append(f"{p} {max(errs):5.2f} %" if errs else f"{p}   —   ")
     z = np.array([x.z for x in r.parameters])
+    zc = np.array([x.z_combined for x in r.parameters])
     line = f"scene {r.scene:3d} {r.object:7}: worst " + ", ".join(cells)
-    line += f"; within 2σ {np.mean(z <= 2):4.0%} of {len(z)}"
+    line += f"; within 2σ {np.mean(z <= 2):4.0%} of {len(z)} (combined {np.mean(zc <= 2):4.0%})"
     if r.unmeasured:
         line += f"; specular unmeasured: {r.unmeasured}"
     if r.unfitted:

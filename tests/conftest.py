@@ -30,9 +30,19 @@ settings.load_profile(os.environ.get("HLR_LAB_HYPOTHESIS", "ci"))
 SHARED_ASSETS = Path(__file__).resolve().parents[1].parent / "shared" / "assets"
 
 
+_LOCKS: list[str] = []  # the lock folder this process made (the controller's and each worker's)
+
+
 def pytest_configure(config):
     """Device locks of the tests (and of the hlr-lab processes they start) in a folder of their own."""
-    os.environ["HLR_LAB_LOCK_DIR"] = tempfile.mkdtemp(prefix="hlr-lab-test-locks-")
+    _LOCKS.append(tempfile.mkdtemp(prefix="hlr-lab-test-locks-"))
+    os.environ["HLR_LAB_LOCK_DIR"] = _LOCKS[-1]
+
+
+def pytest_unconfigure(config):
+    """The lock folder goes with the run (every pytest process used to leave one in /tmp)."""
+    for folder in _LOCKS:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

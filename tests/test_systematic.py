@@ -10,7 +10,7 @@ import pytest
 
 from hlr_lab.fitting import fit_region, fit_shift
 from hlr_lab.fitting.synthetic import Truth, synthetic_region
-from hlr_lab.reflectance.systematic import UNCALIBRATED, camera_terms, rig_terms
+from hlr_lab.reflectance.systematic import UNCALIBRATED, camera_terms, gantry_terms, rig_terms
 from hlr_lab.rig.file import CAMERA_PARAMETERS, GANTRY_PARAMETERS, load_rig, sim_rig
 
 SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
@@ -131,13 +131,20 @@ def test_the_cameras_modes_follow_its_covariance_not_its_standard_errors(tmp_pat
 
 def test_a_malformed_covariance_falls_back_to_the_records_standard_errors(tmp_path):
     """A record whose covariance is not square (a hand-edited file) is not used: its focal and principal
-    point standard errors are, each an independent term, and say so."""
+    point standard errors are, each an independent term, and say so; a gantry record without a covariance
+    (an older hlr-lab's) gives its arm's and zeros' standard errors."""
     path = tmp_path / "with-se.toml"
     body = SIM_RIG.read_text() + (
         '\n[calibration.camera]\ndate = "2026-12-03"\nhlr_lab = "test"\ncovariance_of = ["fx_px"]\n'
         "covariance = [[1.0, 2.0]]\nfocal_se_px = [0.3, 0.3]\nprincipal_point_se_px = [0.4, 0.4]\n"
+        '\n[calibration.gantry]\ndate = "2026-12-03"\nhlr_lab = "test"\narm_radius_se_mm = 0.7\n'
+        "zero_ticks_se = [0.23, 0.56]\n"
     )
     path.write_text(body)
-    terms = camera_terms(load_rig(path), OBJECT)
+    rig = load_rig(path)
+    terms = camera_terms(rig, OBJECT)
     assert terms
     assert {t.source for t in terms} == {"standard errors"}
+    lamps = gantry_terms(rig)  # the arm and the two zeros, each its own term
+    assert len(lamps) == 3
+    assert {t.source for t in lamps} == {"standard errors"}

@@ -9,7 +9,7 @@ quadrature into the systematic uncertainty of each parameter.
 - The camera: the calibration's covariance over its pose and intrinsics (``[calibration.camera]
   covariance``), taken apart into the modes in which it moves the object's image and the camera's
   centre (a singular value decomposition; the modes that together carry 99 % of that movement are kept:
-  each costs a ray cast of the samples). The principal point and the camera's turn trade off in a
+  each costs a ray cast of the samples). The principal point and the camera's pose trade off in a
   turntable calibration (either shifts the image), so their standard errors alone would overstate
   what the pair leaves uncertain; the covariance does not.
 - The gantry: the mirror-ball fit's covariance over its centre, arm radius, azimuth axis and zero ticks
@@ -193,28 +193,41 @@ def _uncalibrated(device: Literal["camera", "gantry"]) -> RigTerm:
     return RigTerm(f"{device} (not calibrated)", size, "uncalibrated", fraction=dict(f), device=device)
 
 
+# what an older record (no covariance) gives instead: field → the parameters its standard errors are
+# of, and the factor to their units
+_CAMERA_SES = {"focal_se_px": (("fx_px", "fy_px"), 1.0), "principal_point_se_px": (("cx_px", "cy_px"), 1.0)}
+_GANTRY_SES = {
+    "arm_radius_se_mm": (("arm_radius_m",), 1e-3),
+    "zero_ticks_se": (("zero_az_ticks", "zero_el_ticks"), 1.0),
+}
+
+
 def _camera_covariance(record: dict) -> tuple[np.ndarray, Source] | None:
     """The camera's covariance (14, 14) from its calibration record, and whence; None: no record."""
-    given = _named_covariance(record, CAMERA_PARAMETERS)
-    if given is not None:
-        return given, "covariance"
-    if _pair(record.get("focal_se_px")) and _pair(record.get("principal_point_se_px")):
-        se = np.zeros(len(CAMERA_PARAMETERS))
-        se[6:8], se[8:10] = record["focal_se_px"], record["principal_point_se_px"]
-        return np.diag(se**2), "standard errors"
-    return None
+    return _covariance(record, CAMERA_PARAMETERS, _CAMERA_SES)
 
 
 def _gantry_covariance(record: dict) -> tuple[np.ndarray, Source] | None:
     """The gantry's covariance (8, 8) from its calibration record, and whence; None: no record."""
-    given = _named_covariance(record, GANTRY_PARAMETERS)
+    return _covariance(record, GANTRY_PARAMETERS, _GANTRY_SES)
+
+
+def _covariance(
+    record: dict, names: tuple[str, ...], standard_errors: dict[str, tuple[tuple[str, ...], float]]
+) -> tuple[np.ndarray, Source] | None:
+    """The record's covariance over ``names``; else a diagonal one from its ``standard_errors`` fields
+    (each a number or a list, one per parameter it names); None when it has neither."""
+    given = _named_covariance(record, names)
     if given is not None:
         return given, "covariance"
-    if _number(record.get("arm_radius_se_mm")) and _pair(record.get("zero_ticks_se")):
-        se = np.zeros(len(GANTRY_PARAMETERS))
-        se[3], se[6:8] = 1e-3 * record["arm_radius_se_mm"], record["zero_ticks_se"]
-        return np.diag(se**2), "standard errors"
-    return None
+    se = np.zeros(len(names))
+    for key, (params, factor) in standard_errors.items():
+        value = record.get(key)
+        values = value if isinstance(value, list) else [value]
+        if len(values) != len(params) or not all(_number(v) for v in values):
+            return None
+        se[[names.index(p) for p in params]] = factor * np.asarray(values, np.float64)
+    return np.diag(se**2), "standard errors"
 
 
 def _named_covariance(record: dict, names: tuple[str, ...]) -> np.ndarray | None:
@@ -259,7 +272,3 @@ def _lamp_shift_mm(before: GantryKinematics, after: GantryKinematics) -> float:
 
 def _number(v) -> bool:
     return type(v) in (int, float) and np.isfinite(v) and v >= 0
-
-
-def _pair(v) -> bool:
-    return isinstance(v, list) and len(v) == 2 and all(_number(x) for x in v)
