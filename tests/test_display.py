@@ -64,12 +64,24 @@ def test_the_materials_table_gives_the_reason_of_an_unmeasured_lobe():
         {**header, "regions": [{**common, **measured}, {**common, **unmeasured}]}
     )
     text = shown(materials_table(materials))
+    assert "(± standard error)" in text
     row = next(line for line in text.splitlines() if "0.5000±0.0010" in line)
-    assert "41.3±0.4" in row
+    assert "41.26±0.40" in row
     assert "900 / 120" in row
     row = next(line for line in text.splitlines() if "0.1000±0.0010" in line)
     assert "unmeasured" in row
     assert "12 highlight pixels, 200 needed" in row
+    # with the systematic part: a third ±, and the title says which is which; a narrow terminal folds
+    systematic = {"rd_sys": [0.004, 0.003, 0.002], "rs_sys": [0.005, 0.005, 0.005], "n_sys": 1.5}
+    materials = MaterialsFile.model_validate({**header, "regions": [{**common, **measured, **systematic}]})
+    text = shown(materials_table(materials))
+    assert "(± statistical ± systematic)" in text
+    row = next(line for line in text.splitlines() if "0.5000±0.0010±0.0040" in line)
+    assert "41.26±0.40±1.50" in row
+    assert "0.2000±0.0100±0.0050" in row
+    narrow = Console(record=True, width=80, color_system=None)
+    narrow.print(materials_table(materials))
+    assert "…" not in narrow.export_text()
 
 
 def test_the_run_table_counts_the_lamp_on_the_white_reference_only_when_there_is_one(tmp_path):

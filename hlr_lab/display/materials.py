@@ -25,7 +25,9 @@ def materials_table(materials: MaterialsFile) -> Table:
     )
     t = Table(title=title, title_justify="left")
     for column in ("region", "Rd (linear RGB)", "Rs", "n", "θc", "pixels diffuse / highlight"):
-        t.add_column(column, justify="right")
+        t.add_column(
+            column, justify="right", overflow="fold"
+        )  # a narrow terminal wraps, never cuts, a number
     for e in materials.regions:
         rd = " ".join(
             _value(v, s, y, 4) for v, s, y in zip(e.rd, e.rd_se, e.rd_sys or [None] * 3, strict=True)
@@ -39,7 +41,7 @@ def materials_table(materials: MaterialsFile) -> Table:
             rs = " ".join(
                 _value(v, s, y, 4) for v, s, y in zip(e.rs, e.rs_se, e.rs_sys or [None] * 3, strict=True)
             )
-            n = _value(e.n, e.n_se, e.n_sys, 1)
+            n = _value(e.n, e.n_se, e.n_sys, 2)
         else:
             rs, n = "unmeasured", escape(e.reason or "")
         theta = f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else "—"  # an unmeasured lobe has none
