@@ -156,7 +156,7 @@ class LampRecord:
 
 @dataclass
 class _Pooled:
-    """One region's samples over all views, kept compact (float32: ~80 bytes a sample, the fit's only
+    """One region's samples over all views, kept compact (float32: ~90 bytes a sample, the fit's only
     memory that grows with the session): each part one view's (its index in ``Session.views``), and how
     many came from each view."""
 
@@ -595,25 +595,24 @@ def _systematic_shifts(
     """Per region, (T, 7) how its (Rd[3], Rs[3], n) move under each of the T ``terms`` (NaN where the entry
     has no such number): its pixels held, their geometry and radiance taken again with the rig moved."""
     poses = [view_pose(session, v) for v in session.views]
-    shifts: dict[int, list[np.ndarray]] = {rid: [] for rid in responds}
-    stacked: dict[int, _Inputs] = {}
-    for t, term in enumerate(terms):
-        progress(FitStep("systematic", t, len(terms), f"{term.name}: the fit moved"))
-        if term.fraction is not None:  # a share of each value, not a move: _with_systematic takes it
-            for rid in responds:
-                shifts[rid].append(np.full(7, np.nan))
-            continue
-        for rid, respond in responds.items():
+    shifts: dict[int, np.ndarray] = {}
+    for r, (rid, respond) in enumerate(responds.items()):  # a region at a time: one copy of its inputs
+        progress(FitStep("systematic", r, len(responds), f"region {rid}: {len(terms)} terms of the rig"))
+        fitted, rows = pooled[rid].inputs(), []
+        for term in terms:
+            if term.fraction is not None:  # a share of each value, not a move: _with_systematic takes it
+                rows.append(np.full(7, np.nan))
+                continue
             parts = [_moved_inputs(term, caster, session.rig, session.views[i], poses[i], part)
                      for i, part in pooled[rid].parts]  # fmt: skip
             moved = _Inputs(*(np.concatenate(c) for c in zip(*parts, strict=True)))
-            fitted = stacked.setdefault(rid, pooled[rid].inputs())
             # the derivative, not the move: Huber's ψ is linear only within the pixels' noise, which a whole
             # σ of the rig can exceed (10 % of the sensitivity is far beyond it): the inputs moved by a
             # thousandth of the term, the answer's move scaled back up
             nudged = _Inputs(*(a + _NUDGE * (b - a) for a, b in zip(fitted, moved, strict=True)))
-            shifts[rid].append(respond(nudged) / _NUDGE)
-    return {rid: np.array(v) for rid, v in shifts.items()}
+            rows.append(respond(nudged) / _NUDGE)
+        shifts[rid] = np.array(rows)
+    return shifts
 
 
 def _moved_inputs(
