@@ -158,7 +158,7 @@ def test_a_rig_in_use_by_a_run_is_one_finding_and_left_untouched(rig):
 
 def test_the_age_of_each_calibration_is_reported(rig):
     """Never calibrated: a warning saying which command to run; calibrated: its date and age, a warning
-    once older than 90 days."""
+    once older than 90 days, and a word when its record lacks what the systematic uncertainty needs."""
     from datetime import datetime
 
     from hlr_lab.instrument.doctor import calibration_findings
@@ -172,8 +172,13 @@ def test_the_age_of_each_calibration_is_reported(rig):
     soon = datetime(2026, 11, 11, 10, tzinfo=datetime.now().astimezone().tzinfo).timestamp()
     found = {f.device: f for f in calibration_findings(done, soon)}["calibration: camera"]
     assert (found.level, found.message[:16]) == ("ok", "done 2026-11-01 ")
+    assert "has no covariance (an older hlr-lab)" in found.message  # the systematic part needs it
     late = {f.device: f for f in calibration_findings(done, soon + 100 * 86400)}["calibration: camera"]
     assert late.level == "warning"
+    current = {**record, "covariance_of": ["fx_px"], "covariance": [[0.1]]}
+    now = rig_of_snapshot({**snapshot, "calibration": {**snapshot["calibration"], "camera": current}}, "test")
+    found = {f.device: f for f in calibration_findings(now, soon)}["calibration: camera"]
+    assert "covariance" not in found.message
 
 
 def test_the_example_rig_file_on_a_bench_with_nothing_plugged_in(tmp_path, capfd):

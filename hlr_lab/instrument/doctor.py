@@ -19,7 +19,7 @@ from drivers.errors import DeviceTimeout, HlrLabError
 from drivers.modbus_stage import DriveReport, ModbusRelay, ModbusStage, StageConfig
 from hlr_lab.instrument.devices import Links, gantry_config, open_camera, rig_device_links, stage_config
 from hlr_lab.instrument.locks import Busy, hold_devices
-from hlr_lab.rig.file import Rig
+from hlr_lab.rig.file import SYSTEMATIC_FIELDS, Rig
 from hlr_lab.rig.kinematics import TurntableKinematics
 
 Level = Literal["ok", "warning", "problem"]
@@ -78,6 +78,11 @@ def calibration_findings(rig: Rig, now: float) -> list[Finding]:
         days = (now - when) / 86400
         level = "warning" if days > STALE_DAYS else "ok"
         advice = f"; older than {STALE_DAYS} days: consider calibrating again" if level == "warning" else ""
+        if SYSTEMATIC_FIELDS[procedure] not in (record.model_extra or {}):
+            advice += (
+                f"; its record has no {SYSTEMATIC_FIELDS[procedure]} (an older hlr-lab): fit's systematic "
+                "uncertainties fall back on its standard errors or a conservative default — calibrate again"
+            )
         found.append(Finding(device, level, f"done {record.date[:10]} ({days:.0f} days ago){advice}"))
     return found
 

@@ -359,6 +359,10 @@ CAMERA_PARAMETERS = ("rotation_x_rad", "rotation_y_rad", "rotation_z_rad", "tran
 GANTRY_PARAMETERS = ("centre_x_m", "centre_y_m", "centre_z_m", "arm_radius_m", "axis_x", "axis_y",
                      "zero_az_ticks", "zero_el_ticks")  # fmt: skip
 
+# the field of each calibration record that the materials' systematic uncertainty needs (docs/fitting.md;
+# a record written before it was kept lacks it: hlr-lab doctor says so)
+SYSTEMATIC_FIELDS = {"camera": "covariance", "gantry": "covariance", "radiometric": "sensitivity_se_rel"}
+
 
 class _Provenance(OpenModel):
     """What a calibration procedure recorded: when, with what, how well (free-form beyond these)."""
