@@ -157,7 +157,7 @@ def examples(tmp_path_factory, plan_file, rig) -> dict:
                      "n": 40.0, "n_se": 1.0, "specular": "measured", "theta_c_deg": 5.0,
                      "pixels": {"diffuse": 100, "highlight": 50}, "residual_rms": 0.01, "estimator": "robust"}],
     }  # fmt: skip
-    scene = f'[object]\nmesh = "{mesh_path.name}"\npose = {{ translation = [0, 0, 0], rotation_deg = [0, 0, 0] }}\n'
+    scene = f'[object]\nmesh = "{mesh_path.name}"\n'
     for colour in ((200, 50, 40), (60, 160, 70)):
         scene += (
             f"\n[[region]]\ncolor = {list(colour)}\nrd = [0.5, 0.2, 0.1]\nrs = [0.2, 0.2, 0.2]\nn = 40.0\n"

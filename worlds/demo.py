@@ -28,7 +28,7 @@ from hlr_lab.pipeline import acquire_plan, export_materials, fit_into, load_obje
 from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.reflectance.session_fit import MATERIALS
 from hlr_lab.rig.file import sim_rig
-from worlds.plan_world import scene_file_object, sim_links
+from worlds.plan_world import ObjectOffset, scene_file_object, sim_links
 from worlds.truth import truth_table
 
 DEFAULT_OBJECT = "builtin:pebble"
@@ -60,9 +60,11 @@ def run_demo(
     scale: float = 1.0,
     true_rig: str | None = None,
     speed_factor: float = 20.0,
+    offset: ObjectOffset | None = None,
 ) -> Path:
     """Measure the scene's object (default: builtin:pebble in the default world) into ``out``, a new or
     empty folder: regions.json, plan.json, session/ (with materials.json and report.html), export/.
+    ``offset``: the world's object off where the plan puts it (hlr-lab is not told).
 
     Returns the report's path.
     """
@@ -90,7 +92,7 @@ def run_demo(
 
     display.step("acquire", f"on the simulated rig{f' built as {true_rig}' if true_rig else ''} → {session}")
     with contextlib.ExitStack() as stack:
-        links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor)
+        links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor, offset)
         with display.busy("acquiring…") as status:
             outcome = acquire_plan(
                 plan_path, rig, session, links=links,

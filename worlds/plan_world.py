@@ -32,9 +32,30 @@ from hlr_lab.geometry.colour import srgb8_to_linear
 from hlr_lab.instrument.devices import Links
 from hlr_lab.object.mesh import file_sha256
 from hlr_lab.rig.file import SIM_RIG, Rig, load_rig
-from sim.render.scene import Material, SceneError, SceneSpec, load_scene
+from sim.render.scene import Material, SceneError, SceneSpec, load_scene, pose_matrix
 
 DEFAULT_RS, DEFAULT_N, RD_SCALE = (0.25, 0.25, 0.25), 40.0, 0.8  # Rd + Rs ≤ 1: energy is not created
+
+
+@dataclass(frozen=True)
+class ObjectOffset:
+    """The world's object moved from where it would lie (a scene file's ``placed``, else the plan's
+    placement): turned by ``yaw_deg`` about the turntable axis, then shifted by (``dx_m``, ``dy_m``) on the
+    plate (turntable frame, metres). What a hand that places the object does; hlr-lab is not told."""
+
+    dx_m: float = 0.0
+    dy_m: float = 0.0
+    yaw_deg: float = 0.0
+
+    @classmethod
+    def from_option(cls, value: tuple[float, float, float]) -> ObjectOffset:
+        """From ``--object-offset DX_MM,DY_MM,YAW_DEG``."""
+        dx_mm, dy_mm, yaw_deg = value
+        return cls(dx_mm / 1000, dy_mm / 1000, yaw_deg)
+
+    def moved(self, mesh_to_turntable: np.ndarray) -> np.ndarray:
+        """(4, 4): ``mesh_to_turntable`` (4, 4) followed by this offset."""
+        return pose_matrix((self.dx_m, self.dy_m, 0.0), (0.0, 0.0, self.yaw_deg)) @ mesh_to_turntable
 
 
 def world_links(world) -> Links:
@@ -51,13 +72,14 @@ def sim_links(
     scene_path: Path | None,
     true_rig: str | Path | None,
     speed_factor: float,
+    offset: ObjectOffset | None = None,
 ) -> Links:
     """Start the simulated world for ``plan`` (kept open by ``stack``) and return its endpoints: the
-    scene file's world, or the plan's mesh with a default material per region; its rig as ``true_rig``
-    says, else as ``rig``."""
+    scene file's world, or the plan's mesh with a default material per region (where :func:`sim_scene`
+    puts it, moved by ``offset``); its rig as ``true_rig`` says, else as ``rig``."""
     from sim.rig import SimRig
 
-    scene = sim_scene(plan, plan_path, scene_path)
+    scene = sim_scene(plan, plan_path, scene_path, offset)
     world = stack.enter_context(
         SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig, true_rig))
     )
@@ -105,12 +127,20 @@ def world_geometry(rig: Rig, true_rig: str | Path | None = None, *, runs: bool =
     }
 
 
-def sim_scene(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> SceneSpec:
-    """The simulated world for ``plan``: the scene file's (its materials, the plan's placement), or the
-    plan's mesh with a default material per planned region."""
+def sim_scene(
+    plan: PlanFile, plan_path: Path, scene_path: Path | None, offset: ObjectOffset | None = None
+) -> SceneSpec:
+    """The simulated world for ``plan``: the scene file's, or the plan's mesh with a default material per
+    planned region. The object lies where the scene file's ``placed`` says, else where the plan says (the
+    plan is hlr-lab's belief, the scene the world's), then moved by ``offset``."""
+    scene = _plan_scene(plan, plan_path) if scene_path is None else _scene_file(plan, scene_path)
+    placement = scene.mesh_to_turntable if scene.placed else mesh_to_turntable(plan)
+    return replace(scene, mesh_to_turntable=placement if offset is None else offset.moved(placement))
+
+
+def _plan_scene(plan: PlanFile, plan_path: Path) -> SceneSpec:
+    """The plan's mesh with a default material per planned region, where the plan puts it."""
     placement = mesh_to_turntable(plan)
-    if scene_path is not None:
-        return replace(_scene_file(plan, scene_path), mesh_to_turntable=placement)
     mesh = load_planned_mesh(plan, plan_path)
     # scene materials are indexed by position in the plan's region list
     order = {rid: i for i, rid in enumerate(region_ids(plan))}

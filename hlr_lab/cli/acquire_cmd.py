@@ -12,6 +12,7 @@ from hlr_lab.cli.common import (
     FILE,
     FOLDER,
     believed_rig,
+    object_offset_option,
     speed_factor_option,
     true_rig_option,
     warm_up_options,
@@ -44,6 +45,7 @@ from hlr_lab.session.lamp import LampWatch
     help="With --sim: the simulated world (sim scene file; its mesh must be the plan's). Default: the "
     "plan's mesh with a default material per region.",
 )
+@object_offset_option
 @click.option(
     "--out",
     "out",
@@ -68,7 +70,7 @@ from hlr_lab.session.lamp import LampWatch
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
-def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames, lamp_every, warm_up_min,
+def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every, warm_up_min,
                 warm_up_within, dry_run, force, speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
@@ -86,10 +88,12 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames
       hlr-lab acquire --plan plan.json --rig rig.toml --dry-run
       hlr-lab acquire --plan plan.json --rig rig.toml --out sessions/bunny-1
       hlr-lab acquire --plan plan.json --sim --true-rig builtin:bench-offsets   # a rig off its drawing
+      hlr-lab acquire --plan plan.json --sim --object-offset 2,-1.5,3   # the object not where planned
       hlr-lab acquire --plan plan.json --rig rig.toml --warm-up 30 --lamp-every 5   # overnight
     """
-    if scene_path is not None and not sim:
-        raise InputError("describes the simulated world: use it with --sim", field="--scene")
+    for given, option in ((scene_path, "--scene"), (object_offset, "--object-offset")):
+        if given is not None and not sim:
+            raise InputError("describes the simulated world: use it with --sim", field=option)
     rig = believed_rig(rig_path, sim, true_rig)
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
@@ -106,9 +110,10 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, out, dark_frames
     with contextlib.ExitStack() as stack:  # the simulated world, when there is one, outlives the run
         links = Links()
         if sim:  # the simulator is reached only from the command line (the composition root)
-            from worlds.plan_world import sim_links
+            from worlds.plan_world import ObjectOffset, sim_links
 
-            links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor)
+            offset = None if object_offset is None else ObjectOffset.from_option(object_offset)
+            links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor, offset)
         with pose_progress(console, len(targets)) as show:
             outcome = acquire_plan(
                 plan_path,

@@ -151,3 +151,36 @@ def warm_up_options(before: str, note: str = ""):
         f"(0: no wait){note}.",
     )  # fmt: skip
     return lambda f: minutes(within(f))
+
+
+class Numbers(click.ParamType):
+    """``count`` finite numbers separated by commas (``2,-1.5,3``), as a tuple of floats."""
+
+    name = "numbers"
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        try:
+            numbers = tuple(float(part) for part in str(value).split(","))
+        except ValueError:
+            numbers = ()
+        if len(numbers) != self.count or not all(math.isfinite(x) for x in numbers):
+            self.fail(f"{value!r}: {self.count} finite numbers separated by commas are needed", param, ctx)
+        return numbers
+
+
+def object_offset_option(f):
+    """``--object-offset DX_MM,DY_MM,YAW_DEG`` for commands that run the simulated world: its object moved
+    off where it would lie, hlr-lab not told (``worlds.plan_world.ObjectOffset``)."""
+    return click.option(
+        "--object-offset",
+        "object_offset",
+        type=Numbers(3),
+        metavar="DX_MM,DY_MM,YAW_DEG",
+        help="With --sim: the simulated object lies off where the plan (or the scene's placed) puts it: "
+        "turned YAW_DEG about the turntable axis, then moved DX_MM, DY_MM on the plate; hlr-lab is not told.",
+    )(f)

@@ -10,9 +10,17 @@ import click
 from rich.console import RenderableType
 from rich.markup import escape
 
-from hlr_lab.cli.common import FILE, FOLDER, placement_options, speed_factor_option, true_rig_option
+from hlr_lab.cli.common import (
+    FILE,
+    FOLDER,
+    object_offset_option,
+    placement_options,
+    speed_factor_option,
+    true_rig_option,
+)
 from hlr_lab.cli.console import console
 from worlds.demo import run_demo
+from worlds.plan_world import ObjectOffset
 
 
 @click.command("demo")
@@ -32,10 +40,10 @@ from worlds.demo import run_demo
 )
 @placement_options
 @true_rig_option
+@object_offset_option
 @speed_factor_option("Simulated", default=20.0)
-def demo(
-    scene_path: Path | None, out: Path, up: str, scale: float, true_rig: str | None, speed_factor: float
-) -> None:
+def demo(scene_path: Path | None, out: Path, up: str, scale: float, true_rig: str | None,
+         object_offset: tuple[float, float, float] | None, speed_factor: float) -> None:  # fmt: skip
     """Run the whole measurement on the simulated rig and compare the result with the truth.
 
     \b
@@ -48,9 +56,11 @@ def demo(
       hlr-lab demo --scene my-object/scene.toml --out demo-2
       hlr-lab demo --scene scan/scene.toml --up y --scale 0.001 --out demo-scan   # a y-up scan in mm
       hlr-lab demo --true-rig builtin:bench-offsets --out demo-3   # the rig is not its drawing
+      hlr-lab demo --object-offset 2,-1.5,3 --out demo-4   # the object 2.5 mm off and turned 3°
     """
+    offset = None if object_offset is None else ObjectOffset.from_option(object_offset)
     report = run_demo(out, _ConsoleDisplay(), scene_path, up=up, scale=scale, true_rig=true_rig,
-                      speed_factor=speed_factor)  # fmt: skip
+                      speed_factor=speed_factor, offset=offset)  # fmt: skip
     console.print(f"report: [bold]{escape(str(report))}[/] — open it in a browser")
 
 

@@ -8,7 +8,7 @@ import threading
 
 import click
 
-from hlr_lab.cli.common import speed_factor_option, true_rig_option
+from hlr_lab.cli.common import object_offset_option, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console
 
 
@@ -26,8 +26,9 @@ def sim() -> None:
     "builtin:cylinder (the paper's 4.2) or builtin:lumpy (four materials).",
 )
 @true_rig_option
+@object_offset_option
 @speed_factor_option("Simulated")
-def serve(scene_spec, true_rig, speed_factor) -> int:
+def serve(scene_spec, true_rig, object_offset, speed_factor) -> int:
     """Run the simulated devices until interrupted; print their endpoints as one JSON line.
 
     Any Dynamixel or Modbus tool can talk to the servo bus and the turntable. With --scene, a camera
@@ -40,13 +41,15 @@ def serve(scene_spec, true_rig, speed_factor) -> int:
       hlr-lab sim serve --scene builtin:cylinder
       hlr-lab sim serve --scene builtin:lumpy --true-rig builtin:bench-offsets
     """
-    from worlds.standalone import served_world  # the simulator: CLI only (the composition root)
+    from worlds.plan_world import ObjectOffset  # the simulator: CLI only (the composition root)
+    from worlds.standalone import served_world
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     with console.status("starting the simulated rig…"):
-        rig = served_world(scene_spec, true_rig, speed_factor)
+        offset = None if object_offset is None else ObjectOffset.from_option(object_offset)
+        rig = served_world(scene_spec, true_rig, speed_factor, offset)
     with rig:
         click.echo(json.dumps(rig.endpoints.as_dict()), nl=True)
         console.print("simulated rig running; Ctrl-C stops it")

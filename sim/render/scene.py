@@ -5,7 +5,7 @@ Only the simulator reads it. From a scene file (TOML, beside its mesh)::
     [object]
     mesh = "bunny8.ply"          # relative to this file; vertex colours or a texture
     texture = "tex.png"          # optional
-    pose = { translation = [0, 0, 0], rotation_deg = [0, 0, 0] }   # mesh frame on the turntable
+    placed = { translation_m = [0.002, -0.0015, 0.03], rotation_deg = [0, 0, 3] }   # optional: where it lies
     [[region]]
     color = [205, 60, 40]        # 8-bit sRGB as stored; faces (texels, if textured) take the nearest listed colour
     rd = [0.62, 0.18, 0.12]      # linear reflectances; rd is NOT derived from the colour
@@ -14,6 +14,10 @@ Only the simulator reads it. From a scene file (TOML, beside its mesh)::
     [light]
     type = "point"               # or "directional"
     power = 1.0                  # Φ
+
+``placed`` is where the object really lies: the mesh → turntable transform, R = Rz·Ry·Rx (degrees, see
+:func:`pose_matrix`) then the translation (metres). Without it the composition root puts the object where
+the plan says (``SceneSpec.placed`` False); hlr-lab never reads it.
 
 or programmatically (:class:`SceneSpec`), e.g. by the composition root from a plan's mesh and regions.
 """
@@ -96,6 +100,7 @@ class SceneSpec:
     normals: np.ndarray | None = None
     mirror_balls: tuple[MirrorBall, ...] = ()
     patches: tuple[Patch, ...] = ()  # white references beside the object, on the plate
+    placed: bool = False  # mesh_to_turntable is where the scene says the object lies (not a default)
 
     def vertex_normals(self) -> np.ndarray:
         return self.normals if self.normals is not None else _area_normals(self.vertices, self.faces)
@@ -120,7 +125,8 @@ def _welded_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 def pose_matrix(translation=(0.0, 0.0, 0.0), rotation_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """4×4 from a translation and x, y, z rotations (degrees, applied in that order)."""
+    """4×4 from a translation (metres) and x, y, z rotations (degrees, applied in that order: R = Rz·Ry·Rx),
+    the rotation first: p' = R p + t."""
     rx, ry, rz = np.radians(rotation_deg)
     cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
     r = (
@@ -142,7 +148,13 @@ def load_scene(path: str | Path) -> SceneSpec:
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SceneError(f"{path}: cannot read the scene ({exc})") from exc
     _known(data, {"object", "light", "region"}, path, "")
-    obj = _known(_table(data, "object", path), {"mesh", "texture", "pose"}, path, "object")
+    obj = _table(data, "object", path)
+    if "pose" in obj:  # the old key, which every world ignored: a file relying on it must hear so
+        raise SceneError(
+            f"{path}: object.pose: no longer read; where the object lies is "
+            "object.placed = { translation_m = [x, y, z], rotation_deg = [rx, ry, rz] }"
+        )
+    _known(obj, {"mesh", "texture", "placed"}, path, "object")
     light = _known(_table(data, "light", path, required=False), {"type", "power"}, path, "light")
     regions = data.get("region", [])
     if not isinstance(regions, list) or not regions or not all(isinstance(r, dict) for r in regions):
@@ -151,11 +163,11 @@ def load_scene(path: str | Path) -> SceneSpec:
         _known(r, {"color", "rd", "rs", "n"}, path, f"region[{i}]")
     mesh_path = path.parent / _text(obj, "mesh", path, "object.mesh")
     texture = path.parent / _text(obj, "texture", path, "object.texture") if "texture" in obj else None
-    pose = _table(obj, "pose", path, required=False, where="object.pose")
-    _known(pose, {"translation", "rotation_deg"}, path, "object.pose")
+    placed = _table(obj, "placed", path, required=False, where="object.placed")
+    _known(placed, {"translation_m", "rotation_deg"}, path, "object.placed")
     placement = pose_matrix(
-        _numbers(pose.get("translation", [0, 0, 0]), 3, path, "object.pose.translation", bound=100.0),
-        _numbers(pose.get("rotation_deg", [0, 0, 0]), 3, path, "object.pose.rotation_deg", bound=3600.0),
+        _numbers(placed.get("translation_m", [0, 0, 0]), 3, path, "object.placed.translation_m", bound=10.0),
+        _numbers(placed.get("rotation_deg", [0, 0, 0]), 3, path, "object.placed.rotation_deg", bound=3600.0),
     )
     palette = np.array(
         [
@@ -196,7 +208,8 @@ def load_scene(path: str | Path) -> SceneSpec:
     if uv is not None:
         normals = _welded_normals(vertices, faces)
     region = _nearest(face_colour, palette)
-    return SceneSpec(vertices, faces, region, materials, placement, kind, power, uv, region_texture, normals)
+    return SceneSpec(vertices, faces, region, materials, placement, kind, power, uv, region_texture, normals,
+                     placed="placed" in obj)  # fmt: skip
 
 
 def _table(data: dict, key: str, path: Path, *, required: bool = True, where: str | None = None) -> dict:
