@@ -114,7 +114,7 @@ def _projected_shift(cam: Camera, points: np.ndarray) -> np.ndarray:
     """(2,) px: how far a 2 mm move along +x carries the projection of the points' centre."""
     centre = points.mean(axis=0, keepdims=True)
     uv0, _ = cam.project(centre)
-    uv1, _ = cam.project(centre + [0.002, 0, 0])
+    uv1, _ = cam.project(centre + np.array([0.002, 0.0, 0.0]))
     return (uv1 - uv0)[0]
 
 

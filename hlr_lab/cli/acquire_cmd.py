@@ -70,8 +70,8 @@ from hlr_lab.session.lamp import LampWatch
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
-def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every, warm_up_min,
-                warm_up_within, dry_run, force, speed_factor):  # fmt: skip
+def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every,
+                warm_up_min, warm_up_within, dry_run, force, speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
