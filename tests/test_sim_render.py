@@ -173,7 +173,7 @@ def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
         tmp_path / "box.ply"
     )
     (tmp_path / "scene.toml").write_text(
-        '[object]\nmesh = "box.ply"\npose = { translation = [0, 0, 0.05], rotation_deg = [0, 0, 90] }\n'
+        '[object]\nmesh = "box.ply"\nplaced = { translation_m = [0, 0, 0.05], rotation_deg = [0, 0, 90] }\n'
         "[[region]]\ncolor = [205, 40, 35]\nrd = [0.6, 0.1, 0.1]\nrs = [0.2, 0.2, 0.2]\nn = 50\n"
         "[[region]]\ncolor = [25, 60, 210]\nrd = [0.1, 0.2, 0.6]\nrs = [0.1, 0.1, 0.1]\nn = 10\n"
         '[light]\ntype = "point"\npower = 2.0\n'
@@ -197,7 +197,8 @@ def test_scene_file_assigns_faces_to_the_nearest_listed_colour(tmp_path):
     # a misspelt key would leave its default in place unseen; a lamp of power 0 lights nothing
     for bad, said, where in (("n = 50", "n = 50\nrss = [0.5, 0.5, 0.5]", r"region\[0\]\.rss: not a key"),
                              ("power = 2.0", "power = 2.0\npowr = 3", r"light\.powr: not a key"),
-                             ("rotation_deg", "rotation", r"object\.pose\.rotation: not a key"),
+                             ("rotation_deg", "rotation", r"object\.placed\.rotation: not a key"),
+                             ("placed = {", "pose = {", r"object\.pose: no longer read.*object\.placed"),
                              ("power = 2.0", "power = 0", r"light\.power")):  # fmt: skip
         (tmp_path / "bad.toml").write_text(text.replace(bad, said))
         with pytest.raises(SceneError, match=where):
