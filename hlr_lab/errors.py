@@ -7,7 +7,15 @@ from pathlib import Path
 
 from drivers.errors import HlrLabError
 
-__all__ = ["DiskFull", "HlrLabError", "InputError", "PlanningError", "RigNotReady", "os_error_line"]
+__all__ = [
+    "DiskFull",
+    "HlrLabError",
+    "InputError",
+    "PlacementError",
+    "PlanningError",
+    "RigNotReady",
+    "os_error_line",
+]
 
 
 class InputError(HlrLabError):
@@ -26,6 +34,12 @@ class InputError(HlrLabError):
 
 class PlanningError(HlrLabError):
     """The planner cannot work with this geometry (e.g. the object does not fit inside the sphere)."""
+
+
+class PlacementError(HlrLabError):
+    """Where the object lies cannot be measured from these photographs (nothing lit, the object out of
+    view, a mesh that does not match them, a placement outside the search range); the message names the
+    view or the figure and says what to do."""
 
 
 class RigNotReady(HlrLabError):

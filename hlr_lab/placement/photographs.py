@@ -1,0 +1,149 @@
+"""A registration view's photographs → what the pose is compared with: the object's mask and its colour.
+
+A view is one turntable angle photographed under a few lamp positions (:func:`lamp_positions`: each
+lights the side of the object the others leave in shadow), each as an exposure bracket. The background
+must be darker than the object under the lamp (a dark plate and backdrop, as the rig is built:
+docs/placement.md); the object is then the pixels the lamp lights.
+
+* **Radiance**, per lamp: the longest unclipped exposure of each pixel, black level taken off, per second.
+* **Mask**: lit in some lamp's photograph (8 read-noise σ) and, within 2 px of the unlit background, at
+  least half as bright as the brightest pixel within 2 px — a pixel the object half covers is half as
+  bright as its neighbour inside, so the mask's edge is where the object covers half a pixel, whatever
+  the object's brightness (a dark region on the silhouette keeps its edge). The largest connected part,
+  its holes filled (a black pupil inside the object is the object).
+* **Chromaticity** (r, g) = (R, G)/(R + G + B) under the lamp of the median brightness (the others may
+  light a highlight or leave a shadow there): shading changes brightness, not chromaticity, so it tells
+  regions apart by their colour, whatever their true reflectance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from hlr_lab.errors import PlacementError
+
+MASK_NOISE_SIGMA = 8.0  # lit: this many read-noise σ above black (a false pixel per ~10¹⁵)
+CHROMA_NOISE_SIGMA = 30.0  # a pixel's colour is read where its sum is this many σ up (chroma noise ≲ 3 %)
+_HALF_LIT_WINDOW = 5  # px: the neighbourhood whose brightest pixel a half-covered edge pixel is half of
+
+
+@dataclass(frozen=True, eq=False)
+class ViewFrames:
+    """One view's photographs: ``frames`` (L, E, H, W, 3) DN for L lamp positions and E exposures
+    ``exposures_s`` (E,), at ``turntable_deg``."""
+
+    turntable_deg: float
+    frames: np.ndarray
+    exposures_s: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ObservedView:
+    """What registration compares one view with: ``mask`` (H, W) bool, the object; ``chroma`` (H, W, 2)
+    float32 chromaticity (NaN where too dark to tell)."""
+
+    turntable_deg: float
+    mask: np.ndarray
+    chroma: np.ndarray
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """What the frames need to be read: black level and read noise (DN), the largest value (DN)."""
+
+    black_dn: float
+    read_noise_dn: float
+    full_scale_dn: float
+
+
+def lamp_positions(camera_centre: np.ndarray, radius_m: float) -> np.ndarray:
+    """(3, 3) world positions (m) of the lamps that light a registration view: one on each side of the
+    object, 90° about the axis from the camera (they light the outline head on, where a lamp beside the
+    camera meets it at grazing incidence and darkens it), and one a little above the camera (what faces
+    it, including the outline's lower part). ``camera_centre`` (3,) world; ``radius_m`` from the axis."""
+    toward = np.array([camera_centre[0], camera_centre[1], 0.0])
+    toward /= np.linalg.norm(toward)
+    side = np.array([-toward[1], toward[0], 0.0])
+    lift = np.array([0.0, 0.0, radius_m / 6])
+    above = camera_centre / np.linalg.norm(camera_centre) * radius_m + lift
+    return np.stack([radius_m * side + lift, -radius_m * side + lift, above])
+
+
+def lamp_radiance(
+    frames: np.ndarray, exposures_s: np.ndarray, sensor: Sensor
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per lamp, the radiance (L, H, W, 3) in DN per second from the longest unclipped exposure of each
+    pixel, and its noise (L, H, W) (read noise over that exposure). ``frames`` (L, E, H, W, 3) DN."""
+    order = np.argsort(exposures_s)[::-1]  # longest first
+    lamps, _, h, w, _ = frames.shape
+    radiance = np.zeros((lamps, h, w, 3), np.float32)
+    noise = np.full((lamps, h, w), np.inf, np.float32)
+    chosen = np.zeros((lamps, h, w), bool)
+    clip = sensor.full_scale_dn - 2 * sensor.read_noise_dn - 1
+    for e in order:
+        frame = frames[:, e].astype(np.float32)
+        take = ~chosen & (frame.max(axis=3) < clip)
+        t = float(exposures_s[e])
+        radiance[take] = (frame[take] - sensor.black_dn) / t
+        noise[take] = sensor.read_noise_dn / t
+        chosen |= take
+    shortest = frames[:, order[-1]].astype(np.float32)  # clipped even in the shortest: as bright as it gets
+    radiance[~chosen] = (shortest[~chosen] - sensor.black_dn) / float(exposures_s[order[-1]])
+    noise[~chosen] = sensor.read_noise_dn / float(exposures_s[order[-1]])
+    return radiance, noise
+
+
+def observe(view: ViewFrames, sensor: Sensor, *, where: str) -> ObservedView:
+    """The mask and chromaticity of one view (module docstring); :class:`PlacementError` naming ``where``
+    when nothing or too little is lit, or the object runs off the image."""
+    radiance, noise = lamp_radiance(view.frames, view.exposures_s, sensor)
+    brightness = radiance.max(axis=3)  # (L, H, W)
+    lit = brightness > MASK_NOISE_SIGMA * noise
+    signal = np.where(lit, brightness, 0.0).max(axis=0).astype(np.float32)
+    size = 2 * (_HALF_LIT_WINDOW // 2) + 1
+    window = np.ones((size, size), np.uint8)
+    neighbourhood = cv2.dilate(signal, window)
+    # the half-bright rule only where the object meets the unlit background: inside, a near surface in
+    # front of a brighter far one is no edge of the object (it would cut cracks along occlusions)
+    near_background = cv2.dilate((signal <= 0).astype(np.uint8), window) > 0
+    raw = (signal > 0) & ~(near_background & (signal < 0.5 * neighbourhood))
+    mask = _filled_largest(raw)
+    h, w = mask.shape
+    if mask.sum() < 100:
+        raise PlacementError(
+            f"{where}: the lamp lights almost nothing ({int(mask.sum())} px): is the object on the plate, "
+            "in view, and the lamp on?"
+        )
+    edge = np.concatenate([mask[0], mask[-1], mask[:, 0], mask[:, -1]])
+    if edge.any():
+        raise PlacementError(
+            f"{where}: the object runs off the image ({int(edge.sum())} px on its border): it lies too far "
+            "from the turntable's centre, or the camera does not see the plate's middle"
+        )
+    total = radiance.sum(axis=3)  # (L, H, W)
+    median = np.argsort(total, axis=0)[len(total) // 2]  # (H, W): the lamp of the median brightness
+    pick = np.take_along_axis(radiance, median[None, ..., None], axis=0)[0]  # (H, W, 3)
+    pick_total = np.take_along_axis(total, median[None], axis=0)[0]
+    pick_noise = np.take_along_axis(noise, median[None], axis=0)[0]
+    readable = mask & (pick_total > CHROMA_NOISE_SIGMA * pick_noise)
+    chroma = np.full((h, w, 2), np.nan, np.float32)
+    chroma[readable] = pick[readable][:, :2] / pick_total[readable, None]
+    return ObservedView(view.turntable_deg, mask, chroma)
+
+
+def _filled_largest(raw: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the largest 8-connected part of ``raw``, its holes filled."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(raw.astype(np.uint8), connectivity=8)
+    if count <= 1:
+        return np.zeros_like(raw)
+    largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    part = labels == largest
+    # holes: background not reachable from the image's border
+    outside = ~part
+    _, back, _, _ = cv2.connectedComponentsWithStats(outside.astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([back[0], back[-1], back[:, 0], back[:, -1]]))
+    reachable = np.isin(back, border[border > 0])
+    return ~reachable

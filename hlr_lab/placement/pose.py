@@ -1,0 +1,57 @@
+"""A placement as six numbers: a turn (rotation vector, degrees) about the planned object's centre, then a
+shift (millimetres) along the turntable frame's axes, applied after the plan's mesh → turntable transform.
+
+Centred on the object so that a turn does not move it across the plate (the numbers are then nearly
+independent, which the refinement and the standard errors need); rotations through scipy's ``Rotation``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+@dataclass(frozen=True, eq=False)
+class PlacementFrame:
+    """What a placement is relative to: the plan's mesh → turntable transform ``nominal`` (4, 4) and the
+    planned object's centre ``centre`` (3,) in the turntable frame (metres)."""
+
+    nominal: np.ndarray
+    centre: np.ndarray
+
+    def matrix(self, params: np.ndarray) -> np.ndarray:
+        """(4, 4) mesh → turntable for ``params`` (6,): rotation vector (degrees) about ``centre``, then the
+        shift (mm)."""
+        turn = np.eye(4)
+        turn[:3, :3] = Rotation.from_rotvec(np.radians(params[:3])).as_matrix()
+        turn[:3, 3] = self.centre + params[3:] / 1000 - turn[:3, :3] @ self.centre
+        return turn @ self.nominal
+
+    def params(self, mesh_to_turntable: np.ndarray) -> np.ndarray:
+        """(6,) the inverse of :meth:`matrix` for a rigid ``mesh_to_turntable`` (4, 4) of the same scale."""
+        turn = mesh_to_turntable @ np.linalg.inv(self.nominal)
+        rotvec = np.degrees(Rotation.from_matrix(turn[:3, :3]).as_rotvec())
+        shift = turn[:3, 3] - self.centre + turn[:3, :3] @ self.centre
+        return np.concatenate([rotvec, 1000 * shift])
+
+
+def yaw_params(yaw_deg: float, shift_mm: np.ndarray) -> np.ndarray:
+    """(6,) a turn of ``yaw_deg`` about the vertical through the centre, then ``shift_mm`` (3,)."""
+    return np.concatenate([[0.0, 0.0, yaw_deg], shift_mm])
+
+
+def vertex_errors_mm(vertices: np.ndarray, estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """(V,) how far each mesh vertex (V, 3) lies from where it really is (mm): ``estimated`` and ``true``
+    are (4, 4) mesh → turntable."""
+    a = vertices @ estimated[:3, :3].T + estimated[:3, 3]
+    b = vertices @ true[:3, :3].T + true[:3, 3]
+    return 1000 * np.linalg.norm(a - b, axis=1)
+
+
+def rotation_error_deg(estimated: np.ndarray, true: np.ndarray) -> float:
+    """The angle (degrees) of the rotation between two (4, 4) placements (their 3×3 parts, scale removed)."""
+    a = estimated[:3, :3] / np.cbrt(np.linalg.det(estimated[:3, :3]))
+    b = true[:3, :3] / np.cbrt(np.linalg.det(true[:3, :3]))
+    return float(np.degrees(Rotation.from_matrix(a @ b.T).magnitude()))

@@ -1,0 +1,354 @@
+"""Where the object lies, from its outlines: a search over turns about the axis, then a least-squares fit of
+the six numbers of :class:`~hlr_lab.placement.pose.PlacementFrame` to the outlines of every view.
+
+The outline of a polygon mesh is made of its *contour edges* (one neighbouring face toward the camera, one
+away) that are not hidden: points along them, about a pixel apart, lie exactly on the silhouette's border.
+Each view's photographed mask gives a signed distance to its border (pixels, positive outside); the fit
+moves the object until the contour points' distances are zero in every view — an ICP on silhouettes, the
+contour points chosen again after each fit, differentiable in the six numbers between choices. The search
+scores every 10° about the axis by the masks' overlap and refines the best three (each two steps from the
+others); a second minimum as good as the first far from it, or a turn the outlines hardly see (a round
+object), is reported as ambiguous rather than guessed. docs/placement.md says what it cannot see.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import trimesh
+from scipy.ndimage import map_coordinates
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from hlr_lab.errors import PlacementError
+from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.placement.photographs import ObservedView
+from hlr_lab.placement.pose import PlacementFrame, yaw_params
+
+YAW_STEP_DEG = 10.0  # the search's step about the axis: a mask overlaps its own 5° turn by ≳ 90 %
+CANDIDATES = 3  # yaws refined from the search's best scores
+SEARCH_SCALE = 4  # the search compares masks at 1/4 of the image's resolution
+SEARCH_SAMPLES = 40_000  # surface points that stand in for the mesh there (≳ 2 per pixel of its image)
+POINT_SPACING_PX = 1.0  # contour points along an edge: about one a pixel
+OUTLINE_PX = 1.5  # a contour point within this of the predicted mask's border is on the outline
+ROBUST_PX = 1.0  # soft-L1 scale of the outline residuals (px): a mask's border is known to ~0.5 px
+MAX_SHIFT_MM = 30.0  # the search range: off the axis, in the plate's plane
+MAX_TILT_DEG = 5.0  # and tilted from how the plan stands it
+SEEN_PX = (
+    3.0  # a contour point this near the photographed border was seen there (else: not lit, or not the object)
+)
+MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photographed one is no match
+AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
+AMBIGUOUS_RATIO = 1.2  # a second minimum this close to the best (cost ratio) and ≥ 20° away: not determined
+
+
+@dataclass(frozen=True, eq=False)
+class Registration:
+    """Where the object was found: ``params`` (6,) of ``frame`` (rotation vector in degrees about the planned
+    centre, then the shift in mm), their standard errors ``se`` (6,), ``mesh_to_turntable`` (4, 4), the
+    outline residual's RMS (px) over the ``points`` contour points found on the photographed outline
+    (within :data:`SEEN_PX`), the share of the contour points so found (``outline_seen``), and, when a turn
+    about the axis is not determined by the outlines, why (``ambiguous``)."""
+
+    params: np.ndarray
+    se: np.ndarray
+    mesh_to_turntable: np.ndarray
+    residual_px: float
+    points: int
+    outline_seen: float
+    ambiguous: str | None
+
+    @property
+    def yaw_deg(self) -> float:
+        """The turn about the vertical from the plan's placement (degrees, −180 to 180)."""
+        return turn_angles(self.params)[0]
+
+    @property
+    def tilt_deg(self) -> float:
+        """How far the object leans from the way the plan stands it (degrees)."""
+        return turn_angles(self.params)[1]
+
+
+def turn_angles(params: np.ndarray) -> tuple[float, float]:
+    """The yaw about the vertical (−180° to 180°) and the tilt from it (degrees) of a placement's turn."""
+    turn = Rotation.from_rotvec(np.radians(params[:3])).as_matrix()
+    yaw = np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))
+    tilt = np.degrees(np.arccos(np.clip(turn[2, 2], -1.0, 1.0)))
+    return float(yaw), float(tilt)
+
+
+def signed_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float32: each pixel's distance (px) to the border of ``mask`` (H, W) bool, negative inside,
+    zero half a pixel beyond the last pixel in (where a pixel the object half covers has its edge)."""
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(mask, 0.5 - inside, outside - 0.5).astype(np.float32)
+
+
+def view_camera(camera: Camera, turntable_deg: float) -> Camera:
+    """The rig's camera (world) seen from the turntable at ``turntable_deg``, where the object sits still."""
+    return camera.in_frame(rotation_z(np.radians(turntable_deg)))
+
+
+class Outlines:
+    """The mesh's outlines in the views, for placements of ``frame``. ``mesh`` in its own frame;
+    ``camera`` the rig's (world); ``views`` the photographed masks."""
+
+    def __init__(self, mesh: ColouredMesh, camera: Camera, frame: PlacementFrame, views: list[ObservedView]):
+        if not views:
+            raise PlacementError("registration needs at least one photographed view")
+        self.mesh, self.frame, self.views = mesh, frame, views
+        self.cameras = [view_camera(camera, v.turntable_deg) for v in views]
+        self.sdf = [signed_distance(v.mask) for v in views]
+        tm = mesh.trimesh
+        self._adjacent_faces = np.asarray(tm.face_adjacency)  # (E, 2)
+        self._shared_edges = np.asarray(tm.face_adjacency_edges)  # (E, 2) vertices, beside _adjacent_faces
+        edges, uses = np.unique(np.asarray(tm.edges_sorted), axis=0, return_counts=True)
+        self._rim_edges = edges[uses == 1]  # (R, 2): an open mesh's rims are outlines too
+        self._centroids = mesh.vertices[mesh.faces].mean(axis=1)  # (F, 3)
+        # the search's stand-in for the surface: points spread evenly over it (seeded: the same every run)
+        self._samples = np.asarray(trimesh.sample.sample_surface(tm, SEARCH_SAMPLES, seed=0)[0])
+        self._small = [_scaled(cam, 1 / SEARCH_SCALE) for cam in self.cameras]
+        self._small_seen = [
+            cv2.resize(v.mask.astype(np.float32), (c.width, c.height), interpolation=cv2.INTER_AREA) >= 0.5
+            for v, c in zip(views, self._small, strict=True)
+        ]
+
+    def contour_points(self, params: np.ndarray) -> list[np.ndarray]:
+        """Per view, the (N_k, 3) mesh-frame points along the contour edges on the outer outline."""
+        m = self.frame.matrix(params)
+        inverse = np.linalg.inv(m)
+        chosen = []
+        for cam in self.cameras:
+            eye = inverse[:3, :3] @ cam.centre + inverse[:3, 3]  # the camera centre in the mesh frame
+            toward = np.einsum("ij,ij->i", self.mesh.face_normals, eye - self._centroids) > 0  # (F,)
+            a, b = toward[self._adjacent_faces[:, 0]], toward[self._adjacent_faces[:, 1]]
+            points = self._along(np.concatenate([self._shared_edges[a != b], self._rim_edges]), cam, m)
+            pixels = self._project(cam, m, points)
+            border = _border_distance(self._mask(cam, m))
+            near = _sample(border, pixels) <= OUTLINE_PX
+            chosen.append(points[near])
+        return chosen
+
+    def _along(self, edges: np.ndarray, cam: Camera, m: np.ndarray) -> np.ndarray:
+        """(N, 3) mesh-frame points along ``edges`` (E, 2), about a pixel apart in ``cam``'s image (each
+        edge's point centred in its share): a long straight edge of a coarse mesh is as many measurements
+        as pixels it spans."""
+        ends = self.mesh.vertices[edges]  # (E, 2, 3)
+        pixels = self._project(cam, m, ends.reshape(-1, 3)).reshape(-1, 2, 2)
+        length = np.nan_to_num(np.linalg.norm(pixels[:, 1] - pixels[:, 0], axis=1), nan=1.0)
+        count = np.clip(np.ceil(length / POINT_SPACING_PX), 1, 4096).astype(np.int64)  # (E,)
+        edge = np.repeat(np.arange(len(edges)), count)
+        start = np.cumsum(count) - count
+        t = ((np.arange(count.sum()) - start[edge]) + 0.5) / count[edge]  # (N,) in (0, 1)
+        return ends[edge, 0] + t[:, None] * (ends[edge, 1] - ends[edge, 0])
+
+    def residuals(self, params: np.ndarray, points: list[np.ndarray]) -> np.ndarray:
+        """(ΣN_k,) px: each contour point's signed distance to its view's photographed border."""
+        m = self.frame.matrix(params)
+        return np.concatenate(
+            [
+                _sample(sdf, self._project(cam, m, p))
+                for cam, sdf, p in zip(self.cameras, self.sdf, points, strict=True)
+            ]
+        )
+
+    def overlap(self, params: np.ndarray) -> float:
+        """The masks' mean intersection over union at 1/:data:`SEARCH_SCALE` resolution (0–1)."""
+        m = self.frame.matrix(params)
+        scores = []
+        for small, seen in zip(self._small, self._small_seen, strict=True):
+            predicted = self._splatted(small, m)
+            scores.append(np.count_nonzero(predicted & seen) / max(np.count_nonzero(predicted | seen), 1))
+        return float(np.mean(scores))
+
+    def centre_shift(self, params: np.ndarray) -> np.ndarray:
+        """(3,) mm: the shift that brings the predicted masks' centroids onto the photographed ones (a
+        linearised least-squares step over the views, at the search's resolution)."""
+        m = self.frame.matrix(params)
+        centre = self.frame.centre + params[3:] / 1000
+        steps = centre + np.vstack([np.zeros(3), 1e-3 * np.eye(3)])  # 1 mm along each axis
+        rows, misses = [], []
+        for small, seen in zip(self._small, self._small_seen, strict=True):
+            predicted = self._splatted(small, m)
+            if predicted.any() and seen.any():
+                uv, _ = small.project(steps)
+                rows.append((uv[1:] - uv[0]).T)  # (2, 3) px per mm
+                misses.append(_centroid(seen) - _centroid(predicted))
+        if not rows:
+            return np.zeros(3)
+        shift, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(misses), rcond=None)
+        return shift
+
+    def _splatted(self, cam: Camera, m: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the surface samples' pixels, closed over the gaps between them (the search's mask)."""
+        uv, _ = cam.project(self._samples @ m[:3, :3].T + m[:3, 3])
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        col, row = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
+        inside = (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+        mask = np.zeros((cam.height, cam.width), np.uint8)
+        mask[row[inside], col[inside]] = 1
+        return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) > 0
+
+    def _mask(self, cam: Camera, m: np.ndarray) -> np.ndarray:
+        """(H, W) bool: every face filled in — the object's image, also where an open mesh (a scan with holes
+        in its base) shows its inside."""
+        uv, _ = cam.project(self.mesh.vertices @ m[:3, :3].T + m[:3, 3])
+        corners = uv[self.mesh.faces]  # (F, 3, 2)
+        ok = np.isfinite(corners).all(axis=(1, 2)) & (np.abs(corners) < 1e5).all(axis=(1, 2))
+        fixed = np.round(corners[ok] * 16).astype(np.int32)  # 4 fractional bits, as OpenCV's shift
+        mask = np.zeros((cam.height, cam.width), np.uint8)
+        for triangle in fixed:
+            cv2.fillConvexPoly(mask, triangle, 1, lineType=cv2.LINE_8, shift=4)
+        return mask > 0
+
+    @staticmethod
+    def _project(cam: Camera, m: np.ndarray, points: np.ndarray) -> np.ndarray:
+        uv, _ = cam.project(points @ m[:3, :3].T + m[:3, 3])
+        return uv
+
+
+def register(outlines: Outlines, *, yaw_step_deg: float = YAW_STEP_DEG) -> Registration:
+    """Search every turn about the axis, refine the best few on the outlines, return the best.
+
+    Raises :class:`PlacementError` when the best placement lies outside the search range
+    (:data:`MAX_SHIFT_MM` off the axis, :data:`MAX_TILT_DEG` of tilt)."""
+    scored = []
+    for yaw in np.arange(0.0, 360.0, yaw_step_deg):
+        params = yaw_params(float(yaw), np.zeros(3))
+        for _ in range(2):  # the centroids' step is linearised: a second one lands within a pixel
+            params = params + np.concatenate([np.zeros(3), outlines.centre_shift(params)])
+        scored.append((outlines.overlap(params), params))
+    scored.sort(key=lambda s: -s[0])
+    starts: list[np.ndarray] = []
+    for _, params in scored:  # the best overlaps, each at least two steps from those kept before it
+        if all(_yaw_apart(params, kept) >= 2 * yaw_step_deg for kept in starts):
+            starts.append(params)
+        if len(starts) == CANDIDATES:
+            break
+    fits = [_refine(outlines, params) for params in starts]
+    fits.sort(key=lambda f: f[1])
+    best, cost, points = fits[0]
+    ambiguous = None
+    best_yaw = turn_angles(best)[0]
+    for other, other_cost, _ in fits[1:]:
+        other_yaw = turn_angles(other)[0]
+        if _yaw_apart(other, best) >= 2 * yaw_step_deg and other_cost <= AMBIGUOUS_RATIO * cost:
+            ambiguous = (
+                f"the outlines fit as well turned {other_yaw:.1f}° as {best_yaw:.1f}° about the axis "
+                f"(residual {np.sqrt(other_cost):.2f} against {np.sqrt(cost):.2f} px): the shape does not fix its turn"
+            )
+            break
+    return _result(outlines, best, points, ambiguous)
+
+
+def _yaw_apart(a: np.ndarray, b: np.ndarray) -> float:
+    """The difference (degrees, 0–180) between two placements' turns about the vertical."""
+    return abs((turn_angles(a)[0] - turn_angles(b)[0] + 180) % 360 - 180)
+
+
+def _refine(outlines: Outlines, params: np.ndarray) -> tuple[np.ndarray, float, list[np.ndarray]]:
+    """ICP on the outlines from ``params``: choose the contour points, fit, until the placement stops moving
+    (0.001° and 0.001 mm). Returns the params, the mean robust cost per point and the last points."""
+    points = outlines.contour_points(params)
+    cost = np.inf
+    for _ in range(8):
+        fit = least_squares(
+            outlines.residuals, params, args=(points,), loss="soft_l1", f_scale=ROBUST_PX, x_scale=1.0
+        )
+        moved = np.abs(fit.x - params).max()
+        params = fit.x
+        cost = 2 * fit.cost / max(len(fit.fun), 1)
+        points = outlines.contour_points(params)
+        if moved < 1e-3:
+            break
+    return params, float(cost), points
+
+
+def _result(
+    outlines: Outlines, params: np.ndarray, points: list[np.ndarray], ambiguous: str | None
+) -> Registration:
+    residual = outlines.residuals(params, points)
+    seen = np.abs(residual) <= SEEN_PX
+    step = 1e-3  # degrees and mm: central differences, far above the residuals' rounding
+    jac = np.stack(
+        [
+            (outlines.residuals(params + step * e, points) - outlines.residuals(params - step * e, points))
+            / (2 * step)
+            for e in np.eye(6)
+        ],
+        axis=1,
+    )[seen]  # (N_seen, 6) px per degree and per mm
+    residual_seen = residual[seen]
+    robust_sigma = 1.4826 * float(np.median(np.abs(residual_seen - np.median(residual_seen))))
+    # neighbouring contour points read the same border pixels: count the outline's length in pixels, not
+    # its points, as the independent measurements
+    independent = sum(
+        len(np.unique(np.round(Outlines._project(cam, outlines.frame.matrix(params), p)), axis=0))
+        for cam, p in zip(outlines.cameras, points, strict=True)
+    )
+    inflate = max(1.0, len(residual_seen) / max(independent, 1))
+    jtj = jac.T @ jac
+    # a ridge far below any determined direction's curvature: a direction the outlines do not see (the turn
+    # of a round object) gets a huge standard error instead of a singular matrix
+    cov = np.linalg.inv(jtj + 1e-12 * np.trace(jtj) * np.eye(6)) * robust_sigma**2 * inflate
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    if ambiguous is None and se[2] > AMBIGUOUS_SE_DEG:
+        ambiguous = (
+            f"the outlines hardly change as the object turns about the axis (yaw ± {min(se[2], 999):.0f}°): "
+            "a shape round about the vertical does not fix its turn"
+        )
+    if seen.mean() < MIN_SEEN:
+        raise PlacementError(
+            f"only {100 * seen.mean():.0f} % of the mesh's outline lies on the photographed one "
+            f"(within {SEEN_PX:g} px; a match finds ≳ 95 %): is the object on the plate the plan's mesh, "
+            "and is all of it lit and in view?"
+        )
+    shift_xy = float(np.hypot(params[3], params[4]))
+    tilt = turn_angles(params)[1]
+    if shift_xy > MAX_SHIFT_MM or tilt > MAX_TILT_DEG:
+        raise PlacementError(
+            f"the object lies {shift_xy:.1f} mm off the planned centre and leans {tilt:.1f}° "
+            f"(the search covers {MAX_SHIFT_MM:.0f} mm and {MAX_TILT_DEG:.0f}°): put it back near the "
+            "turntable's centre, standing as the plan says, and register again"
+        )
+    return Registration(
+        params=params,
+        se=se,
+        mesh_to_turntable=outlines.frame.matrix(params),
+        residual_px=float(np.sqrt(np.mean(residual_seen**2))) if seen.any() else np.inf,
+        points=int(seen.sum()),
+        outline_seen=float(seen.mean()),
+        ambiguous=ambiguous,
+    )
+
+
+def _sample(image: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(N,) ``image`` (H, W) bilinear at ``pixels`` (N, 2) (x, y); far beyond the image where off it."""
+    values = map_coordinates(image, [pixels[:, 1], pixels[:, 0]], order=1, mode="nearest")
+    off = ~np.isfinite(pixels).all(axis=1)
+    values[off] = 1e3
+    return values
+
+
+def _border_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float32: distance (px) of each pixel to the nearest pixel outside ``mask`` (0 outside)."""
+    return cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
+def _centroid(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean(), ys.mean()]) if len(xs) else np.zeros(2)
+
+
+def _scaled(cam: Camera, factor: float) -> Camera:
+    """The camera's image at ``factor`` of its resolution (pixel centres at integer coordinates kept)."""
+    k = cam.matrix.copy()
+    k[:2, :2] *= factor
+    k[:2, 2] = (k[:2, 2] + 0.5) * factor - 0.5
+    width, height = max(1, round(cam.width * factor)), max(1, round(cam.height * factor))
+    return Camera(k, cam.distortion, cam.rotation, cam.translation, width, height)
