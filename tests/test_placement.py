@@ -191,15 +191,10 @@ def _outlines_of(mesh: ColouredMesh, true_params: np.ndarray, angles=(0.0, 60.0,
     camera = half_size_camera()
     nominal = placement(mesh)
     frame = PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
-    truth = Outlines(
-        mesh, camera, frame, [ObservedView(a, np.ones((1, 1), bool), np.zeros((1, 1, 2))) for a in angles]
-    )
+    truth = Outlines(mesh, camera, frame, [ObservedView(a, np.ones((1, 1), bool)) for a in angles])
     m = frame.matrix(true_params)
     caster = RayCaster(mesh.transformed(m))  # each pixel whose centre sees the object: the half-covered edge
-    views = [
-        ObservedView(a, caster.gbuffer(cam).hit, np.zeros((1, 1, 2)))
-        for a, cam in zip(angles, truth.cameras, strict=True)
-    ]
+    views = [ObservedView(a, caster.gbuffer(cam).hit) for a, cam in zip(angles, truth.cameras, strict=True)]
     return Outlines(mesh, camera, frame, views), frame, m
 
 
