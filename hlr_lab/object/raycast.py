@@ -105,7 +105,10 @@ class RayCaster:
 
     def surface(self, camera: Camera, pixels: np.ndarray) -> PixelSurface:
         """What the rays through ``pixels`` (N, 2) of ``camera`` (mesh frame) hit first."""
-        origins, dirs = camera.pixel_rays(pixels)
+        return self.surface_along(*camera.pixel_rays(pixels))
+
+    def surface_along(self, origins: np.ndarray, dirs: np.ndarray) -> PixelSurface:
+        """What the rays from ``origins`` (N, 3) along unit ``dirs`` (N, 3) (mesh frame) hit first."""
         face, dist = self.first_hit(origins, dirs)
         hit = face >= 0
         n = len(face)

@@ -11,6 +11,10 @@ docs/placement.md); the object is then the pixels the lamp lights.
   bright as its neighbour inside, so the mask's edge is where the object covers half a pixel, whatever
   the object's brightness (a dark region on the silhouette keeps its edge). The largest connected part,
   its holes filled (a black pupil inside the object is the object).
+* **Chromaticity** (r, g) = (R, G)/(R + G + B) under the lamp of the median brightness (the others may
+  light a highlight or leave a shadow there): shading changes brightness, not chromaticity, so it tells
+  the regions apart by their colour whatever their reflectance — what fixes the turn of a shape whose
+  outline does not (``solve.turn_by_colours``).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import numpy as np
 
 from hlr_lab.errors import PlacementError
 
+CHROMA_NOISE_SIGMA = 30.0  # a pixel's colour is read where its sum is this many σ up (chroma noise ≲ 3 %)
 MASK_NOISE_SIGMA = 8.0  # lit: this many read-noise σ above black (a false pixel per ~10¹⁵)
 _HALF_LIT_WINDOW = 5  # px: the neighbourhood whose brightest pixel a half-covered edge pixel is half of
 
@@ -38,10 +43,12 @@ class ViewFrames:
 
 @dataclass(frozen=True, eq=False)
 class ObservedView:
-    """What registration compares one view with: ``mask`` (H, W) bool, the object."""
+    """What registration compares one view with: ``mask`` (H, W) bool, the object; ``chroma`` (H, W, 2)
+    float32 chromaticity (NaN where too dark to tell, or not measured)."""
 
     turntable_deg: float
     mask: np.ndarray
+    chroma: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -91,7 +98,7 @@ def lamp_radiance(
 
 
 def observe(view: ViewFrames, sensor: Sensor, *, where: str) -> ObservedView:
-    """The mask of one view (module docstring); :class:`PlacementError` naming ``where``
+    """The mask and chromaticity of one view (module docstring); :class:`PlacementError` naming ``where``
     when nothing or too little is lit, or the object runs off the image."""
     radiance, noise = lamp_radiance(view.frames, view.exposures_s, sensor)
     brightness = radiance.max(axis=3)  # (L, H, W)
@@ -116,7 +123,15 @@ def observe(view: ViewFrames, sensor: Sensor, *, where: str) -> ObservedView:
             f"{where}: the object runs off the image ({int(edge.sum())} px on its border): it lies too far "
             "from the turntable's centre, or the camera does not see the plate's middle"
         )
-    return ObservedView(view.turntable_deg, mask)
+    total = radiance.sum(axis=3)  # (L, H, W)
+    median = np.argsort(total, axis=0)[len(total) // 2]  # (H, W): the lamp of the median brightness
+    pick = np.take_along_axis(radiance, median[None, ..., None], axis=0)[0]  # (H, W, 3)
+    pick_total = np.take_along_axis(total, median[None], axis=0)[0]
+    pick_noise = np.take_along_axis(noise, median[None], axis=0)[0]
+    readable = mask & (pick_total > CHROMA_NOISE_SIGMA * pick_noise)
+    chroma = np.full((*mask.shape, 2), np.nan, np.float32)
+    chroma[readable] = pick[readable][:, :2] / pick_total[readable, None]
+    return ObservedView(view.turntable_deg, mask, chroma)
 
 
 def _filled_largest(raw: np.ndarray) -> np.ndarray:
