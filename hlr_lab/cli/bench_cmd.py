@@ -237,7 +237,7 @@ def bench_register(objects, assets, spp, seed, out_dir) -> None:
     not expect it (turned about the axis, up to 2 cm off it, tilted 3°) on the simulated rig, its
     registration views rendered and exposed, the placement measured from them alone. Prints per case every
     mesh vertex's distance from where it really lies (RMS, worst), the rotation's error, the outline
-    residual and the times.
+    residual and the times; then a cylinder painted in four sectors, whose turn only its colours fix.
 
     \b
     Examples:
@@ -245,12 +245,14 @@ def bench_register(objects, assets, spp, seed, out_dir) -> None:
       hlr-lab bench register --objects pebble,bunny,spot --assets ../shared/assets
     """
     from benchmarks.calibration import bench_folder  # the simulator: CLI only
-    from benchmarks.register import case_line, register_bench, summary_lines
+    from benchmarks.register import case_line, cylinder_bench, cylinder_line, register_bench, summary_lines
 
     names = _bench_objects(objects)
     with bench_folder(out_dir) as folder, console.status("") as status:
         results = register_bench(folder, sim_rig(), objects=names, assets=assets, spp=spp, seed=seed,
                                  progress=status.update, done=lambda r: _print([case_line(r)]))  # fmt: skip
+        status.update("the painted cylinder…")
+        cylinder_bench(sim_rig(), spp=spp, seed=seed, done=lambda r: _print([cylinder_line(r)]))
     _print(summary_lines(results))
 
 

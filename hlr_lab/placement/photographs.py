@@ -1,7 +1,7 @@
 """A registration view's photographs → what the placement is compared with: the object's mask.
 
-A view is one turntable angle photographed under a few lamp positions (:func:`lamp_positions`: each
-lights the side of the object the others leave in shadow), each as an exposure bracket. The background
+A view is one turntable angle photographed under four lamp positions (:func:`lamp_positions`: each
+lights what the others leave in shadow), each as an exposure bracket. The background
 must be darker than the object under the lamp (a dark plate and backdrop, as the rig is built:
 docs/placement.md); the object is then the pixels the lamp lights.
 
@@ -9,8 +9,8 @@ docs/placement.md); the object is then the pixels the lamp lights.
 * **Mask**: lit in some lamp's photograph (8 read-noise σ) and, within 2 px of the unlit background, at
   least half as bright as the brightest pixel within 2 px — a pixel the object half covers is half as
   bright as its neighbour inside, so the mask's edge is where the object covers half a pixel, whatever
-  the object's brightness (a dark region on the silhouette keeps its edge). The largest connected part,
-  its holes filled (a black pupil inside the object is the object).
+  the object's brightness (a dark region on the silhouette keeps its edge). The largest connected part
+  (gaps of a few pixels bridged), its holes filled (a black pupil inside the object is the object).
 * **Chromaticity** (r, g) = (R, G)/(R + G + B) under the lamp of the median brightness (the others may
   light a highlight or leave a shadow there): shading changes brightness, not chromaticity, so it tells
   the regions apart by their colour whatever their reflectance — what fixes the turn of a shape whose
@@ -61,16 +61,18 @@ class Sensor:
 
 
 def lamp_positions(camera_centre: np.ndarray, radius_m: float) -> np.ndarray:
-    """(3, 3) world positions (m) of the lamps that light a registration view: one on each side of the
+    """(4, 3) world positions (m) of the lamps that light a registration view: one on each side of the
     object, 90° about the axis from the camera (they light the outline head on, where a lamp beside the
-    camera meets it at grazing incidence and darkens it), and one a little above the camera (what faces
-    it, including the outline's lower part). ``camera_centre`` (3,) world; ``radius_m`` from the axis."""
+    camera meets it at grazing incidence and darkens it), one a little above the camera (what faces it,
+    the outline's lower part included) and one high above the object on the camera's side (what faces up:
+    a cylinder's top). ``camera_centre`` (3,) world; ``radius_m`` from the gantry's centre."""
     toward = np.array([camera_centre[0], camera_centre[1], 0.0])
     toward /= np.linalg.norm(toward)
     side = np.array([-toward[1], toward[0], 0.0])
     lift = np.array([0.0, 0.0, radius_m / 6])
     above = camera_centre / np.linalg.norm(camera_centre) * radius_m + lift
-    return np.stack([radius_m * side + lift, -radius_m * side + lift, above])
+    high = radius_m * (np.cos(np.radians(70)) * toward + np.array([0.0, 0.0, np.sin(np.radians(70))]))
+    return np.stack([radius_m * side + lift, -radius_m * side + lift, above, high])
 
 
 def lamp_radiance(
@@ -135,8 +137,11 @@ def observe(view: ViewFrames, sensor: Sensor, *, where: str) -> ObservedView:
 
 
 def _filled_largest(raw: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the largest 8-connected part of ``raw``, its holes filled."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(raw.astype(np.uint8), connectivity=8)
+    """(H, W) bool: the largest 8-connected part of ``raw`` closed over gaps of up to 4 px, its holes
+    filled. The closing bridges a dark line across the object (a rim between two faces that no lamp lights
+    well cut a cylinder's top off its side); it rounds only concave corners tighter than ~2 px."""
+    bridged = cv2.morphologyEx(raw.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
     if count <= 1:
         return np.zeros_like(raw)
     largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))

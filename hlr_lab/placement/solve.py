@@ -46,6 +46,7 @@ MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photo
 AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
 AMBIGUOUS_RATIO = 1.2  # a second minimum this close to the best (cost ratio) and ≥ 20° away: not determined
 COLOUR_PIXELS = 3000  # photographed pixels per view the colour step compares (drawn at random, seeded)
+COLOUR_FLOOR_DEG = 0.1  # the colour turn's least stated error: bench register's cylinder, 0.07–0.10° off
 
 
 @dataclass(frozen=True, eq=False)
@@ -265,7 +266,8 @@ def turn_by_colours(
     per view (the lamp's and camera's colour cast; a permutation of the regions does not fit it), as the
     mean squared residual — every 2°, then every 0.1° within 2° of the best. Uniform regions alone would
     not do: a cylinder painted in four sectors looks uniform turned by any quarter. Each view is also scored alone;
-    the yaw's standard error is the spread of the views' own best yaws over √views. ``regions`` maps what
+    the yaw's standard error is the spread of the views' own best yaws over √views, at least
+    :data:`COLOUR_FLOOR_DEG`. ``regions`` maps what
     the pixel rays hit (mesh frame) to region ids (−1 for none: ``formats.planned_object.surface_regions``).
     The views need ``chroma`` (:func:`~hlr_lab.placement.photographs.observe`). Raises
     :class:`PlacementError` when the colours do not fix it either (a symmetric shape painted symmetrically).
@@ -308,9 +310,10 @@ def turn_by_colours(
             "the colours as well): mark the object, or place it as the plan says and record it as assumed"
         )
     per_view = fine[np.argmin(fine_scores, axis=0)]  # (V,) each view's own best
-    # at least the fine grid's own rounding (±0.05°, uniform: 0.03° SD) with a margin
+    # the views share their errors (the mask, the shading at the regions' borders), so their spread alone
+    # understates: at least COLOUR_FLOOR_DEG, the rendered painted cylinder's measured error
     spread = float(np.std(per_view, ddof=1) / np.sqrt(len(per_view))) if len(per_view) > 1 else 0.0
-    se_yaw = max(spread, 0.05)
+    se_yaw = max(spread, COLOUR_FLOOR_DEG)
     m = rotation_about_vertical(yaw, centre) @ found.mesh_to_turntable
     params = outlines.frame.params(m)
     se = found.se.copy()
