@@ -162,7 +162,7 @@ def case_line(r: RegisterFigures) -> str:
     ambiguous = f"; AMBIGUOUS: {g.ambiguous}" if g.ambiguous else ""
     return (
         f"{r.object:7s} {r.placed.label():34s} vertices {r.rms_mm:.3f} mm RMS, {r.worst_mm:.3f} worst; "
-        f"rotation {r.rotation_deg:.3f}° (stated ± {float(np.hypot(*g.se[:3])):.3f}°); "
+        f"rotation {r.rotation_deg:.3f}° (stated ± {float(np.linalg.norm(g.se[:3])):.3f}°); "
         f"outline {g.residual_px:.2f} px RMS, {100 * g.outline_seen:.1f} % seen; "
         f"render {r.render_s:.1f} s, solve {r.solve_s:.1f} s{ambiguous}"
     )

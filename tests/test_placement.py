@@ -289,6 +289,14 @@ def test_the_placement_is_measured_from_rendered_photographs(builtin_plan):
     assert result.worst_mm <= 0.6, result
     assert result.rotation_deg <= 0.4, result
     assert result.registration.outline_seen > 0.9
+    from benchmarks.register import CylinderFigures, case_line, cylinder_line, summary_lines
+
+    line = case_line(result)  # what bench register prints
+    assert f"vertices {result.rms_mm:.3f} mm RMS" in line
+    assert "stated ±" in line
+    assert "pebble" in summary_lines([result])[-1]
+    cylinder = CylinderFigures(Placed(6, -3, 40), True, 0.08, 0.1, 0.04, 30.0)
+    assert "ambiguous, as it should be; colours: rotation 0.080° (stated ± 0.100°)" in cylinder_line(cylinder)
 
 
 def test_the_turn_of_a_round_shape_is_read_from_its_colours():
