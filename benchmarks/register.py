@@ -25,7 +25,7 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface
 from hlr_lab.object.segment import segment
 from hlr_lab.pipeline import plan_object
-from hlr_lab.placement.photographs import lamp_positions, observe
+from hlr_lab.placement.photographs import ObservedView, lamp_positions, observe
 from hlr_lab.placement.pose import PlacementFrame, rotation_error_deg, vertex_errors_mm
 from hlr_lab.placement.solve import Outlines, Registration, register, turn_by_colours
 from hlr_lab.planning.geometry import placement
@@ -87,17 +87,8 @@ def register_case(
     frame = PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
     true = frame.matrix(placed.params())
     world = replace(sim_scene(plan, plan_path, None), mesh_to_turntable=true)
+    views, render_s = _photographed(world, rig, spp=spp, seed=seed)
     started = time.perf_counter()
-    frames, sensor = photograph_views(
-        world,
-        rig.camera,
-        list(VIEWS_DEG),
-        lamp_positions(rig.camera.centre, LAMP_RADIUS_M),
-        spp=spp,
-        seed=seed,
-    )
-    rendered = time.perf_counter()
-    views = [observe(v, sensor, where=f"the view at {v.turntable_deg:g}°") for v in frames]
     found = register(Outlines(mesh, rig.camera, frame, views))
     solved = time.perf_counter()
     errors = vertex_errors_mm(mesh.vertices, found.mesh_to_turntable, true)
@@ -108,9 +99,19 @@ def register_case(
         worst_mm=float(errors.max()),
         rotation_deg=rotation_error_deg(found.mesh_to_turntable, true),
         registration=found,
-        render_s=rendered - started,
-        solve_s=solved - rendered,
+        render_s=render_s,
+        solve_s=solved - started,
     )
+
+
+def _photographed(world: SceneSpec, rig: Rig, *, spp: int, seed: int) -> tuple[list[ObservedView], float]:
+    """The registration views of ``world`` (:data:`VIEWS_DEG`, the registration lamps) as the photographs
+    give them, and the seconds the simulator took to render and expose them."""
+    started = time.perf_counter()
+    lamps = lamp_positions(rig.camera.centre, LAMP_RADIUS_M)
+    frames, sensor = photograph_views(world, rig.camera, list(VIEWS_DEG), lamps, spp=spp, seed=seed)
+    rendered = time.perf_counter() - started
+    return [observe(v, sensor, where=f"the view at {v.turntable_deg:g}°") for v in frames], rendered
 
 
 def register_bench(
@@ -223,16 +224,8 @@ def cylinder_case(rig: Rig, placed: Placed, *, spp: int, seed: int) -> CylinderF
     true = frame.matrix(placed.params())
     materials = [Material(rd, (0.05, 0.05, 0.05), 40.0) for rd in CYLINDER_RD]
     world = SceneSpec(mesh.vertices, mesh.faces, face_region, materials, true)
-    frames, sensor = photograph_views(
-        world,
-        rig.camera,
-        list(VIEWS_DEG),
-        lamp_positions(rig.camera.centre, LAMP_RADIUS_M),
-        spp=spp,
-        seed=seed,
-    )
+    views, _ = _photographed(world, rig, spp=spp, seed=seed)
     started = time.perf_counter()
-    views = [observe(v, sensor, where=f"the view at {v.turntable_deg:g}°") for v in frames]
     outlines = Outlines(mesh, rig.camera, frame, views)
     found = register(outlines)
     rd = np.array(CYLINDER_RD)
