@@ -138,8 +138,9 @@ def observe(view: ViewFrames, sensor: Sensor, *, where: str) -> ObservedView:
 
 def _filled_largest(raw: np.ndarray) -> np.ndarray:
     """(H, W) bool: the largest 8-connected part of ``raw`` closed over gaps of up to 4 px, its holes
-    filled. The closing bridges a dark line across the object (a rim between two faces that no lamp lights
-    well cut a cylinder's top off its side); it rounds only concave corners tighter than ~2 px."""
+    filled. The closing keeps the object one part across a dark line a few pixels wide (an edge that no lamp
+    lights well would otherwise cut a piece off, and the largest part would lose it); it rounds only
+    concave corners tighter than ~2 px."""
     bridged = cv2.morphologyEx(raw.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     count, labels, stats, _ = cv2.connectedComponentsWithStats(bridged, connectivity=8)
     if count <= 1:

@@ -66,16 +66,6 @@ class Registration:
     ambiguous: str | None
     turn_from: str = "outlines"  # or "colours": what fixed the turn about the axis
 
-    @property
-    def yaw_deg(self) -> float:
-        """The turn about the vertical from the plan's placement (degrees, −180 to 180)."""
-        return turn_angles(self.params)[0]
-
-    @property
-    def tilt_deg(self) -> float:
-        """How far the object leans from the way the plan stands it (degrees)."""
-        return turn_angles(self.params)[1]
-
 
 def turn_angles(params: np.ndarray) -> tuple[float, float]:
     """The yaw about the vertical (−180° to 180°) and the tilt from it (degrees) of a placement's turn."""
@@ -265,12 +255,12 @@ def turn_by_colours(
     ``expected`` one (R, 2), indexed by region id (the plan's palette, linear), through an affine map fitted
     per view (the lamp's and camera's colour cast; a permutation of the regions does not fit it), as the
     mean squared residual — every 2°, then every 0.1° within 2° of the best. Uniform regions alone would
-    not do: a cylinder painted in four sectors looks uniform turned by any quarter. Each view is also scored alone;
-    the yaw's standard error is the spread of the views' own best yaws over √views, at least
-    :data:`COLOUR_FLOOR_DEG`. ``regions`` maps what
-    the pixel rays hit (mesh frame) to region ids (−1 for none: ``formats.planned_object.surface_regions``).
-    The views need ``chroma`` (:func:`~hlr_lab.placement.photographs.observe`). Raises
-    :class:`PlacementError` when the colours do not fix it either (a symmetric shape painted symmetrically).
+    not do: a cylinder painted in four sectors looks uniform turned by any quarter. Each view is also
+    scored alone; the yaw's standard error is the spread of the views' own best yaws over √views, at least
+    :data:`COLOUR_FLOOR_DEG`. ``regions`` maps what the pixel rays hit (mesh frame) to region ids (−1 for
+    none: ``formats.planned_object.surface_regions``). The views need ``chroma``
+    (:func:`~hlr_lab.placement.photographs.observe`). Raises :class:`PlacementError` when the colours do
+    not fix it either (a symmetric shape painted symmetrically).
     """
     rng = np.random.default_rng(0)
     caster = RayCaster(outlines.mesh)
@@ -284,8 +274,8 @@ def turn_by_colours(
         rays.append((origins, dirs, view.chroma[ys[pick], xs[pick]].astype(np.float64)))
     centre = outlines.frame.centre + found.params[3:] / 1000  # where the planned centre was found
 
-    def spreads(yaw: float) -> np.ndarray:
-        """(V,) each view's within-region colour spread for the placement turned by ``yaw``."""
+    def misfits(yaw: float) -> np.ndarray:
+        """(V,) each view's colour misfit (:func:`_colour_misfit`) for the placement turned by ``yaw``."""
         m = rotation_about_vertical(yaw, centre) @ found.mesh_to_turntable
         inverse = np.linalg.inv(m)
         out = np.empty(len(rays))
@@ -297,10 +287,10 @@ def turn_by_colours(
         return out
 
     coarse = np.arange(0.0, 360.0, 2.0)
-    scores = np.array([spreads(y) for y in coarse])  # (Y, V)
+    scores = np.array([misfits(y) for y in coarse])  # (Y, V)
     best = coarse[np.argmin(scores.sum(axis=1))]
     fine = best + np.arange(-2.0, 2.0 + 1e-9, 0.1)
-    fine_scores = np.array([spreads(y) for y in fine])
+    fine_scores = np.array([misfits(y) for y in fine])
     total = fine_scores.sum(axis=1)
     yaw = float(fine[np.argmin(total)])
     runner_up = scores.sum(axis=1)[np.abs((coarse - yaw + 180) % 360 - 180) > 20]
@@ -368,34 +358,6 @@ def _result(
 ) -> Registration:
     residual = outlines.residuals(params, points)
     seen = np.abs(residual) <= SEEN_PX
-    step = 1e-3  # degrees and mm: central differences, far above the residuals' rounding
-    jac = np.stack(
-        [
-            (outlines.residuals(params + step * e, points) - outlines.residuals(params - step * e, points))
-            / (2 * step)
-            for e in np.eye(6)
-        ],
-        axis=1,
-    )[seen]  # (N_seen, 6) px per degree and per mm
-    residual_seen = residual[seen]
-    robust_sigma = 1.4826 * float(np.median(np.abs(residual_seen - np.median(residual_seen))))
-    # neighbouring contour points read the same border pixels: count the outline's length in pixels, not
-    # its points, as the independent measurements
-    independent = sum(
-        len(np.unique(np.round(Outlines._project(cam, outlines.frame.matrix(params), p)), axis=0))
-        for cam, p in zip(outlines.cameras, points, strict=True)
-    )
-    inflate = max(1.0, len(residual_seen) / max(independent, 1))
-    jtj = jac.T @ jac
-    # a ridge far below any determined direction's curvature: a direction the outlines do not see (the turn
-    # of a round object) gets a huge standard error instead of a singular matrix
-    cov = np.linalg.inv(jtj + 1e-12 * np.trace(jtj) * np.eye(6)) * robust_sigma**2 * inflate
-    se = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)), _jackknife_se(outlines, params, points))
-    if ambiguous is None and se[2] > AMBIGUOUS_SE_DEG:
-        ambiguous = (
-            f"the outlines hardly change as the object turns about the axis (yaw ± {min(se[2], 999):.0f}°): "
-            "a shape round about the vertical does not fix its turn"
-        )
     if seen.mean() < MIN_SEEN:
         raise PlacementError(
             f"only {100 * seen.mean():.0f} % of the mesh's outline lies on the photographed one "
@@ -410,11 +372,41 @@ def _result(
             f"(the search covers {MAX_SHIFT_MM:.0f} mm and {MAX_TILT_DEG:.0f}°): put it back near the "
             "turntable's centre, standing as the plan says, and register again"
         )
+    # the standard errors (a jackknife of six refits) only for a placement that is kept
+    step = 1e-3  # degrees and mm: central differences, far above the residuals' rounding
+    jac = np.stack(
+        [
+            (outlines.residuals(params + step * e, points) - outlines.residuals(params - step * e, points))
+            / (2 * step)
+            for e in np.eye(6)
+        ],
+        axis=1,
+    )[seen]  # (N_seen, 6) px per degree and per mm
+    residual_seen = residual[seen]
+    robust_sigma = 1.4826 * float(np.median(np.abs(residual_seen - np.median(residual_seen))))
+    # neighbouring contour points read the same border pixels: count the outline's length in pixels, not
+    # its points, as the independent measurements
+    m = outlines.frame.matrix(params)
+    independent = sum(
+        len(np.unique(np.round(Outlines._project(cam, m, p)), axis=0))
+        for cam, p in zip(outlines.cameras, points, strict=True)
+    )
+    inflate = max(1.0, len(residual_seen) / max(independent, 1))
+    jtj = jac.T @ jac
+    # a ridge far below any determined direction's curvature: a direction the outlines do not see (the turn
+    # of a round object) gets a huge standard error instead of a singular matrix
+    cov = np.linalg.inv(jtj + 1e-12 * np.trace(jtj) * np.eye(6)) * robust_sigma**2 * inflate
+    se = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)), _jackknife_se(outlines, params, points))
+    if ambiguous is None and se[2] > AMBIGUOUS_SE_DEG:
+        ambiguous = (
+            f"the outlines hardly change as the object turns about the axis (yaw ± {min(se[2], 999):.0f}°): "
+            "a shape round about the vertical does not fix its turn"
+        )
     return Registration(
         params=params,
         se=se,
-        mesh_to_turntable=outlines.frame.matrix(params),
-        residual_px=float(np.sqrt(np.mean(residual_seen**2))) if seen.any() else np.inf,
+        mesh_to_turntable=m,
+        residual_px=float(np.sqrt(np.mean(residual_seen**2))),
         points=int(seen.sum()),
         outline_seen=float(seen.mean()),
         ambiguous=ambiguous,
