@@ -2,7 +2,7 @@
 
 Each case puts an object of the bench (the built-in pebble, the painted bunny, Spot) somewhere the plan
 does not expect — turned about the axis, off it by up to 2 cm, tilted — renders the registration views of
-that world (six turntable angles, the lamps of :func:`hlr_lab.placement.photographs.lamp_positions`, each
+that world (six turntable angles, the lamps of :func:`hlr_lab.placement.photographs.registration_lamps`, each
 exposed by the sensor model), measures the placement from them alone and compares it with the truth:
 every mesh vertex's distance from where it really lies (RMS and worst, mm) and the rotation's error.
 """
@@ -25,7 +25,7 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface
 from hlr_lab.object.segment import segment
 from hlr_lab.pipeline import plan_object
-from hlr_lab.placement.photographs import ObservedView, lamp_positions, observe
+from hlr_lab.placement.photographs import ObservedView, observe, registration_lamps
 from hlr_lab.placement.pose import PlacementFrame, rotation_error_deg, vertex_errors_mm
 from hlr_lab.placement.solve import Outlines, Registration, register, turn_by_colours
 from hlr_lab.planning.geometry import placement
@@ -36,7 +36,6 @@ from worlds.placement_views import photograph_views
 from worlds.plan_world import sim_scene
 
 VIEWS_DEG = (0.0, 60.0, 120.0, 180.0, 240.0, 300.0)
-LAMP_RADIUS_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -108,7 +107,8 @@ def _photographed(world: SceneSpec, rig: Rig, *, spp: int, seed: int) -> tuple[l
     """The registration views of ``world`` (:data:`VIEWS_DEG`, the registration lamps) as the photographs
     give them, and the seconds the simulator took to render and expose them."""
     started = time.perf_counter()
-    lamps = lamp_positions(rig.camera.centre, LAMP_RADIUS_M)
+    k = rig.gantry.kinematics
+    lamps = np.array([k.light_position(k.ticks_for(az, el)) for az, el in registration_lamps(rig)])
     frames, sensor = photograph_views(world, rig.camera, list(VIEWS_DEG), lamps, spp=spp, seed=seed)
     rendered = time.perf_counter() - started
     return [observe(v, sensor, where=f"the view at {v.turntable_deg:g}°") for v in frames], rendered

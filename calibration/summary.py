@@ -18,7 +18,7 @@ from calibration.camera_procedure import CameraCalibration
 from calibration.gantry_procedure import BallFrame, GantryCalibration
 from calibration.mirror_ball import ball_centres
 from hlr_lab.files import atomic_write_text
-from hlr_lab.report.html import STYLE, escape, figure, table
+from hlr_lab.report.html import escape, figure, page, table
 from hlr_lab.rig.file import Rig
 
 SUMMARY = "summary.html"
@@ -36,13 +36,6 @@ def _display(pixels: np.ndarray, white: float | None = None) -> np.ndarray:
     white = white or max(float(np.percentile(grey, 99.9)), 1e-9)
     v = (np.clip(grey / white, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
     return np.repeat(v[..., None], 3, axis=2)
-
-
-def _page(title: str, body: str) -> str:
-    return (
-        f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{escape(title)}</title>'
-        f"<style>{STYLE}</style></head><body><h1>{escape(title)}</h1>{body}</body></html>\n"
-    )
 
 
 def camera_summary(result: CameraCalibration, rig: Rig, folder: Path) -> Path:
@@ -76,7 +69,7 @@ def camera_summary(result: CameraCalibration, rig: Rig, folder: Path) -> Path:
         + table(["view", "turntable (°)", "wedge face", "corners", "fit"], rows)
         + "".join(figures)
     )
-    return _write(folder, _page("Camera calibration", body))
+    return _write(folder, page("Camera calibration", body))
 
 
 def gantry_summary(result: GantryCalibration, frames: list[BallFrame], rig: Rig, folder: Path) -> Path:
@@ -126,7 +119,7 @@ def gantry_summary(result: GantryCalibration, frames: list[BallFrame], rig: Rig,
         + "".join(spots)
         + table(["frame", "turntable (°)", "servo ticks", "centroid (px)", "miss (mm)"], rows)
     )
-    return _write(folder, _page("Gantry calibration", body))
+    return _write(folder, page("Gantry calibration", body))
 
 
 def _write(folder: Path, page: str) -> Path:

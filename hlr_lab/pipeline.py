@@ -16,6 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
+import numpy as np
+
 from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.acquisition.run import PLANNED_ONLY, acquire_session
 from hlr_lab.acquisition.white_reference import reference_meter
@@ -23,8 +25,8 @@ from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_all, model_json
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, EstimatorName
 from hlr_lab.formats.materials import read_materials
-from hlr_lab.formats.plan import PlanFile, build_plan, read_plan
-from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.formats.plan import PlacementRecord, PlanFile, build_plan, read_plan
+from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable, planned_segmentation
 from hlr_lab.formats.regions import mesh_reference, read_regions
 from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.instrument.control import NO_OVERRIDES
@@ -73,12 +75,15 @@ def plan_object(
     plan_folder: Path,
     up: str = "z",
     scale: float = 1.0,
+    to_turntable: np.ndarray | None = None,
 ) -> tuple[PlanFile, PlanResult]:
     """Plan light positions for ``mesh`` (its ``segmentation``'s regions) on ``rig``: the plan file's
     contents (to write with :func:`hlr_lab.formats.plan.write_plan`; the mesh is referred to as
     ``mesh_spec``, relative to ``plan_folder`` where the plan will be) and the planner's full result.
-    ``up``, ``scale``: how the mesh stands on the plate (its up axis; mesh units → metres)."""
-    to_turntable = placement(mesh, up=up, scale=scale)
+    ``up``, ``scale``: how the mesh stands on the plate (its up axis; mesh units → metres), centred on the
+    axis; ``to_turntable`` (4, 4) instead: where it was measured to lie (:func:`replan_placed`)."""
+    if to_turntable is None:
+        to_turntable = placement(mesh, up=up, scale=scale)
     result = plan_lights(mesh.transformed(to_turntable), segmentation, rig, settings)
     texture = None if mesh.texture_source is None else mesh_reference(mesh.texture_source, plan_folder)
     plan = build_plan(
@@ -95,6 +100,39 @@ def plan_object(
         rig_name=rig.name,
     )
     return plan, result
+
+
+def plan_settings(plan: PlanFile) -> PlanSettings:
+    """The settings ``plan`` was made with, as its parameters record them (another tool's plan: the
+    defaults where it leaves one out)."""
+    p, default = plan.parameters, PlanSettings()
+    return PlanSettings(
+        theta_c_deg=p.theta_c_deg,
+        min_samples=p.min_samples,
+        count=p.count,
+        views_deg=p.views_deg,
+        spacing_deg=p.candidate_spacing_deg or default.spacing_deg,
+        max_view_angle_deg=p.max_view_angle_deg or default.max_view_angle_deg,
+        max_lights=p.max_lights or default.max_lights,
+        shadows=default.shadows if p.shadows is None else p.shadows,
+        criterion=p.criterion,
+    )
+
+
+def replan_placed(
+    plan: PlanFile, plan_path: Path, rig: Rig, placed: PlacementRecord, to_turntable: np.ndarray, output: Path
+) -> tuple[PlanFile, PlanResult]:
+    """``plan`` (read from ``plan_path``) planned again, with its settings and regions, for the object lying
+    as ``to_turntable`` (4, 4) says: where highlights fall depends on where the object lies. The plan to
+    write at ``output`` (its mesh named relative to it), with ``placed`` as its placement record."""
+    mesh = load_planned_mesh(plan, plan_path)
+    ref = plan.object.mesh
+    spec = ref if ref.startswith(BUILTIN_PREFIX) else str(plan_path.parent / ref)
+    replanned, result = plan_object(mesh, planned_segmentation(plan, mesh), rig, plan_settings(plan),
+                                    mesh_spec=spec, plan_folder=output.parent, up=plan.object.up,
+                                    scale=plan.object.scale, to_turntable=to_turntable)  # fmt: skip
+    placed_object = replanned.object.model_copy(update={"placement": placed})
+    return replanned.model_copy(update={"object": placed_object}), result
 
 
 def acquire_plan(

@@ -24,6 +24,7 @@ from hlr_lab.formats.planned_object import (
     face_regions,
     load_planned_mesh,
     mesh_to_turntable,
+    nominal_placement,
     palette,
     region_ids,
     texel_regions,
@@ -131,10 +132,12 @@ def sim_scene(
     plan: PlanFile, plan_path: Path, scene_path: Path | None, offset: ObjectOffset | None = None
 ) -> SceneSpec:
     """The simulated world for ``plan``: the scene file's, or the plan's mesh with a default material per
-    planned region. The object lies where the scene file's ``placed`` says, else where the plan says (the
-    plan is hlr-lab's belief, the scene the world's), then moved by ``offset``."""
+    planned region. The object lies where the scene file's ``placed`` says, else where the plan assumed it
+    before any registration (:func:`~hlr_lab.formats.planned_object.nominal_placement`: the plan is hlr-lab's
+    belief, the scene the world's; a registered plan's measured placement is not the world's either), then
+    moved by ``offset``."""
     scene = _plan_scene(plan, plan_path) if scene_path is None else _scene_file(plan, scene_path)
-    placement = scene.mesh_to_turntable if scene.placed else mesh_to_turntable(plan)
+    placement = scene.mesh_to_turntable if scene.placed else nominal_placement(plan)
     return replace(scene, mesh_to_turntable=placement if offset is None else offset.moved(placement))
 
 

@@ -32,6 +32,8 @@ COMMANDS = {
     "segment": ("hlr_lab.cli.segment_cmd:segment",
                 "Split the surface into same-colour regions (per-vertex and per-face labels)."),
     "plan": ("hlr_lab.cli.plan_cmd:plan", "Plan light positions that give every region M highlight samples."),
+    "register": ("hlr_lab.cli.register_cmd:register",
+                 "Photograph the object where it lies, measure its placement, and plan again for it."),
     "acquire": ("hlr_lab.cli.acquire_cmd:acquire_cmd",
                 "Move to every pose of the plan, capture its exposure bracket, and journal every frame."),
     "fit": ("hlr_lab.cli.fit_cmd:fit",

@@ -33,9 +33,35 @@ Matrix4 = Annotated[
 ]
 
 
+class PlacementRecord(OpenModel):
+    """How the object's ``mesh_to_turntable`` was found (docs/formats.md, docs/placement.md): ``measured``
+    by ``hlr-lab register`` from the photographs in ``photographs``, ``ambiguous`` (measured, but a turn
+    about the axis is not determined: ``why``), or ``assumed`` (where the plan put it). The measured
+    numbers: the outline's residual (px RMS) and the share of the outline found, the standard errors of the
+    shift (mm) and of the rotation vector (degrees), and the offset from ``nominal_mesh_to_turntable`` (the
+    placement the plan assumed): the shift (mm), the rotation vector (degrees), its turn about the vertical
+    and its tilt (degrees)."""
+
+    status: Literal["measured", "ambiguous", "assumed"]
+    method: str  # "outlines", "outlines+colours" (the colours fixed the turn), or "assumed"
+    date: str  # ISO 8601, UTC
+    nominal_mesh_to_turntable: Matrix4
+    photographs: str | None = None
+    residual_px: Annotated[float, Field(ge=0)] | None = None
+    outline_seen: Annotated[float, Field(ge=0, le=1)] | None = None
+    se_shift_mm: Vec3 | None = None
+    se_rotation_deg: Vec3 | None = None
+    offset_shift_mm: Vec3 | None = None
+    offset_rotation_deg: Vec3 | None = None
+    offset_turn_deg: Degrees | None = None
+    offset_tilt_deg: Degrees | None = None
+    why: str | None = None
+
+
 class PlanObject(OpenModel):
     """The object planned for: its mesh (relative to the plan or ``builtin:…``) and checksum, its regions,
-    and how it lies on the plate (``mesh_to_turntable``, 4×4; ``up`` and ``scale`` as given to plan)."""
+    how it lies on the plate (``mesh_to_turntable``, 4×4; ``up`` and ``scale`` as given to plan) and, when
+    that was measured (``hlr-lab register``), how (``placement``)."""
 
     mesh: str
     sha256: str
@@ -45,6 +71,7 @@ class PlanObject(OpenModel):
     mesh_to_turntable: Matrix4 | None = None
     up: str = "z"
     scale: float = 1.0
+    placement: PlacementRecord | None = None
 
     @field_validator("mesh_to_turntable")
     @classmethod

@@ -9,10 +9,12 @@ from pathlib import Path
 import numpy as np
 
 from hlr_lab.errors import InputError
+from hlr_lab.files import as_triple
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, load_mesh, sample_texture, texture_sha256
 from hlr_lab.object.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.object.raycast import PixelSurface
+from hlr_lab.object.segment import Region, Segmentation
 
 
 def load_planned_mesh(plan: PlanFile, plan_path: Path) -> ColouredMesh:
@@ -57,6 +59,28 @@ def _all_faces_in_regions(plan: PlanFile, plan_path: Path, faces: int) -> None:
 def mesh_to_turntable(plan: PlanFile) -> np.ndarray:
     """4×4: the plan's placement of the mesh on the turntable (identity for old plans without one)."""
     return np.array(plan.object.mesh_to_turntable or np.eye(4), dtype=np.float64)
+
+
+def nominal_placement(plan: PlanFile) -> np.ndarray:
+    """4×4: where the plan's object was assumed to lie before its placement was measured (the placement
+    record's ``nominal_mesh_to_turntable``), else the plan's own placement."""
+    record = plan.object.placement
+    if record is None:
+        return mesh_to_turntable(plan)
+    return np.array(record.nominal_mesh_to_turntable, dtype=np.float64)
+
+
+def planned_segmentation(plan: PlanFile, mesh: ColouredMesh) -> Segmentation:
+    """The plan's regions on ``mesh`` as the planner takes them: each face's region
+    (:func:`face_regions`), each vertex's the region of a face it belongs to, the regions' records as the
+    plan keeps them. What planning the object again (for a measured placement) starts from, so that its
+    regions stay the plan's."""
+    face_labels = face_regions(plan, mesh)
+    vertex_labels = np.zeros(len(mesh.vertices), np.int64)
+    vertex_labels[mesh.faces.reshape(-1)] = np.repeat(face_labels, 3)
+    regions = [Region(r.id, r.material, as_triple(r.color), r.vertices, r.faces, r.area_m2)
+               for r in plan.object.regions]  # fmt: skip
+    return Segmentation(vertex_labels, face_labels, regions, np.nan, False, np.nan)
 
 
 def region_ids(plan: PlanFile) -> np.ndarray:

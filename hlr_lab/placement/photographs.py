@@ -1,6 +1,6 @@
 """A registration view's photographs → what the placement is compared with: the object's mask.
 
-A view is one turntable angle photographed under four lamp positions (:func:`lamp_positions`: each
+A view is one turntable angle photographed under four lamp positions (:func:`registration_lamps`: each
 lights what the others leave in shadow), each as an exposure bracket. The background
 must be darker than the object under the lamp (a dark plate and backdrop, as the rig is built:
 docs/placement.md); the object is then the pixels the lamp lights.
@@ -25,10 +25,14 @@ import cv2
 import numpy as np
 
 from hlr_lab.errors import PlacementError
+from hlr_lab.rig.file import Rig
 
 CHROMA_NOISE_SIGMA = 30.0  # a pixel's colour is read where its sum is this many σ up (chroma noise ≲ 3 %)
 MASK_NOISE_SIGMA = 8.0  # lit: this many read-noise σ above black (a false pixel per ~10¹⁵)
 _HALF_LIT_WINDOW = 5  # px: the neighbourhood whose brightest pixel a half-covered edge pixel is half of
+SIDE_ELEVATION_DEG = 10.0  # the side lamps: low, to light the outline head on, clear of the plate
+KEEPOUT_MARGIN_DEG = 3.0  # the lamp above the camera: this far outside the camera's keep-out cone
+HIGH_ELEVATION_DEG = 70.0  # the lamp over what faces up
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,19 +64,26 @@ class Sensor:
     full_scale_dn: float
 
 
-def lamp_positions(camera_centre: np.ndarray, radius_m: float) -> np.ndarray:
-    """(4, 3) world positions (m) of the lamps that light a registration view: one on each side of the
-    object, 90° about the axis from the camera (they light the outline head on, where a lamp beside the
-    camera meets it at grazing incidence and darkens it), one a little above the camera (what faces it,
-    the outline's lower part included) and one high above the object on the camera's side (what faces up:
-    a cylinder's top). ``camera_centre`` (3,) world; ``radius_m`` from the gantry's centre."""
-    toward = np.array([camera_centre[0], camera_centre[1], 0.0])
-    toward /= np.linalg.norm(toward)
-    side = np.array([-toward[1], toward[0], 0.0])
-    lift = np.array([0.0, 0.0, radius_m / 6])
-    above = camera_centre / np.linalg.norm(camera_centre) * radius_m + lift
-    high = radius_m * (np.cos(np.radians(70)) * toward + np.array([0.0, 0.0, np.sin(np.radians(70))]))
-    return np.stack([radius_m * side + lift, -radius_m * side + lift, above, high])
+def registration_lamps(rig: Rig) -> np.ndarray:
+    """(4, 2) gantry azimuth and elevation (degrees) of the lamps that light a registration view, in the
+    order the gantry visits them (a quarter turn at a time): one beside the object, 90° about the axis from
+    the camera, a little above the plate; one above the camera, just clear of its keep-out cone; one high
+    over the camera's side; one on the object's other side. The side lamps light the outline head on (a
+    lamp beside the camera meets it at grazing incidence and darkens it); the one above the camera lights
+    what faces it, the outline's lower part included; the high one what faces up (a cylinder's top).
+    Elevations are kept within the gantry's limits; whether the rig reaches them is checked with the rest
+    of the motions."""
+    g = rig.gantry
+    to_camera = rig.camera.centre - np.asarray(g.centre)
+    az, el = (
+        float(np.degrees(a)) for a in g.kinematics.direction_angles(to_camera / np.linalg.norm(to_camera))
+    )
+    lo, hi = np.degrees(g.elevation_limits)
+    low = float(np.clip(SIDE_ELEVATION_DEG, lo, hi))
+    above = float(np.clip(el + np.degrees(g.camera_keepout) + KEEPOUT_MARGIN_DEG, lo, hi))
+    high = float(np.clip(HIGH_ELEVATION_DEG, lo, hi))
+    lamps = [(az + 90.0, low), (az, above), (az, high), (az - 90.0, low)]
+    return np.array([((a + 180.0) % 360.0 - 180.0, e) for a, e in lamps])
 
 
 def lamp_radiance(

@@ -42,6 +42,9 @@ MAX_SHIFT_MM = 30.0  # the search range: off the axis, in the plate's plane
 MAX_TILT_DEG = 5.0  # and tilted from how the plan stands it
 # a contour point this near the photographed border was seen there (else: not lit, or not the object)
 SEEN_PX = 3.0
+# the outline's RMS residual over its seen points: the bench's objects give 0.2–0.6 px; a mesh 3 % too
+# large, ≳ 1.5 px (the object is not the plan's mesh)
+EXPECTED_RESIDUAL_PX, MAX_RESIDUAL_PX = 0.6, 1.5
 MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photographed one is no match
 AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
 AMBIGUOUS_RATIO = 1.2  # a second minimum this close to the best (cost ratio) and ≥ 20° away: not determined
@@ -177,6 +180,21 @@ class Outlines:
             return np.zeros(3)
         shift, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(misses), rcond=None)
         return shift
+
+    def predicted_mask(self, k: int, m: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the object's image in view ``k`` lying as ``m`` (4, 4) mesh → turntable says."""
+        return self._mask(self.cameras[k], m)
+
+    def view_residuals_px(self, params: np.ndarray) -> list[float]:
+        """Per view, the outline's RMS residual (px) at ``params`` over its contour points on the
+        photographed outline (within :data:`SEEN_PX`); NaN for a view without any."""
+        points = self.contour_points(params)
+        residual = self.residuals(params, points)
+        out = []
+        for part in np.split(residual, np.cumsum([len(p) for p in points])[:-1]):
+            seen = part[np.abs(part) <= SEEN_PX]
+            out.append(float(np.sqrt(np.mean(seen**2))) if len(seen) else float("nan"))
+        return out
 
     def _splatted(self, cam: Camera, m: np.ndarray) -> np.ndarray:
         """(H, W) bool: the surface samples' pixels, closed over the gaps between them (the search's mask)."""
@@ -364,6 +382,13 @@ def _result(
             f"(within {SEEN_PX:g} px; a match finds ≳ 95 %): is the object on the plate the plan's mesh, "
             "and is all of it lit and in view?"
         )
+    rms = float(np.sqrt(np.mean(residual[seen] ** 2)))
+    if rms > MAX_RESIDUAL_PX:
+        raise PlacementError(
+            f"the mesh's outline misses the photographed one by {rms:.2f} px RMS, where the right mesh in the "
+            f"right place gives ≲ {EXPECTED_RESIDUAL_PX:g} px: is the object on the plate the plan's mesh (at "
+            "the plan's scale)?"
+        )
     shift_xy = float(np.hypot(params[3], params[4]))
     tilt = turn_angles(params)[1]
     if shift_xy > MAX_SHIFT_MM or tilt > MAX_TILT_DEG:
@@ -406,7 +431,7 @@ def _result(
         params=params,
         se=se,
         mesh_to_turntable=m,
-        residual_px=float(np.sqrt(np.mean(residual_seen**2))),
+        residual_px=rms,
         points=int(seen.sum()),
         outline_seen=float(seen.mean()),
         ambiguous=ambiguous,

@@ -317,7 +317,7 @@ def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
     refused, naming its frames: merged, it would give every pixel a wrong radiance."""
     sensor = session.rig.file.sensor
     frames = [
-        _bracket_frame(
+        bracket_frame(
             session.path, e, view.sidecars[e["file"]], view.darks.get(e["exposure_index"]), session.rig
         )
         for e in view.frames
@@ -821,7 +821,9 @@ def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins
     }
 
 
-def _bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None, rig: Rig) -> BracketFrame:
+def bracket_frame(session: Path, event: dict, sidecar: dict, dark: dict | None, rig: Rig) -> BracketFrame:
+    """A journaled frame (and its dark frame) of ``session`` as the HDR merge takes it; :class:`InputError`
+    naming the file when it is not a raw frame of ``rig``'s camera."""
     size = (rig.camera.width, rig.camera.height)
     pixels = load_frame(session, event, size)
     problem = _frame_problem(pixels, int(sidecar["bits"]), rig)

@@ -25,6 +25,14 @@ def escape(text: object) -> str:
     return html.escape(str(text))
 
 
+def page(title: str, body: str) -> str:
+    """A whole self-contained HTML page: ``title`` as its title and heading, ``body`` (HTML) below."""
+    return (
+        f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{escape(title)}</title>'
+        f"<style>{STYLE}</style></head><body><h1>{escape(title)}</h1>{body}</body></html>\n"
+    )
+
+
 def png_data_uri(rgb: np.ndarray) -> str:
     """(H, W, 3) uint8 RGB → a data: URI holding it as PNG."""
     ok, png = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
