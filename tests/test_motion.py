@@ -41,6 +41,12 @@ def _with_pose(plan, i, **light_or_pose):
         ({"turntable_deg": 200.0}, "poses[1].turntable_deg", "outside the rig's limits"),
         ({"elevation_deg": 85.0}, "poses[1].light.elevation_deg", "outside the rig's limits"),
         ({"azimuth_deg": -181.0}, "poses[1].light.azimuth_deg", "outside the rig's limits"),
+        # within the elevation limits, but 28 mm above the plate where the rig allows 30
+        (
+            {"elevation_deg": -8.0},
+            "poses[1].light.elevation_deg",
+            r"28 mm above the plate, below .*\(30 mm\)",
+        ),
         # +180° is −180°, but position mode's one turn ends at tick 4095: the planner's −180° is reachable
         ({"azimuth_deg": 180.0}, "poses[1].light.azimuth_deg", r"servo tick 4096, .* \[0, 4095\]"),
     ],

@@ -96,6 +96,14 @@ def _pose_problems(turntable_deg: float, light, rig: Rig) -> list[tuple[str, str
             )
     angles = np.radians([light.azimuth_deg, light.elevation_deg])
     on_sphere = g.centre + g.arm_radius * g.kinematics.unit_direction(*angles)
+    if on_sphere[2] < g.min_light_height - 1e-6:  # the lamp would hit the plate or what stands on it
+        problems.append(
+            (
+                "light.elevation_deg",
+                f"puts the lamp {1000 * on_sphere[2]:.0f} mm above the plate, below the rig's "
+                f"min_light_height_m ({1000 * g.min_light_height:.0f} mm)",
+            )
+        )
     miss = float(np.linalg.norm(on_sphere - np.asarray(light.position_m)))
     if miss > SPHERE_TOLERANCE_M:
         problems.append(

@@ -1,0 +1,137 @@
+"""``hlr-lab register`` on the simulated rig (issue 22): the object moved where the plan does not expect
+it, photographed through the real drivers (the registration plan run by acquisition), its placement
+measured, the plan made again for it; solved again from the kept photographs; photographs that are not
+this plan's refused; the summary page."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+import trimesh
+
+from hlr_lab.cli.main import main
+from hlr_lab.formats.plan import read_plan
+from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable, planned_segmentation
+from hlr_lab.instrument.motion import motion_targets
+from hlr_lab.placement.pose import rotation_error_deg, vertex_errors_mm
+from hlr_lab.rig.file import sim_rig
+from tests.renderer_guard import require_renderer
+
+OFFSET = (12.0, -8.0, 200.0)  # mm, mm, degrees: well off the axis, turned more than half a turn
+
+
+@pytest.fixture(scope="module")
+def registered(builtin_plan, tmp_path_factory):
+    """The pebble registered where it lies, 12, −8 mm off and turned 200°: (plan, placed plan, photographs)."""
+    require_renderer()
+    folder = tmp_path_factory.mktemp("register")
+    placed, photos = folder / "placed.json", folder / "photos"
+    offset = ",".join(f"{v:g}" for v in OFFSET)
+    command = ["register", "--plan", str(builtin_plan), "--sim", "--object-offset", offset, "--speed-factor", "50",
+               "-o", str(placed), "--out", str(photos)]  # fmt: skip
+    assert main(command) == 0
+    return builtin_plan, placed, photos
+
+
+def _truth(plan_path):
+    from worlds.plan_world import ObjectOffset
+
+    dx, dy, yaw = OFFSET
+    return ObjectOffset(dx / 1000, dy / 1000, yaw).moved(mesh_to_turntable(read_plan(plan_path)))
+
+
+def test_register_measures_where_the_object_lies_and_plans_again_for_it(registered):
+    """Every vertex within 0.3 mm RMS and 0.6 mm worst of where it really lies, the rotation within 0.4°
+    (the pebble is nearly round about its axis: its turn is its least certain number; bench register's
+    figures for the bunny and Spot hold the 0.15° target), the record saying so within its errors, and a
+    plan made for the measured placement that the rig can run."""
+    plan_path, placed_path, photos = registered
+    placed = read_plan(placed_path)
+    truth = _truth(plan_path)
+    found = mesh_to_turntable(placed)
+    vertices = load_planned_mesh(placed, placed_path).vertices
+    errors = vertex_errors_mm(vertices, found, truth)
+    assert np.sqrt(np.mean(errors**2)) <= 0.3
+    assert errors.max() <= 0.6
+    assert rotation_error_deg(found, truth) <= 0.4
+    record = placed.object.placement
+    assert record is not None and record.status == "measured" and record.method == "outlines"
+    assert record.photographs == str(photos.resolve())
+    assert record.nominal_mesh_to_turntable == read_plan(plan_path).object.mesh_to_turntable
+    assert record.offset_shift_mm is not None and record.se_shift_mm is not None
+    assert np.allclose(record.offset_shift_mm[:2], OFFSET[:2], atol=0.3)
+    assert abs((record.offset_turn_deg or 0) - (OFFSET[2] - 360)) <= 0.4
+    assert record.residual_px is not None and record.residual_px < 0.6
+    # planned again: the lights' places on the object moved with it, the regions are the plan's own
+    plan = read_plan(plan_path)
+    assert placed.object.regions == plan.object.regions
+    assert placed.object.sha256 == plan.object.sha256
+    before = {p.id: p.light.position_mesh_m for p in plan.poses}
+    assert any(before.get(p.id) != p.light.position_mesh_m for p in placed.poses)
+    assert motion_targets(placed, sim_rig(), placed_path)
+    assert all(c.satisfied for c in placed.coverage.values())
+
+
+def test_the_summary_page_shows_every_view_with_the_registered_outline(registered):
+    _, _, photos = registered
+    page = (photos / "summary.html").read_text()
+    assert page.count("<figure>") == 6
+    assert len(re.findall(r"<figcaption>turntable -?\d+°: outline \d+\.\d\d px RMS", page)) == 6
+    assert "where the object lies" in page.lower()
+
+
+def test_register_solves_again_from_its_photographs_without_the_rig(registered, tmp_path):
+    """--from: the same placement from the kept photographs alone (no simulated world started)."""
+    plan_path, placed_path, photos = registered
+    again = tmp_path / "again.json"
+    assert main(["register", "--plan", str(plan_path), "--sim", "--from", str(photos), "-o", str(again)]) == 0
+    assert np.allclose(
+        mesh_to_turntable(read_plan(again)), mesh_to_turntable(read_plan(placed_path)), atol=1e-9
+    )
+
+
+def test_photographs_of_another_object_or_plan_are_refused(registered, tmp_path, capsys):
+    """Photographs of another object (--from), and a folder of another registration (--out), are refused
+    naming the folder, and no placed plan is written."""
+    _, _, photos = registered
+    box = trimesh.creation.box((0.05, 0.04, 0.03))
+    colours = np.tile([200, 60, 40, 255], (len(box.vertices), 1)).astype(np.uint8)
+    mesh_path = tmp_path / "box.ply"
+    trimesh.Trimesh(box.vertices, box.faces, vertex_colors=colours, process=False).export(mesh_path)
+    other = tmp_path / "box-plan.json"
+    assert main(["plan", "--mesh", str(mesh_path), "--sim", "-o", str(other)]) == 0
+    placed = tmp_path / "placed.json"
+    assert main(["register", "--plan", str(other), "--sim", "--from", str(photos), "-o", str(placed)]) == 1
+    assert "holds the photographs of another object" in capsys.readouterr().err
+    assert not placed.exists()
+    copy = tmp_path / "photos"
+    shutil.copytree(photos, copy)
+    assert main(["register", "--plan", str(other), "--sim", "--out", str(copy), "-o", str(placed)]) == 1
+    assert "holds the photographs of another plan or rig" in capsys.readouterr().err
+    assert not placed.exists()
+
+
+def test_a_plans_regions_become_the_planners_segmentation(builtin_plan):
+    """What planning again starts from: every face in the plan's region of its colour, the regions' records
+    the plan's. A face on a border goes by its corners' mean colour, as the fit and the simulated world
+    assign it, where segmentation voted by vertices: a few faces in a thousand may change sides."""
+    plan = read_plan(builtin_plan)
+    mesh = load_planned_mesh(plan, builtin_plan)
+    seg = planned_segmentation(plan, mesh)
+    assert seg.face_labels.shape == (len(mesh.faces),)
+    assert seg.vertex_labels.shape == (len(mesh.vertices),)
+    counts = np.bincount(seg.face_labels, minlength=len(plan.object.regions))
+    assert np.allclose(counts, [r.faces for r in plan.object.regions], rtol=1e-3)
+    assert [r.id for r in seg.regions] == [r.id for r in plan.object.regions]
+
+
+def test_the_placement_record_is_in_the_plan_file(registered):
+    _, placed_path, _ = registered
+    data = json.loads(placed_path.read_text())
+    record = data["object"]["placement"]
+    assert set(record) >= {"status", "method", "date", "nominal_mesh_to_turntable", "photographs", "residual_px",
+                           "se_shift_mm", "se_rotation_deg", "offset_shift_mm", "offset_turn_deg"}  # fmt: skip
