@@ -48,6 +48,7 @@ def test_the_report_opens_offline_with_its_images_and_tables(tmp_path):
     assert f'data-images-loaded="{images}"' in dom  # every embedded image decoded
     assert dom.count("<table") >= 3  # materials, plan, runs
     assert "PSNR" in dom
+    assert "assumed: the object is taken to lie exactly where the plan puts it" in text  # never registered
 
     png = tmp_path / "report.png"
     screenshot(page, png)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+from importlib import resources
 
 import numpy as np
 import pytest
@@ -15,7 +16,12 @@ import trimesh
 
 from hlr_lab.cli.main import main
 from hlr_lab.formats.plan import read_plan
-from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable, planned_segmentation
+from hlr_lab.formats.planned_object import (
+    load_planned_mesh,
+    mesh_to_turntable,
+    placement_line,
+    planned_segmentation,
+)
 from hlr_lab.instrument.motion import motion_targets
 from hlr_lab.placement.pose import rotation_error_deg, vertex_errors_mm
 from hlr_lab.rig.file import sim_rig
@@ -136,3 +142,27 @@ def test_the_placement_record_is_in_the_plan_file(registered):
     record = data["object"]["placement"]
     assert set(record) >= {"status", "method", "date", "nominal_mesh_to_turntable", "photographs", "residual_px",
                            "se_shift_mm", "se_rotation_deg", "offset_shift_mm", "offset_turn_deg"}  # fmt: skip
+
+
+def test_acquire_on_a_rig_warns_once_when_the_placement_was_never_measured(registered, tmp_path, capsys):
+    """On a rig file (a real bench), a plan whose placement was never measured says so before anything
+    moves; a registered plan does not, and neither does the simulated rig, whose object lies as planned."""
+    plan_path, placed_path, _ = registered
+    rig = tmp_path / "rig.toml"
+    rig.write_text((resources.files("hlr_lab.data") / "sim-rig.toml").read_text())
+    assert main(["acquire", "--plan", str(plan_path), "--rig", str(rig), "--dry-run"]) == 0
+    printed = " ".join(capsys.readouterr().err.split())  # rich wraps the line to the terminal's width
+    assert printed.count("placement assumed: the object is taken to lie exactly where the plan puts it") == 1
+    assert main(["acquire", "--plan", str(placed_path), "--rig", str(rig), "--dry-run"]) == 0
+    assert main(["acquire", "--plan", str(plan_path), "--sim", "--dry-run"]) == 0
+    assert "assumed" not in capsys.readouterr().err
+
+
+def test_the_placement_line_says_how_the_plan_knows_where_the_object_lies(registered):
+    plan_path, placed_path, _ = registered
+    assert placement_line(read_plan(plan_path)).startswith("assumed: ")
+    line = placement_line(read_plan(placed_path))
+    assert re.match(
+        r"measured \S+ by outlines \(outline 0\.\d\d px RMS\): 14\.\d mm and -1(59\.[5-9]|60\.[0-4])° from",
+        line,
+    ), line

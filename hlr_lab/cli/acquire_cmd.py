@@ -21,7 +21,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.display.acquire import motion_table, pose_progress, run_table
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan
-from hlr_lab.formats.planned_object import load_planned_mesh
+from hlr_lab.formats.planned_object import load_planned_mesh, placement_line
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
@@ -97,6 +97,8 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
     rig = believed_rig(rig_path, sim, true_rig)
     plan = read_plan(plan_path)
     targets = motion_targets(plan, rig, plan_path)
+    if not sim and plan.object.placement is None:  # the simulated world lies as planned unless told
+        console.print(f"[bold yellow]placement {escape(placement_line(plan))}[/]", soft_wrap=True)
     console.print(motion_table(plan, targets))
     if dry_run:
         load_planned_mesh(plan, plan_path)  # the object the run would load: a mesh that changed is said now

@@ -70,6 +70,24 @@ def nominal_placement(plan: PlanFile) -> np.ndarray:
     return np.array(record.nominal_mesh_to_turntable, dtype=np.float64)
 
 
+def placement_line(plan: PlanFile) -> str:
+    """One line saying how the plan knows where its object lies: measured (when, how well, how far from
+    where it was assumed), measured with its turn ambiguous (why), or assumed."""
+    r = plan.object.placement
+    if r is None or r.status == "assumed":
+        return (
+            "assumed: the object is taken to lie exactly where the plan puts it (its placement was never "
+            "measured: hlr-lab register measures it)"
+        )
+    shift = r.offset_shift_mm or [0.0, 0.0, 0.0]
+    measured = (
+        f"measured {r.date} by {r.method} (outline {r.residual_px or 0:.2f} px RMS): "
+        f"{float(np.hypot(shift[0], shift[1])):.1f} mm and {r.offset_turn_deg or 0:+.1f}° from where the plan "
+        "first put it"
+    )
+    return measured if r.status == "measured" else f"{measured}; its turn is ambiguous: {r.why}"
+
+
 def planned_segmentation(plan: PlanFile, mesh: ColouredMesh) -> Segmentation:
     """The plan's regions on ``mesh`` as the planner takes them: each face's region
     (:func:`face_regions`), each vertex's the region of a face it belongs to, the regions' records as the

@@ -16,6 +16,7 @@ from hlr_lab import __version__
 from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_text
 from hlr_lab.formats.materials import MaterialsFile, read_materials
+from hlr_lab.formats.planned_object import placement_line
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
@@ -112,6 +113,7 @@ def _meta(session: Session) -> str:
         ["session", h.escape(session.path)],
         ["plan", h.escape(_plan_source(session))],
         ["object", h.escape(session.plan.object.mesh)],
+        ["placement", h.escape(placement_line(session.plan))],
         ["rig", h.escape(session.rig.name)],
         ["started", started],
         ["report by", f"hlr-lab {h.escape(__version__)}"],
