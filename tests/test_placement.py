@@ -136,7 +136,7 @@ def test_object_offset_is_for_the_simulated_world_and_three_numbers(builtin_plan
 def test_the_signed_distance_is_zero_on_a_disks_border():
     """A disk drawn by its pixel centres: the signed distance on the true circle is within the ±0.5 px the
     pixels quantise it to, about zero on average, negative inside and positive outside."""
-    from hlr_lab.placement.solve import signed_distance
+    from hlr_lab.geometry.silhouette import signed_distance
 
     centre, radius = np.array([50.2, 47.7]), 20.3
     ys, xs = np.mgrid[0:100, 0:100]

@@ -12,24 +12,15 @@ from rich.table import Table
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.reflectance.session_fit import MATERIALS
+from sim.render.scene import Material
 from worlds.plan_world import scene_file_object, sim_scene
 
 
 def truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, session: Path) -> Table:
     """Fitted against true per region, errors in per cent; a plan region takes the true material of the
     scene region whose colour is nearest (the default world: one material per plan region)."""
-    scene = sim_scene(plan, plan_path, scene_path)
     fitted = {e.id: e for e in read_materials(session / MATERIALS).regions}
-    if scene_path is None:
-        truth = dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))
-    else:
-        scene_regions = scene_file_object(scene_path).region_colours
-        truth = {
-            r.id: scene.materials[
-                int(np.argmin([np.sum((np.array(c) - r.color) ** 2) for c in scene_regions]))
-            ]
-            for r in plan.object.regions
-        }
+    truth = true_materials(plan, plan_path, scene_path)
     t = Table(title="fitted against the simulated truth", title_justify="left")
     for column in ("region", "Rd fitted", "Rd true", "Rd err %", "Rs err %", "n fitted (true)", "n err %"):
         t.add_column(column, justify="right")
@@ -49,6 +40,38 @@ def truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, sessio
             row += ["unmeasured", f"— ({true.n:g})", ""]
         t.add_row(*row)
     return t
+
+
+def true_materials(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> dict[int, Material]:
+    """Each plan region's true material: the scene region's whose colour is nearest (the default world: one
+    material per plan region)."""
+    scene = sim_scene(plan, plan_path, scene_path)
+    if scene_path is None:
+        return dict(zip((r.id for r in plan.object.regions), scene.materials, strict=True))
+    scene_regions = scene_file_object(scene_path).region_colours
+    return {
+        r.id: scene.materials[int(np.argmin([np.sum((np.array(c) - r.color) ** 2) for c in scene_regions]))]
+        for r in plan.object.regions
+    }
+
+
+def worst_errors_pct(
+    plan: PlanFile, plan_path: Path, scene_path: Path | None, session: Path
+) -> dict[str, float]:
+    """The worst region's error (per cent) of Rd, Rs and n fitted in ``session`` against the truth; NaN for a
+    parameter no region measured."""
+    fitted = {e.id: e for e in read_materials(session / MATERIALS).regions}
+    worst = {"rd": float("nan"), "rs": float("nan"), "n": float("nan")}
+    for rid, true in true_materials(plan, plan_path, scene_path).items():
+        e = fitted.get(rid)
+        if e is None:
+            continue
+        errors = {"rd": relative_error_pct(np.array(e.rd), np.array(true.rd))}
+        if e.specular == "measured" and e.rs is not None and e.n is not None:
+            errors["rs"] = relative_error_pct(np.array(e.rs), np.array(true.rs))
+            errors["n"] = 100 * abs(e.n - true.n) / true.n
+        worst.update({k: float(np.nanmax([worst[k], v])) for k, v in errors.items()})
+    return worst
 
 
 def _v(a: NDArray[np.float64]) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from pathlib import Path
 
 import click
 from rich.markup import escape
@@ -18,6 +19,7 @@ from hlr_lab.cli.common import (
     warm_up_options,
 )
 from hlr_lab.cli.console import console
+from hlr_lab.cli.register_cmd import show_registered
 from hlr_lab.display.acquire import motion_table, pose_progress, run_table
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import read_plan
@@ -25,7 +27,12 @@ from hlr_lab.formats.planned_object import load_planned_mesh, placement_line
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
+from hlr_lab.placement.photographs import registration_lamps
+from hlr_lab.registration import register_plan
+from hlr_lab.registration.capture import VIEWS
+from hlr_lab.rig.file import Rig
 from hlr_lab.session.lamp import LampWatch
+from hlr_lab.session.metadata import SESSION
 
 
 @click.command("acquire")
@@ -67,11 +74,18 @@ from hlr_lab.session.lamp import LampWatch
     "white reference lies beside the object (run_place_m) watches it in every pose without this.",
 )
 @warm_up_options("Before the first pose", "; a resumed run does not wait again")
+@click.option(
+    "--register",
+    "register_first",
+    is_flag=True,
+    help="First measure where the object lies (hlr-lab register: photographs in SESSION-registration, the "
+    "plan made again for it in SESSION-placed.json), then run that plan. A resumed session keeps its plan.",
+)
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
 def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every,
-                warm_up_min, warm_up_within, dry_run, force, speed_factor):  # fmt: skip
+                warm_up_min, warm_up_within, register_first, dry_run, force, speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
@@ -90,32 +104,43 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
       hlr-lab acquire --plan plan.json --sim --true-rig builtin:bench-offsets   # a rig off its drawing
       hlr-lab acquire --plan plan.json --sim --object-offset 2,-1.5,3   # the object not where planned
       hlr-lab acquire --plan plan.json --rig rig.toml --warm-up 30 --lamp-every 5   # overnight
+      hlr-lab acquire --plan plan.json --rig rig.toml --register --out sessions/bunny-2   # placed by hand
     """
     for given, option in ((scene_path, "--scene"), (object_offset, "--object-offset")):
         if given is not None and not sim:
             raise InputError("describes the simulated world: use it with --sim", field=option)
-    rig = believed_rig(rig_path, sim, true_rig)
-    plan = read_plan(plan_path)
-    targets = motion_targets(plan, rig, plan_path)
-    if not sim and plan.object.placement is None:  # the simulated world lies as planned unless told
-        console.print(f"[bold yellow]placement {escape(placement_line(plan))}[/]", soft_wrap=True)
-    console.print(motion_table(plan, targets))
-    if dry_run:
-        load_planned_mesh(plan, plan_path)  # the object the run would load: a mesh that changed is said now
-        frames = sum(len(p.exposures_s) for p in plan.poses)
-        duration = estimate_duration_s(plan, targets, rig)
-        console.print(
-            f"{len(targets)} poses, {frames} frames: within limits; about {duration:.0f} s on this rig"
+    if register_first and dry_run:
+        raise InputError(
+            "a dry run moves nothing, so it cannot register: leave out one of them", field="--register"
         )
-        return
+    rig = believed_rig(rig_path, sim, true_rig)
     session = out or plan_path.with_name(f"{plan_path.stem}-session")
     with contextlib.ExitStack() as stack:  # the simulated world, when there is one, outlives the run
         links = Links()
-        if sim:  # the simulator is reached only from the command line (the composition root)
+        if sim and not dry_run:  # the simulator is reached only from the command line (the composition root)
             from worlds.plan_world import ObjectOffset, sim_links
 
             offset = None if object_offset is None else ObjectOffset.from_option(object_offset)
-            links = sim_links(stack, rig, plan, plan_path, scene_path, true_rig, speed_factor, offset)
+            links = sim_links(
+                stack, rig, read_plan(plan_path), plan_path, scene_path, true_rig, speed_factor, offset
+            )
+        if register_first:
+            plan_path = _registered(plan_path, rig, session, links)
+        plan = read_plan(plan_path)
+        targets = motion_targets(plan, rig, plan_path)
+        if not sim and plan.object.placement is None:  # the simulated world lies as planned unless told
+            console.print(f"[bold yellow]placement {escape(placement_line(plan))}[/]", soft_wrap=True)
+        console.print(motion_table(plan, targets))
+        if dry_run:
+            load_planned_mesh(
+                plan, plan_path
+            )  # the object the run would load: a mesh that changed is said now
+            frames = sum(len(p.exposures_s) for p in plan.poses)
+            duration = estimate_duration_s(plan, targets, rig)
+            console.print(
+                f"{len(targets)} poses, {frames} frames: within limits; about {duration:.0f} s on this rig"
+            )
+            return
         with pose_progress(console, len(targets)) as show:
             outcome = acquire_plan(
                 plan_path,
@@ -138,3 +163,27 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
     # the last line: what the devices confirmed (a run that stops says it in its error)
     if outcome.safe is not None:
         console.print(f"the rig is safe: {escape(outcome.safe.sentence())}", soft_wrap=True)
+
+
+def _registered(plan_path: Path, rig: Rig, session: Path, links: Links) -> Path:
+    """``--register``: the placed plan beside the session — measured now, or, when the session was started
+    already, the one it was started with (the object has not been moved since, or the session's frames
+    would not be one object's)."""
+    placed = session.with_name(f"{session.name}-placed.json")
+    if (session / SESSION).exists():
+        if not placed.is_file():
+            raise InputError(
+                f"this session was started without --register (there is no {placed.name}): resume it without "
+                "--register, or give a new --out",
+                path=session,
+            )
+        console.print(f"resuming with the placement measured before: {escape(str(placed))}")
+        return placed
+    photographs = session.with_name(f"{session.name}-registration")
+    with pose_progress(console, VIEWS * len(registration_lamps(rig))) as show:
+        done = register_plan(plan_path, rig, photographs, placed, links=links, on_step=show,
+                             progress=lambda what: console.print(escape(what)))  # fmt: skip
+    show_registered(done)
+    if done.uncovered:
+        console.print("[yellow]acquiring anyway: the regions above get fewer samples than the plan asked[/]")
+    return placed

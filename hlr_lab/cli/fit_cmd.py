@@ -102,6 +102,10 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
         console.print(f"[yellow]systematic:[/] {escape(systematic.uncalibrated)}", soft_wrap=True)
     if "warning" in result.diagnostics["black_level"]:
         console.print(f"[yellow]warning:[/] {escape(result.diagnostics['black_level']['warning'])}")
+    if "warning" in result.diagnostics["alignment"]:
+        console.print(
+            f"[bold red]misplaced:[/] {escape(result.diagnostics['alignment']['warning'])}", soft_wrap=True
+        )
     for d in result.diagnostics["regions"]:
         if "note" in d:
             console.print(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")

@@ -36,3 +36,11 @@ def object_window(
         size = 2 * margin_px + 1
         window = cv2.dilate(window, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
     return window.astype(bool)
+
+
+def signed_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float32: each pixel's distance (px) to the border of ``mask`` (H, W) bool, negative inside,
+    zero half a pixel beyond the last pixel in (where a pixel the object half covers has its edge)."""
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(mask, 0.5 - inside, outside - 0.5).astype(np.float32)

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from hlr_lab.errors import PlacementError
 from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.silhouette import signed_distance
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface, RayCaster
@@ -80,14 +81,6 @@ def turn_angles(params: np.ndarray) -> tuple[float, float]:
     yaw = np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))
     tilt = np.degrees(np.arccos(np.clip(turn[2, 2], -1.0, 1.0)))
     return float(yaw), float(tilt)
-
-
-def signed_distance(mask: np.ndarray) -> np.ndarray:
-    """(H, W) float32: each pixel's distance (px) to the border of ``mask`` (H, W) bool, negative inside,
-    zero half a pixel beyond the last pixel in (where a pixel the object half covers has its edge)."""
-    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return np.where(mask, 0.5 - inside, outside - 0.5).astype(np.float32)
 
 
 def view_camera(camera: Camera, turntable_deg: float) -> Camera:

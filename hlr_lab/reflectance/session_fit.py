@@ -44,15 +44,18 @@ from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.geometry.silhouette import object_window
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
+from hlr_lab.reflectance.alignment import PoseAlignment, pose_alignment
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, exposure_agreement, merge_bracket
 from hlr_lab.reflectance.systematic import RigTerm, rig_terms
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
+    PixelGeometry,
     PoseGeometry,
     PoseSamples,
     Selection,
     StageTimes,
     light_terms_again,
+    pose_geometry,
     pose_samples,
 )
 from hlr_lab.rig.file import Rig, rig_of_snapshot
@@ -391,14 +394,19 @@ def fit_session(
     pooled: dict[int, _Pooled] = defaultdict(_Pooled)
     times = StageTimes()
     offsets: list[float] = []  # the black level's error each bracket implies (DN)
+    alignment: list[PoseAlignment] = []  # is the object where the plan says, pose by pose
     for i, view in enumerate(session.views):
         progress(FitStep("poses", i, len(session.views), f"pose {view.pose}: HDR, geometry, selection"))
         with times("hdr"):
             radiance = view_radiance(session, view, mesh)
         offsets += [radiance.agreement[0].black_offset_dn] if radiance.agreement else []
-        samples = pose_samples(
-            plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection, times
+        geometry = pose_geometry(
+            plan, mesh, caster, rig.camera, view_pose(session, view), radiance.usable, times
         )
+        samples = pose_samples(plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection,
+                               times, geometry)  # fmt: skip
+        with times("alignment"):
+            alignment.append(_alignment(session, view, geometry, radiance))
         for rid in np.unique(samples.region):
             pooled[int(rid)].add(i, view.pose, samples, samples.region == rid)
     if pooled and not any(p.any_light() for p in pooled.values()):
@@ -410,7 +418,8 @@ def fit_session(
 
     entries: list[MaterialEntry] = []
     diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": [],
-                         "black_level": black_level_check(offsets, rig.file.sensor.black_level_dn)}  # fmt: skip
+                         "black_level": black_level_check(offsets, rig.file.sensor.black_level_dn),
+                         "alignment": alignment_record(alignment, plan)}  # fmt: skip
     fits: dict[int, RegionFit] = {}
     responds: dict[int, Respond] = {}
     for i, region in enumerate(plan.object.regions):
@@ -458,6 +467,41 @@ def fit_session(
             {**materials.model_dump(exclude_none=True), "incomplete": session.gaps.as_record()}
         )
     return FitResult(materials, diagnostics, fits, dict(times))
+
+
+def _alignment(session: Session, view: View, geometry: PixelGeometry, radiance: Radiance) -> PoseAlignment:
+    """The pose's check of the object's placement (:mod:`.alignment`) on its own photograph."""
+    sensor = session.rig.file.sensor
+    longest = max(float(s["exposure_s"]) * 10 ** (float(s["gain_db"]) / 20) for s in view.sidecars.values())
+    noise = sensor.read_noise_dn / (sensor.sensitivity * longest)
+    cos_alpha = np.zeros(geometry.labels.shape)
+    xs, ys = geometry.pixel[:, 0], geometry.pixel[:, 1]
+    cos_alpha[ys, xs] = np.where(geometry.lit, geometry.cos_alpha, 0.0)
+    return pose_alignment(view.pose, geometry.labels, cos_alpha, radiance.value, radiance.usable, noise)
+
+
+def alignment_record(poses: list[PoseAlignment], plan: PlanFile) -> dict:
+    """``fit-diagnostics.json``'s ``alignment``: each pose's check, the poses flagged and, when some are,
+    what to do (docs/placement.md)."""
+    flagged = [p.pose for p in poses if p.flagged]
+    record: dict = {"poses": [p.as_record() for p in poses], "flagged": flagged,
+                    "placement": plan.object.placement.status if plan.object.placement else "assumed"}  # fmt: skip
+    if flagged:
+        shifts = [
+            m.shift_px
+            for p in poses
+            if p.flagged
+            for m in (p.outline, p.borders)
+            if m is not None and m.moved
+        ]
+        worst = max(shifts, key=lambda s: np.hypot(*s))
+        record["warning"] = (
+            f"the photographs of {len(flagged)} of {len(poses)} poses ({', '.join(flagged[:5])}) fit the placed mesh's "
+            f"outline and region borders better moved (by up to {np.hypot(*worst):.0f} px) than where the plan puts "
+            "it: the object is not where the plan says — run hlr-lab register and acquire the placed plan; these "
+            "materials are not to be trusted"
+        )
+    return record
 
 
 def black_level_check(offsets: list[float], assumed_dn: float) -> dict:

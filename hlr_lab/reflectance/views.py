@@ -310,13 +310,15 @@ def pose_samples(
     radiance: Radiance,
     selection: Selection = DEFAULT_SELECTION,
     timer: StageTimes | None = None,
+    geometry: PixelGeometry | None = None,
 ) -> PoseSamples:
     """The pose's samples: lit, visible, not grazing, usable radiance, away from borders.
 
     timer: adds the seconds of the "g-buffer", "shadows", "footprint" and "selection" stages.
+    geometry: the pose's :func:`pose_geometry`, when the caller has it already.
     """
     timer = timer if timer is not None else StageTimes()
-    g = pose_geometry(plan, mesh, caster, camera, pose, radiance.usable, timer)
+    g = geometry or pose_geometry(plan, mesh, caster, camera, pose, radiance.usable, timer)
     with timer("selection"):
         keep = selected(g, selection)
         pixel = g.pixel[keep]

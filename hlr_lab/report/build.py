@@ -68,6 +68,7 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
     poses_html = _poses(session, materials, figures, progress)
     body = [
         f"<h1>hlr-lab report: {h.escape(session.path.name)}</h1>",
+        _misplaced(diagnostics),
         _meta(session),
         "<h2>Materials</h2>",
         _materials(session, materials, diagnostics),
@@ -93,6 +94,15 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
         f"<body>{''.join(body)}{LOAD_CHECK}</body></html>"
     )
     return page, figures
+
+
+def _misplaced(diagnostics: dict) -> str:
+    """The fit's finding that the object is not where the plan says (fit-diagnostics.json's ``alignment``),
+    at the top of the page: nothing below it is to be trusted; empty when the photographs fit."""
+    warning = diagnostics.get("alignment", {}).get("warning")
+    if not warning:
+        return ""
+    return f'<p class="misplaced"><strong>Misplaced object.</strong> {h.escape(warning)}</p>'
 
 
 def _plan_source(session: Session) -> str:

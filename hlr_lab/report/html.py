@@ -17,6 +17,7 @@ th { background: #f3f3f3; } td.num { text-align: right; font-variant-numeric: ta
 .swatch { display: inline-block; width: 1.2em; height: 1.2em; border: 1px solid #888; vertical-align: middle; }
 figure { display: inline-block; margin: .4em; text-align: center; } figcaption { font-size: .9em; color: #555; }
 .charts svg { margin: .4em; border: 1px solid #eee; } .note { color: #666; }
+.misplaced { background: #fde8e6; border: 1px solid #d9534f; padding: .6em 1em; }
 """
 
 
