@@ -9,6 +9,7 @@ every mesh vertex's distance from where it really lies (RMS and worst, mm) and t
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -21,15 +22,18 @@ from scipy.spatial.transform import Rotation
 from benchmarks.materials import BENCH_OBJECTS, bench_mesh
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable
+from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface
 from hlr_lab.object.segment import segment
-from hlr_lab.pipeline import plan_object
+from hlr_lab.pipeline import acquire_plan, fit_into, plan_object
 from hlr_lab.placement.photographs import ObservedView, observe, registration_lamps
 from hlr_lab.placement.pose import PlacementFrame, rotation_error_deg, vertex_errors_mm
 from hlr_lab.placement.solve import Outlines, Registration, register, turn_by_colours
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings
+from hlr_lab.registration import register_plan
+from hlr_lab.registration.capture import REGISTRATION_PLAN
 from hlr_lab.rig.file import Rig
 from sim.render.scene import Material, SceneSpec
 from worlds.placement_views import photograph_views
@@ -253,3 +257,78 @@ def cylinder_line(r: CylinderFigures) -> str:
         f"cylinder {r.placed.label():33s} outline: {said}; colours: rotation {r.yaw_error_deg:.3f}° "
         f"(stated ± {r.stated_deg:.3f}°), vertices {r.rms_mm:.3f} mm RMS; solve {r.solve_s:.1f} s"
     )
+
+
+END_TO_END = Placed(12, -8, 200)  # off the axis and turned: no tilt (the world's --object-offset has none)
+
+
+@dataclass(frozen=True)
+class EndToEndFigures:
+    """``hlr-lab register`` run on the simulated rig with the object moved, then the placed plan acquired and
+    fitted there, beside the plan acquired unregistered: the worst region's errors (per cent) of each, and
+    the registration's rig time (estimated, s) and wall time (s, the simulator rendering the frames)."""
+
+    object: str
+    placed: Placed
+    registered: dict[str, float]
+    unregistered: dict[str, float]
+    rig_s: float
+    wall_s: float
+    flagged_registered: int
+    flagged_unregistered: int
+
+
+def end_to_end_case(
+    name: str, plan_path: Path, rig: Rig, folder: Path, placed: Placed = END_TO_END
+) -> EndToEndFigures:
+    """Register ``plan_path``'s object lying as ``placed`` says (through the real drivers on the simulated
+    rig), acquire and fit the placed plan, and the plan as it was, in the same world; compare with the truth."""
+    from worlds.plan_world import ObjectOffset, sim_links
+    from worlds.truth import worst_errors_pct
+
+    plan = read_plan(plan_path)
+    offset = ObjectOffset(placed.dx_mm / 1000, placed.dy_mm / 1000, placed.yaw_deg)
+    with contextlib.ExitStack() as stack:
+        links = sim_links(stack, rig, plan, plan_path, None, None, 20.0, offset)
+        started = time.perf_counter()
+        done = register_plan(
+            plan_path, rig, folder / f"{name}-photographs", folder / f"{name}-placed.json", links=links
+        )
+        wall = time.perf_counter() - started
+        figures = {}
+        for label, path in (("registered", done.output), ("unregistered", plan_path)):
+            session = folder / f"{name}-{label}"
+            acquire_plan(path, rig, session, links=links)
+            fit = fit_into(session, systematic=False)
+            figures[label] = (worst_errors_pct(read_plan(path), path, None, session),
+                              len(fit.diagnostics["alignment"]["flagged"]))  # fmt: skip
+    registration = read_plan(done.folder / REGISTRATION_PLAN)
+    rig_s = estimate_duration_s(registration, motion_targets(registration, rig), rig)
+    return EndToEndFigures(name, placed, figures["registered"][0], figures["unregistered"][0], rig_s, wall,
+                           figures["registered"][1], figures["unregistered"][1])  # fmt: skip
+
+
+def end_to_end_line(r: EndToEndFigures) -> str:
+    def worst(e: dict[str, float]) -> str:
+        return f"Rd {e['rd']:.2f} %, Rs {e['rs']:.2f} %, n {e['n']:.2f} %"
+
+    return (
+        f"{r.object:7s} {r.placed.label():22s} registered: {worst(r.registered)} ({r.flagged_registered} poses "
+        f"flagged); unregistered: {worst(r.unregistered)} ({r.flagged_unregistered} flagged); registration "
+        f"{r.rig_s:.0f} s of rig time, {r.wall_s:.0f} s wall"
+    )
+
+
+def end_to_end_bench(
+    folder: Path,
+    rig: Rig,
+    *,
+    objects: tuple[str, ...],
+    done: Callable[[EndToEndFigures], None] = lambda _: None,
+) -> list[EndToEndFigures]:
+    """:func:`end_to_end_case` for each of ``objects``, on the plans :func:`register_bench` left in ``folder``."""
+    results = []
+    for name in objects:
+        results.append(end_to_end_case(name, folder / f"{name}-plan.json", rig, folder))
+        done(results[-1])
+    return results
