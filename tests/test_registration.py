@@ -32,15 +32,16 @@ OFFSET = (12.0, -8.0, 200.0)  # mm, mm, degrees: well off the axis, turned more 
 
 @pytest.fixture(scope="module")
 def registered(builtin_plan, tmp_path_factory):
-    """The pebble registered where it lies, 12, −8 mm off and turned 200°: (plan, placed plan, photographs)."""
+    """The pebble 12, −8 mm off and turned 200°, acquired with ``--register``: registered where it lies,
+    the placed plan run: (plan, placed plan, photographs, session)."""
     require_renderer()
     folder = tmp_path_factory.mktemp("register")
-    placed, photos = folder / "placed.json", folder / "photos"
+    session = folder / "s"
     offset = ",".join(f"{v:g}" for v in OFFSET)
-    command = ["register", "--plan", str(builtin_plan), "--sim", "--object-offset", offset, "--speed-factor", "50",
-               "-o", str(placed), "--out", str(photos)]  # fmt: skip
+    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--object-offset", offset, "--register", "--out",
+               str(session), "--speed-factor", "50"]  # fmt: skip
     assert main(command) == 0
-    return builtin_plan, placed, photos
+    return builtin_plan, folder / "s-placed.json", folder / "s-registration", session
 
 
 def _truth(plan_path):
@@ -55,7 +56,7 @@ def test_register_measures_where_the_object_lies_and_plans_again_for_it(register
     (the pebble is nearly round about its axis: its turn is its least certain number; bench register's
     figures for the bunny and Spot hold the 0.15° target), the record saying so within its errors, and a
     plan made for the measured placement that the rig can run."""
-    plan_path, placed_path, photos = registered
+    plan_path, placed_path, photos, _ = registered
     placed = read_plan(placed_path)
     truth = _truth(plan_path)
     found = mesh_to_turntable(placed)
@@ -84,7 +85,7 @@ def test_register_measures_where_the_object_lies_and_plans_again_for_it(register
 
 
 def test_the_summary_page_shows_every_view_with_the_registered_outline(registered):
-    _, _, photos = registered
+    _, _, photos, _ = registered
     page = (photos / "summary.html").read_text()
     assert page.count("<figure>") == 6
     assert len(re.findall(r"<figcaption>turntable -?\d+°: outline \d+\.\d\d px RMS", page)) == 6
@@ -93,7 +94,7 @@ def test_the_summary_page_shows_every_view_with_the_registered_outline(registere
 
 def test_register_solves_again_from_its_photographs_without_the_rig(registered, tmp_path):
     """--from: the same placement from the kept photographs alone (no simulated world started)."""
-    plan_path, placed_path, photos = registered
+    plan_path, placed_path, photos, _ = registered
     again = tmp_path / "again.json"
     assert main(["register", "--plan", str(plan_path), "--sim", "--from", str(photos), "-o", str(again)]) == 0
     assert np.allclose(
@@ -104,7 +105,7 @@ def test_register_solves_again_from_its_photographs_without_the_rig(registered, 
 def test_photographs_of_another_object_or_plan_are_refused(registered, tmp_path, capsys):
     """Photographs of another object (--from), and a folder of another registration (--out), are refused
     naming the folder, and no placed plan is written."""
-    _, _, photos = registered
+    _, _, photos, _ = registered
     box = trimesh.creation.box((0.05, 0.04, 0.03))
     colours = np.tile([200, 60, 40, 255], (len(box.vertices), 1)).astype(np.uint8)
     mesh_path = tmp_path / "box.ply"
@@ -137,7 +138,7 @@ def test_a_plans_regions_become_the_planners_segmentation(builtin_plan):
 
 
 def test_the_placement_record_is_in_the_plan_file(registered):
-    _, placed_path, _ = registered
+    _, placed_path, _, _ = registered
     data = json.loads(placed_path.read_text())
     record = data["object"]["placement"]
     assert set(record) >= {"status", "method", "date", "nominal_mesh_to_turntable", "photographs", "residual_px",
@@ -147,7 +148,7 @@ def test_the_placement_record_is_in_the_plan_file(registered):
 def test_acquire_on_a_rig_warns_once_when_the_placement_was_never_measured(registered, tmp_path, capsys):
     """On a rig file (a real bench), a plan whose placement was never measured says so before anything
     moves; a registered plan does not, and neither does the simulated rig, whose object lies as planned."""
-    plan_path, placed_path, _ = registered
+    plan_path, placed_path, _, _ = registered
     rig = tmp_path / "rig.toml"
     rig.write_text((resources.files("hlr_lab.data") / "sim-rig.toml").read_text())
     assert main(["acquire", "--plan", str(plan_path), "--rig", str(rig), "--dry-run"]) == 0
@@ -159,7 +160,7 @@ def test_acquire_on_a_rig_warns_once_when_the_placement_was_never_measured(regis
 
 
 def test_the_placement_line_says_how_the_plan_knows_where_the_object_lies(registered):
-    plan_path, placed_path, _ = registered
+    plan_path, placed_path, _, _ = registered
     assert placement_line(read_plan(plan_path)).startswith("assumed: ")
     line = placement_line(read_plan(placed_path))
     assert re.match(
@@ -188,17 +189,14 @@ def test_a_misplaced_object_is_flagged_by_fit_and_at_the_top_of_the_report(built
     assert page.index('class="misplaced"') < page.index("<h2>Materials</h2>")
 
 
-def test_the_placed_plan_in_the_moved_world_fits_the_truth_and_is_not_flagged(registered, tmp_path):
-    """End to end: the registered plan acquired in the world whose object lies 12, −8 mm off and turned
-    200°, then fitted: every region within the issue's targets (Rd 1 %, Rs 3 %, n 3 %; the pebble
-    2.5 mm off without registration: 8.7, 18, 38 %), and no pose flagged."""
+def test_the_placed_plan_in_the_moved_world_fits_the_truth_and_is_not_flagged(registered):
+    """End to end: ``acquire --register`` in the world whose object lies 12, −8 mm off and turned 200°, then
+    fit: every region within the issue's targets (Rd 1 %, Rs 3 %, n 3 %; the pebble 2.5 mm off without
+    registration: 8.7, 18, 38 %), and no pose flagged."""
     from worlds.truth import worst_errors_pct
 
-    _, placed_path, _ = registered
-    session = tmp_path / "s"
-    offset = ",".join(f"{v:g}" for v in OFFSET)
-    assert main(["acquire", "--plan", str(placed_path), "--sim", "--object-offset", offset, "--out",
-                 str(session), "--speed-factor", "50"]) == 0  # fmt: skip
+    _, placed_path, _, session = registered
+    assert json.loads((session / "session.json").read_text())["plan"]["path"] == str(placed_path.resolve())
     assert main(["fit", str(session), "--no-systematic"]) == 0
     alignment = json.loads((session / "fit-diagnostics.json").read_text())["alignment"]
     assert alignment["flagged"] == []
@@ -207,3 +205,38 @@ def test_the_placed_plan_in_the_moved_world_fits_the_truth_and_is_not_flagged(re
     assert worst["rd"] <= 1.0, worst
     assert worst["rs"] <= 3.0, worst
     assert worst["n"] <= 3.0, worst
+
+
+def test_a_campaign_job_that_registers_resumes_with_its_placed_plan(registered, tmp_path):
+    """register = true in a campaign: a session started registered resumes with the placed plan beside it,
+    without photographing the object again, and is fitted and reported (the first night's registration is
+    the command's: :func:`hlr_lab.registration.register_for_session`, the fixture's ``acquire --register``)."""
+    from hlr_lab.campaign.runner import load_campaign, run_campaign
+    from worlds.plan_world import job_links
+
+    _, placed_path, photos, session = registered
+    for source, name in ((session, "s0"), (photos, "s0-registration")):
+        shutil.copytree(source, tmp_path / name)
+    shutil.copy(placed_path, tmp_path / "s0-placed.json")
+    frames = sorted((tmp_path / "s0-registration" / "frames").iterdir())
+    night = tmp_path / "night.toml"
+    night.write_text('[campaign]\nname = "n"\n[[job]]\nname = "j0"\nplan = "plan.json"\nout = "s0"\nsim = true\n'
+                     "speed_factor = 50\nregister = true\n")  # fmt: skip
+    shutil.copy(registered[0], tmp_path / "plan.json")
+    results = run_campaign(load_campaign(night), links_for=job_links, calibrate=lambda job: None)
+    assert [(r.name, r.status) for r in results] == [("j0", "done")], results
+    assert sorted((tmp_path / "s0-registration" / "frames").iterdir()) == frames
+    assert (tmp_path / "s0" / "report.html").is_file()
+
+
+def test_acquire_register_refuses_a_dry_run_and_a_session_started_unregistered(
+    finished_session, tmp_path, capsys
+):
+    session = tmp_path / "session"
+    shutil.copytree(finished_session, session)
+    plan = json.loads((session / "session.json").read_text())["plan"]["path"]
+    assert main(["acquire", "--plan", plan, "--sim", "--register", "--dry-run"]) == 1
+    assert "a dry run moves nothing, so it cannot register" in capsys.readouterr().err
+    assert main(["acquire", "--plan", plan, "--sim", "--register", "--out", str(session)]) == 1
+    assert "started without registering" in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "session-registration").exists()

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, Field
+from pydantic import AfterValidator, ConfigDict, Field
 
 from drivers.errors import DeviceError
 from hlr_lab.acquisition.poses import AxisMoved, Step
@@ -77,6 +77,9 @@ JobName = Annotated[str, AfterValidator(_a_job_name)]
 class AcquireJob(StrictModel):
     """A plan run on a rig into a session, then fitted and reported."""
 
+    model_config = ConfigDict(
+        populate_by_name=True
+    )  # with StrictModel's: register_first read as register too
     kind: Literal["acquire"] = "acquire"
     name: JobName
     plan: FilePath
@@ -89,6 +92,9 @@ class AcquireJob(StrictModel):
     warm_up_min: float = Field(default=0.0, ge=0, le=600)
     warm_up_within: float = Field(default=0.2, ge=0.01, le=10)  # per cent per minute
     lamp_every: int = Field(default=0, ge=0, le=10_000)
+    # ``register = true``: first measure where the object lies and run the plan made for it (OUT-placed.json);
+    # named otherwise here, as pydantic's models have a ``register`` of their own
+    register_first: bool = Field(default=False, alias="register")
 
 
 class CalibrateJob(StrictModel):
@@ -407,6 +413,7 @@ ATTEMPTS = 2  # a job stopped by a device fault is run once more (a new connecti
 
 def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult:
     from hlr_lab.pipeline import acquire_plan, fit_into, report_into
+    from hlr_lab.registration import register_for_session
 
     rig = job_rig(job)
     watch = LampWatch(
@@ -417,6 +424,18 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
             links = links_for(job, world)
         except HlrLabError as exc:  # its simulated world could not be built (a scene file, a true rig)
             return JobResult(job.name, "failed", 0, str(exc))
+        plan = job.plan
+        if job.register_first:
+            say("registering: where does the object lie?")
+            try:
+                plan, _ = register_for_session(job.plan, rig, job.out, links=links, progress=say)
+            except RunStopped as stop:
+                if isinstance(stop.cause, KeyboardInterrupt) or not stop.safe.ok:
+                    raise CampaignStopped(f"job {job.name!r}, registering: {stop}", 130 if isinstance(
+                        stop.cause, KeyboardInterrupt) else 1) from None  # fmt: skip
+                return JobResult(job.name, "failed", 0, f"registering: {stop}")
+            except HlrLabError as exc:  # not found, out of range, not the plan's object: nothing to acquire
+                return JobResult(job.name, "failed", 0, f"registering: {exc}")
         attempt = 0
         for attempt in range(1, ATTEMPTS + 1):
             say(f"acquiring (attempt {attempt})")
@@ -425,7 +444,7 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
                 say(f"pose {step.index + 1}/{step.poses}: {step.action}", step.index / step.poses)
 
             try:
-                acquire_plan(job.plan, rig, job.out, links=links, lamp=watch, progress=pose)
+                acquire_plan(plan, rig, job.out, links=links, lamp=watch, progress=pose)
                 break
             except RunStopped as stop:
                 if isinstance(stop.cause, KeyboardInterrupt):

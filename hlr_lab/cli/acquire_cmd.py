@@ -28,11 +28,10 @@ from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.pipeline import acquire_plan
 from hlr_lab.placement.photographs import registration_lamps
-from hlr_lab.registration import register_plan
+from hlr_lab.registration import register_for_session
 from hlr_lab.registration.capture import VIEWS
 from hlr_lab.rig.file import Rig
 from hlr_lab.session.lamp import LampWatch
-from hlr_lab.session.metadata import SESSION
 
 
 @click.command("acquire")
@@ -166,24 +165,14 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
 
 
 def _registered(plan_path: Path, rig: Rig, session: Path, links: Links) -> Path:
-    """``--register``: the placed plan beside the session — measured now, or, when the session was started
-    already, the one it was started with (the object has not been moved since, or the session's frames
-    would not be one object's)."""
-    placed = session.with_name(f"{session.name}-placed.json")
-    if (session / SESSION).exists():
-        if not placed.is_file():
-            raise InputError(
-                f"this session was started without --register (there is no {placed.name}): resume it without "
-                "--register, or give a new --out",
-                path=session,
-            )
-        console.print(f"resuming with the placement measured before: {escape(str(placed))}")
-        return placed
-    photographs = session.with_name(f"{session.name}-registration")
+    """``--register``: the placed plan for the session, measured now or the one it was started with."""
     with pose_progress(console, VIEWS * len(registration_lamps(rig))) as show:
-        done = register_plan(plan_path, rig, photographs, placed, links=links, on_step=show,
-                             progress=lambda what: console.print(escape(what)))  # fmt: skip
-    show_registered(done)
-    if done.uncovered:
-        console.print("[yellow]acquiring anyway: the regions above get fewer samples than the plan asked[/]")
+        placed, done = register_for_session(plan_path, rig, session, links=links, on_step=show,
+                                            progress=lambda what: console.print(escape(what)))  # fmt: skip
+    if done is not None:
+        show_registered(done)
+        if done.uncovered:
+            console.print(
+                "[yellow]acquiring anyway: the regions above get fewer samples than the plan asked[/]"
+            )
     return placed

@@ -100,7 +100,8 @@ def lamp_radiance(
     radiance, noise = [], []
     for bracket in frames:  # (E, H, W, 3) of one lamp: one lamp at a time keeps the temporaries small
         ordered = bracket[order]
-        unclipped = ordered.max(axis=3) < clip  # (E, H, W)
+        # (E, H, W): the channels' maximum pairwise (numpy's reduction over a last axis of 3: 25× slower)
+        unclipped = np.maximum(np.maximum(ordered[..., 0], ordered[..., 1]), ordered[..., 2]) < clip
         # the longest unclipped exposure; the shortest where even that clips (as bright as it gets)
         pick = np.where(unclipped.any(axis=0), np.argmax(unclipped, axis=0), len(order) - 1)  # (H, W)
         chosen = np.take_along_axis(ordered, pick[None, ..., None], axis=0)[0].astype(np.float32)

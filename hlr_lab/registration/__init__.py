@@ -31,6 +31,7 @@ from hlr_lab.registration.measure import Measured, measure_placement, placement_
 from hlr_lab.registration.summary import write_summary
 from hlr_lab.registration.views import read_photographs
 from hlr_lab.rig.file import Rig
+from hlr_lab.session.metadata import SESSION
 from hlr_lab.session.outputs import check_outputs
 
 CAMERA_AGREES_PX = 0.05  # the rig's camera and the photographs' may differ by this at the object (rounding)
@@ -101,6 +102,40 @@ def register_plan(
         problem = f"{folder}: the summary page could not be written ({exc.strerror or exc})"
     write_plan(output, placed)
     return Registered(measured, record, placed, result, output, folder, captured, summary, problem, seconds)
+
+
+def session_placed_plan(session: Path) -> tuple[Path, Path]:
+    """Where registering for ``session`` puts its placed plan and its photographs: beside the session,
+    ``SESSION-placed.json`` and ``SESSION-registration/`` (``acquire --register``, a campaign's register)."""
+    return session.with_name(f"{session.name}-placed.json"), session.with_name(f"{session.name}-registration")
+
+
+def register_for_session(
+    plan_path: Path,
+    rig: Rig,
+    session: Path,
+    *,
+    links: Links = NO_OVERRIDES,
+    progress: Callable[[str], None] = lambda _: None,
+    on_step: Callable[[Step], None] = lambda _: None,
+) -> tuple[Path, Registered | None]:
+    """The plan to run into ``session`` for ``plan_path``'s object where it lies: registered now (the placed
+    plan's path and the registration), or — ``session`` started already — the placed plan it was started
+    with, and None (the object has not been moved since, or the session's frames would not be one
+    object's placement). Refuses a started session that was not registered."""
+    placed, photographs = session_placed_plan(session)
+    if (session / SESSION).exists():
+        if not placed.is_file():
+            raise InputError(
+                f"this session was started without registering (there is no {placed.name} beside it): resume it "
+                "without --register, or give a new --out",
+                path=session,
+            )
+        progress(f"resuming with the placement measured before: {placed}")
+        return placed, None
+    return placed, register_plan(
+        plan_path, rig, photographs, placed, links=links, progress=progress, on_step=on_step
+    )
 
 
 def _same_camera(taken_with: Rig, rig: Rig, folder: Path) -> None:
