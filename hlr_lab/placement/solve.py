@@ -404,13 +404,17 @@ def _result(
             f"right place gives ≲ {EXPECTED_RESIDUAL_PX:g} px: is the object on the plate the plan's mesh (at "
             "the plan's scale)?"
         )
-    shift_xy = float(np.hypot(params[3], params[4]))
+    # how far from the axis the object's centre lies, against where the plan put it (an object whose vertices'
+    # mean is off the axis moves it across the plate when it is merely turned: that is no distance)
+    planned_mm = 1000 * float(np.hypot(*outlines.frame.centre[:2]))
+    found_mm = 1000 * float(np.hypot(*(outlines.frame.centre[:2] + params[3:5] / 1000)))
     tilt = turn_angles(params)[1]
-    if shift_xy > MAX_SHIFT_MM or tilt > MAX_TILT_DEG:
+    if found_mm - planned_mm > MAX_SHIFT_MM or tilt > MAX_TILT_DEG:
         raise PlacementError(
-            f"the object lies {shift_xy:.1f} mm off the planned centre and leans {tilt:.1f}° "
-            f"(the search covers {MAX_SHIFT_MM:.0f} mm and {MAX_TILT_DEG:.0f}°): put it back near the "
-            "turntable's centre, standing as the plan says, and register again"
+            f"the object's centre lies {found_mm:.1f} mm from the turntable's axis (the plan's: {planned_mm:.1f} mm) "
+            f"and it leans {tilt:.1f}° (the search covers {MAX_SHIFT_MM:.0f} mm further out and "
+            f"{MAX_TILT_DEG:.0f}°): put it back near the turntable's centre, standing as the plan says, and "
+            "register again"
         )
     # the standard errors (a jackknife of six refits) only for a placement that is kept
     step = 1e-3  # degrees and mm: central differences, far above the residuals' rounding
