@@ -243,9 +243,8 @@ def test_a_placement_outside_the_search_range_or_another_object_is_refused():
     # a coarse search: what is refused does not depend on how finely the turn is searched
     mesh = _lopsided()
     outlines, _, _ = _outlines_of(mesh, np.array([0, 0, 30.0, 45, 0, 0]))
-    with pytest.raises(
-        PlacementError, match=r"centre lies 4\d\.\d mm from the turntable's axis.*search covers 30 mm further"
-    ):
+    far = r"centre lies 6\d\.\d mm from the turntable's axis \(the plan's: 18\.5 mm\).*30 mm further out"
+    with pytest.raises(PlacementError, match=far):
         register(outlines, yaw_step_deg=30)
     # the photographs of the lopsided object, registered as a ball: its outline is not there
     outlines, frame, _ = _outlines_of(mesh, np.zeros(6))
