@@ -354,3 +354,44 @@ def test_the_turn_of_a_round_shape_is_read_from_its_colours():
     # painted alike all round, the colours fix nothing either: refused, not guessed
     with pytest.raises(PlacementError, match="neither the outline nor the colours"):
         turn_by_colours(outlines, found, lambda surface: np.where(surface.hit, 0, -1), palette)
+
+
+def test_an_object_on_another_face_is_found_resting_there():
+    """The lopsided box laid on its side (one of its stable poses, turned 50° and 8 mm off): the plan's
+    standing placement is refused, the stable poses are tried, and the one it rests in is found to 0.15 mm
+    RMS; a ball's photographs fit no face of it, and the refusal names the faces tried."""
+    import trimesh
+
+    from hlr_lab.errors import PlacementError
+    from hlr_lab.placement.faces import _resting, register_on_faces
+    from hlr_lab.placement.photographs import ObservedView
+    from hlr_lab.placement.pose import PlacementFrame, vertex_errors_mm
+    from hlr_lab.planning.geometry import placement
+
+    mesh = _lopsided()
+    transforms, _ = trimesh.poses.compute_stable_poses(mesh.trimesh)
+    nominal = placement(mesh)
+    side = next(
+        _resting(mesh, t, 1.0) for t in transforms if abs((t[:3, :3].T @ [0, 0, 1]) @ [0, 0, 1]) < 0.5
+    )  # a pose whose up is not the plan's
+    true = PlacementFrame(side, mesh.transformed(side).vertices.mean(axis=0)).matrix(
+        np.array([0, 0, 50.0, 8, -3, 0])
+    )
+    camera = half_size_camera()
+    angles = (0.0, 60.0, 120.0, 180.0, 240.0, 300.0)
+    caster = RayCaster(mesh.transformed(true))
+    from hlr_lab.placement.solve import view_camera
+
+    views = [ObservedView(a, caster.gbuffer(view_camera(camera, a)).hit) for a in angles]
+    rest = register_on_faces(mesh, camera, nominal, views, 1.0, yaw_step_deg=30)  # coarse: a quicker test
+    assert rest.pose_rank is not None
+    assert "another face" in (rest.describe() or "")
+    errors = vertex_errors_mm(mesh.vertices, rest.found.mesh_to_turntable, true)
+    assert np.sqrt(np.mean(errors**2)) < 0.15, errors
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
+    ball_views = [ObservedView(a, RayCaster(ColouredMesh(np.asarray(ball.vertices), np.asarray(ball.faces,
+                  dtype=np.int64))).gbuffer(view_camera(camera, a)).hit) for a in angles[:3]]  # fmt: skip
+    with pytest.raises(
+        PlacementError, match=r"nor does it rest on another of the mesh's faces \(tried its stable"
+    ):
+        register_on_faces(mesh, camera, nominal, ball_views, 1.0, yaw_step_deg=90)

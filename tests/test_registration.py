@@ -178,7 +178,7 @@ def test_a_misplaced_object_is_flagged_by_fit_and_at_the_top_of_the_report(built
     capsys.readouterr()
     assert main(["fit", str(session)]) == 0
     printed = " ".join(capsys.readouterr().err.split())
-    assert "misplaced: the photographs of 2 of 2 poses" in printed
+    assert "misplaced: the photographs of 2 of 2 poses (p000, p001) do not show" in printed
     assert "run hlr-lab register" in printed
     alignment = json.loads((session / "fit-diagnostics.json").read_text())["alignment"]
     assert alignment["flagged"] == ["p000", "p001"]

@@ -15,7 +15,8 @@ Both are measured on each pose's own photograph:
 
 Neither is zero for a placed object (quantised edges, highlights, shading at a border), so each is measured
 also for the prediction moved by every shift up to :data:`SEARCH_PX` pixels: a placed object fits best
-where it is; a misplaced one fits clearly better moved (by :data:`MOVED_PX` or more), and the pose is
+where it is; a misplaced one fits clearly better moved (by :data:`MOVED_PX` or more), or — misplaced by
+far more than a shift can mimic (turned, centimetres off) — its outline fits no shift, and the pose is
 flagged, with what to do: register.
 """
 
@@ -37,6 +38,9 @@ OUTLINE_GAIN = 1.5  # … with its outline misfit this many times lower there (p
 # … or this share fewer border pixels coloured as the neighbour (a placed pebble: ≤ 0.005; turned 3°: 0.036
 # and 0.045; 2.5 mm off: 0.06 and 0.08): flagged
 BORDER_GAIN = 0.03
+# an outline that no shift fits within this (px RMS) is far from where the plan says (a placed object's fits
+# within 0.5–0.7 px at its best shift; Spot turned 200° and 14 mm off: 4.0 px at best, 5.2 px where it is)
+GROSS_OUTLINE_PX = 2.0
 BAND_PX = (2.0, 8.0)  # the border band: past the mixed pixels, within a misplacement's reach
 HEAD_ON = 0.3  # cos α at the outline pixels used: a grazing-lit edge is too dark to tell from the background
 CLEAR_SIGMA = 8.0  # the photographed object: radiance this many noise σ above black
@@ -78,10 +82,12 @@ class PoseAlignment:
 
     @property
     def flagged(self) -> bool:
-        """The photograph fits the prediction clearly better moved (:data:`MOVED_PX`) than where it is."""
+        """The photograph fits the prediction clearly better moved (:data:`MOVED_PX`) than where it is, or its
+        outline fits no shift of it (:data:`GROSS_OUTLINE_PX`)."""
         o, b = self.outline, self.borders
         return bool(
             (o is not None and o.moved and o.at_zero >= OUTLINE_GAIN * o.best and o.at_zero - o.best >= 0.5)
+            or (o is not None and o.best > GROSS_OUTLINE_PX)
             or (b is not None and b.moved and b.at_zero - b.best >= BORDER_GAIN)
         )
 

@@ -24,9 +24,10 @@ from hlr_lab.formats.planned_object import (
 from hlr_lab.geometry.colour import srgb8_to_linear
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface
+from hlr_lab.placement.faces import register_on_faces
 from hlr_lab.placement.photographs import ObservedView, observe
 from hlr_lab.placement.pose import PlacementFrame
-from hlr_lab.placement.solve import Outlines, Registration, register, turn_angles, turn_by_colours
+from hlr_lab.placement.solve import Outlines, Registration, turn_angles, turn_by_colours
 from hlr_lab.registration.views import Photographs
 
 
@@ -38,6 +39,7 @@ class Measured:
     found: Registration
     outlines: Outlines
     folder: Path
+    face: str | None = None  # resting on another face than the plan's: which (faces.Rest.describe)
 
     @property
     def observed(self) -> list[ObservedView]:
@@ -67,18 +69,17 @@ def measure_placement(
         )
     mesh = load_planned_mesh(plan, plan_path)
     nominal = mesh_to_turntable(plan)
-    frame = PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
     progress("reading the outlines…")
     observed = [
         observe(v, photographs.sensor, where=f"{folder}: the view at turntable {v.turntable_deg:g}°")
         for v in photographs.views
     ]
-    outlines = Outlines(mesh, photographs.rig.camera, frame, observed)
     progress("searching every turn about the axis…")
-    found = register(outlines)
+    rest = register_on_faces(mesh, photographs.rig.camera, nominal, observed, plan.object.scale)
+    found = rest.found
     if found.ambiguous is not None:
-        found = _turned_by_colours(plan, mesh, outlines, found, progress)
-    return Measured(found, outlines, folder)
+        found = _turned_by_colours(plan, mesh, rest.outlines, found, progress)
+    return Measured(found, rest.outlines, folder, rest.describe())
 
 
 def _turned_by_colours(
@@ -117,7 +118,8 @@ def placement_record(measured: Measured, plan: PlanFile) -> PlacementRecord:
     se = np.minimum(found.se, 999.0)  # an undetermined turn's error is "huge", not 10¹²
     return PlacementRecord(
         status="ambiguous" if found.ambiguous else "measured",
-        method="outlines+colours" if found.turn_from == "colours" else "outlines",
+        method=("outlines+colours" if found.turn_from == "colours" else "outlines")
+        + (f"; {measured.face}" if measured.face else ""),
         date=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         nominal_mesh_to_turntable=[[round(float(v), 9) for v in row] for row in nominal],
         photographs=str(measured.folder.resolve()),
