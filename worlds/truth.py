@@ -42,6 +42,9 @@ def truth_table(plan: PlanFile, plan_path: Path, scene_path: Path | None, sessio
     return t
 
 
+BLACK_RD = 0.01  # a true Rd below this (its norm over the channels) is black: no relative error
+
+
 def true_materials(plan: PlanFile, plan_path: Path, scene_path: Path | None) -> dict[int, Material]:
     """Each plan region's true material: the scene region's whose colour is nearest (the default world: one
     material per plan region)."""
@@ -59,14 +62,16 @@ def worst_errors_pct(
     plan: PlanFile, plan_path: Path, scene_path: Path | None, session: Path
 ) -> dict[str, float]:
     """The worst region's error (per cent) of Rd, Rs and n fitted in ``session`` against the truth; NaN for a
-    parameter no region measured."""
+    parameter no region measured. A region black in truth (|Rd| < :data:`BLACK_RD`: Spot's pupils, Rd 0) has
+    no relative Rd error to speak of and is left out of Rd's."""
     fitted = {e.id: e for e in read_materials(session / MATERIALS).regions}
     worst = {"rd": float("nan"), "rs": float("nan"), "n": float("nan")}
     for rid, true in true_materials(plan, plan_path, scene_path).items():
         e = fitted.get(rid)
         if e is None:
             continue
-        errors = {"rd": relative_error_pct(np.array(e.rd), np.array(true.rd))}
+        black = float(np.linalg.norm(true.rd)) < BLACK_RD
+        errors = {} if black else {"rd": relative_error_pct(np.array(e.rd), np.array(true.rd))}
         if e.specular == "measured" and e.rs is not None and e.n is not None:
             errors["rs"] = relative_error_pct(np.array(e.rs), np.array(true.rs))
             errors["n"] = 100 * abs(e.n - true.n) / true.n
