@@ -6,7 +6,7 @@ photographed object runs past the predicted outline on one side and stops short 
 along its colour regions' borders (a band of one region's colour inside the neighbour's predicted pixels).
 Both are measured on each pose's own photograph:
 
-* **Outline** (px): the photographed object's signed distance at the predicted outline's pixels, RMS, where
+* **Outline** (px): the photographed object's |signed distance| at the predicted outline's pixels, median, where
   the object there is lit head-on enough to be told from the dark background (cos α ≥ 0.3, its region
   bright above the noise).
 * **Borders** (share): of the pixels 2–8 px inside a region from its border with another, the share whose
@@ -34,12 +34,12 @@ SHIFTS = [(dy, dx) for dy in range(-SEARCH_PX, SEARCH_PX + 1) for dx in range(-S
 # a photograph that fits best moved this far from the prediction … (a placed pebble: 1–2 px, the edge's
 # half-covered pixels counted in the photograph, not in the prediction; 2.5 mm off: 5–9 px)
 MOVED_PX = 3.0
-OUTLINE_GAIN = 1.5  # … with its outline misfit this many times lower there (pebble 2.5 mm off: 6–12×),
+OUTLINE_GAIN = 1.5  # … with its outline misfit this many times lower there (pebble 2.5 mm off: 5–13×),
 # … or this share fewer border pixels coloured as the neighbour (a placed pebble: ≤ 0.005; turned 3°: 0.036
 # and 0.045; 2.5 mm off: 0.06 and 0.08): flagged
 BORDER_GAIN = 0.03
-# an outline that no shift fits within this (px RMS) is far from where the plan says (a placed object's fits
-# within 0.5–0.7 px at its best shift; Spot turned 200° and 14 mm off: 4.0 px at best, 5.2 px where it is)
+# an outline that no shift fits within this (px, median) is far from where the plan says (a placed object's
+# fits within 0.5 px at its best shift; the bunny turned 200° and 14 mm off: 20 px at best in two poses)
 GROSS_OUTLINE_PX = 2.0
 BAND_PX = (2.0, 8.0)  # the border band: past the mixed pixels, within a misplacement's reach
 HEAD_ON = 0.3  # cos α at the outline pixels used: a grazing-lit edge is too dark to tell from the background
@@ -70,7 +70,7 @@ class Misfit:
 
 @dataclass(frozen=True)
 class PoseAlignment:
-    """One pose's check: the outline's misfit (RMS px) over ``outline_points`` pixels and the borders'
+    """One pose's check: the outline's misfit (median px) over ``outline_points`` pixels and the borders'
     (share of band pixels coloured as the neighbour) over ``border_pixels``, each where the prediction is
     and at its best shift; None where too few pixels could be used."""
 
@@ -138,9 +138,10 @@ def pose_alignment(
     sdf = np.clip(signed_distance(total > CLEAR_SIGMA * noise), -2.0 * SEARCH_PX, 2.0 * SEARCH_PX)
     outline = None
     if len(ys) >= MIN_POINTS:
-        # the outline's misfit for the prediction moved by each shift: RMS of the photographed object's signed
-        # distance at the moved outline pixels
-        cost = np.array([np.sqrt(np.mean(_at(sdf, ys + dy, xs + dx) ** 2)) for dy, dx in SHIFTS])
+        # the outline's misfit for the prediction moved by each shift: the median of the photographed object's
+        # |signed distance| at the moved outline pixels (a median: something else lit beside the object — a
+        # white reference on the plate — touches a part of the outline without moving the whole)
+        cost = np.array([np.median(np.abs(_at(sdf, ys + dy, xs + dx))) for dy, dx in SHIFTS])
         outline = Misfit.of(cost)
     borders, judged = _border_misfit(labels, radiance, usable & (cos_alpha >= HEAD_ON) & bright)
     return PoseAlignment(pose, outline, len(ys), borders, judged)

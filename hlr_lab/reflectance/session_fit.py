@@ -487,19 +487,12 @@ def alignment_record(poses: list[PoseAlignment], plan: PlanFile) -> dict:
     record: dict = {"poses": [p.as_record() for p in poses], "flagged": flagged,
                     "placement": plan.object.placement.status if plan.object.placement else "assumed"}  # fmt: skip
     if flagged:
-        shifts = [
-            m.shift_px
-            for p in poses
-            if p.flagged
-            for m in (p.outline, p.borders)
-            if m is not None and m.moved
-        ]
-        worst = max(shifts, key=lambda s: np.hypot(*s))
+        outline = max((p.outline.at_zero for p in poses if p.flagged and p.outline), default=0.0)
         record["warning"] = (
-            f"the photographs of {len(flagged)} of {len(poses)} poses ({', '.join(flagged[:5])}) fit the placed mesh's "
-            f"outline and region borders better moved (by up to {np.hypot(*worst):.0f} px) than where the plan puts "
-            "it: the object is not where the plan says — run hlr-lab register and acquire the placed plan; these "
-            "materials are not to be trusted"
+            f"the photographs of {len(flagged)} of {len(poses)} poses ({', '.join(flagged[:5])}) do not show the "
+            f"placed mesh's outline and region borders where the plan puts them (outline off by {outline:.1f} px "
+            "where the plan puts it; they fit better moved, or not at all): the object is not where the plan says "
+            "— run hlr-lab register and acquire the placed plan; these materials are not to be trusted"
         )
     return record
 
