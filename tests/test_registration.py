@@ -240,3 +240,22 @@ def test_acquire_register_refuses_a_dry_run_and_a_session_started_unregistered(
     assert main(["acquire", "--plan", plan, "--sim", "--register", "--out", str(session)]) == 1
     assert "started without registering" in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "session-registration").exists()
+
+
+def test_a_registration_that_found_no_rig_can_be_run_again_in_its_folder(builtin_plan, tmp_path):
+    """Devices that do not answer: the registration stops before anything moves, with no photograph and no
+    placed plan; run again into the same folder, it is refused for the devices again — not for the folder."""
+    from hlr_lab.errors import HlrLabError
+    from hlr_lab.instrument.devices import Links
+    from hlr_lab.registration import register_plan
+    from hlr_lab.registration.capture import REGISTRATION_PLAN
+
+    folder, placed = tmp_path / "photos", tmp_path / "placed.json"
+    nowhere = Links(gantry=str(tmp_path / "no-such-port"), stage="127.0.0.1:9", camera="127.0.0.1:9")
+    for _ in range(2):
+        with pytest.raises(HlrLabError) as err:
+            register_plan(builtin_plan, sim_rig(), folder, placed, links=nowhere)
+        assert "turntable on 127.0.0.1:9: cannot connect" in str(err.value)
+        assert (folder / REGISTRATION_PLAN).is_file()
+        assert not list(folder.glob("frames/*.png"))
+        assert not placed.exists()

@@ -121,7 +121,10 @@ def capture_views(
             path=folder,
         )
     targets = motion_targets(wanted, rig, path)  # the lamps within the gantry's limits, before any file
-    if folder.exists() and not (folder / SESSION).exists() and any(folder.iterdir()):
+    # a folder of its own: new, a registration's, or one refused before its session began (its plan alone:
+    # a disk too full, say)
+    foreign = [e.name for e in folder.iterdir() if e.name != REGISTRATION_PLAN] if folder.exists() else []
+    if foreign and not (folder / SESSION).exists():
         raise InputError("is not empty and holds no registration: give a new --out", path=folder)
     folder.mkdir(parents=True, exist_ok=True)
     if not path.exists():
