@@ -120,12 +120,18 @@ def plan_settings(plan: PlanFile) -> PlanSettings:
 
 
 def replan_placed(
-    plan: PlanFile, plan_path: Path, rig: Rig, placed: PlacementRecord, to_turntable: np.ndarray, output: Path
+    plan: PlanFile,
+    plan_path: Path,
+    mesh: ColouredMesh,
+    rig: Rig,
+    placed: PlacementRecord,
+    to_turntable: np.ndarray,
+    output: Path,
 ) -> tuple[PlanFile, PlanResult]:
-    """``plan`` (read from ``plan_path``) planned again, with its settings and regions, for the object lying
-    as ``to_turntable`` (4, 4) says: where highlights fall depends on where the object lies. The plan to
-    write at ``output`` (its mesh named relative to it), with ``placed`` as its placement record."""
-    mesh = load_planned_mesh(plan, plan_path)
+    """``plan`` (read from ``plan_path``; ``mesh`` its mesh as :func:`load_planned_mesh` gives it) planned
+    again, with its settings and regions, for the object lying as ``to_turntable`` (4, 4) says: where
+    highlights fall depends on where the object lies. The plan to write at ``output`` (its mesh named
+    relative to it), with ``placed`` as its placement record."""
     ref = plan.object.mesh
     spec = ref if ref.startswith(BUILTIN_PREFIX) else str(plan_path.parent / ref)
     replanned, result = plan_object(mesh, planned_segmentation(plan, mesh), rig, plan_settings(plan),

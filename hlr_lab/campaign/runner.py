@@ -77,9 +77,8 @@ JobName = Annotated[str, AfterValidator(_a_job_name)]
 class AcquireJob(StrictModel):
     """A plan run on a rig into a session, then fitted and reported."""
 
-    model_config = ConfigDict(
-        populate_by_name=True
-    )  # with StrictModel's: register_first read as register too
+    # merged with StrictModel's: the file's ``register`` and the field's own name both fill register_first
+    model_config = ConfigDict(populate_by_name=True)
     kind: Literal["acquire"] = "acquire"
     name: JobName
     plan: FilePath
@@ -430,9 +429,11 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
             try:
                 plan, _ = register_for_session(job.plan, rig, job.out, links=links, progress=say)
             except RunStopped as stop:
-                if isinstance(stop.cause, KeyboardInterrupt) or not stop.safe.ok:
-                    raise CampaignStopped(f"job {job.name!r}, registering: {stop}", 130 if isinstance(
-                        stop.cause, KeyboardInterrupt) else 1) from None  # fmt: skip
+                interrupted = isinstance(stop.cause, KeyboardInterrupt)
+                if interrupted or not stop.safe.ok:  # as the acquisition's stops below
+                    raise CampaignStopped(
+                        f"job {job.name!r}, registering: {stop}", 130 if interrupted else 1
+                    ) from None
                 return JobResult(job.name, "failed", 0, f"registering: {stop}")
             except HlrLabError as exc:  # not found, out of range, not the plan's object: nothing to acquire
                 return JobResult(job.name, "failed", 0, f"registering: {exc}")

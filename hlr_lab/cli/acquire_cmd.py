@@ -131,9 +131,8 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
             console.print(f"[bold yellow]placement {escape(placement_line(plan))}[/]", soft_wrap=True)
         console.print(motion_table(plan, targets))
         if dry_run:
-            load_planned_mesh(
-                plan, plan_path
-            )  # the object the run would load: a mesh that changed is said now
+            # the object the run would load: a mesh that changed is said now
+            load_planned_mesh(plan, plan_path)
             frames = sum(len(p.exposures_s) for p in plan.poses)
             duration = estimate_duration_s(plan, targets, rig)
             console.print(

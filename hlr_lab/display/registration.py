@@ -19,10 +19,10 @@ def registration_lines(done: Registered) -> list[str]:
         f"{shift[2]:+.2f} ± {se_shift[2]:.2f} mm from where the plan put it, turned {r.offset_turn_deg:+.2f}° "
         f"(± {se_rot[2]:.2f}°) about the axis, tilted {r.offset_tilt_deg:.2f}°",
         f"outline: {r.residual_px:.2f} px RMS, {100 * (r.outline_seen or 0):.1f} % of it found on the photographs; "
-        f"the turn from the {'colours' if r.method.startswith('outlines+colours') else 'outlines'}",
+        f"the turn from the {done.measured.found.turn_from}",
     ]
-    if "another face" in r.method:
-        lines.append(f"[bold yellow]{escape(r.method.split('; ', 1)[1])}[/]: planned again for it")
+    if done.measured.face is not None:
+        lines.append(f"[bold yellow]{escape(done.measured.face)}[/]: planned again for it")
     if r.status == "ambiguous":
         lines.append(f"[bold yellow]ambiguous:[/] {escape(r.why or '')} — written, and marked so in the plan")
     seconds = ", ".join(f"{k} {v:.0f} s" for k, v in done.seconds.items())

@@ -400,11 +400,9 @@ def fit_session(
         with times("hdr"):
             radiance = view_radiance(session, view, mesh)
         offsets += [radiance.agreement[0].black_offset_dn] if radiance.agreement else []
-        geometry = pose_geometry(
-            plan, mesh, caster, rig.camera, view_pose(session, view), radiance.usable, times
-        )
-        samples = pose_samples(plan, mesh, caster, rig.camera, view_pose(session, view), radiance, selection,
-                               times, geometry)  # fmt: skip
+        pose = view_pose(session, view)
+        geometry = pose_geometry(plan, mesh, caster, rig.camera, pose, radiance.usable, times)
+        samples = pose_samples(plan, mesh, caster, rig.camera, pose, radiance, selection, times, geometry)
         with times("alignment"):
             alignment.append(_alignment(session, view, geometry, radiance))
         for rid in np.unique(samples.region):

@@ -79,22 +79,28 @@ def register_plan(
     check_outputs([output], [plan_path])
     motion_targets(plan, rig, plan_path)  # a plan for another rig is refused before anything moves
     seconds: dict[str, float] = {}
-    started = time.perf_counter()
+    lap = time.perf_counter()
+
+    def took(step: str) -> None:  # the seconds since the last step ended
+        nonlocal lap
+        seconds[step], lap = time.perf_counter() - lap, time.perf_counter()
+
     captured = None
     if not solve_only:
         progress("photographing the object…")
         captured = capture_views(
             plan, plan_path, rig, folder, links=links, progress=on_step, on_start=on_start
         )
-    seconds["photographs"] = time.perf_counter() - started
+    took("photographs")
     photographs = read_photographs(folder)
     _same_camera(photographs.rig, rig, folder)
     measured = measure_placement(plan, plan_path, photographs, folder, progress=progress)
     record = placement_record(measured, plan)
-    seconds["solve"] = time.perf_counter() - started - seconds["photographs"]
+    took("solve")
     progress("planning again for where it lies…")
-    placed, result = replan_placed(plan, plan_path, rig, record, measured.found.mesh_to_turntable, output)
-    seconds["plan"] = time.perf_counter() - started - seconds["photographs"] - seconds["solve"]
+    placed, result = replan_placed(plan, plan_path, measured.mesh, rig, record, measured.found.mesh_to_turntable,
+                                   output)  # fmt: skip
+    took("plan")
     summary, problem = None, None
     try:
         summary = write_summary(measured, photographs, plan, record, folder)

@@ -53,12 +53,9 @@ def registration_plan(plan: PlanFile, plan_path: Path, rig: Rig, folder: Path) -
     kinematics = rig.gantry.kinematics
     poses = []
     for k, turn in enumerate(registration_views(rig)):
-        world_from_tt = rotation_z(np.radians(turn))
-        to_mesh = mesh_from_tt @ np.linalg.inv(world_from_tt)  # world at this turn → the mesh's frame
-
-        def in_mesh(p: np.ndarray, to_mesh: np.ndarray = to_mesh) -> list[float]:
-            return [round(float(v), 6) for v in to_mesh[:3, :3] @ p + to_mesh[:3, 3]]
-
+        to_mesh = mesh_from_tt @ np.linalg.inv(
+            rotation_z(np.radians(turn))
+        )  # world at this turn → mesh frame
         lamps = list(enumerate(registration_lamps(rig)))
         for j, (az, el) in lamps if k % 2 == 0 else lamps[::-1]:  # back the way it came: no return swing
             lamp = kinematics.centre + kinematics.arm_radius * kinematics.unit_direction(
@@ -71,10 +68,10 @@ def registration_plan(plan: PlanFile, plan_path: Path, rig: Rig, folder: Path) -
                     light=PlanLight(
                         azimuth_deg=round(float(az), 4),
                         elevation_deg=round(float(el), 4),
-                        position_m=[round(float(v), 6) for v in lamp],
-                        position_mesh_m=in_mesh(lamp),
+                        position_m=_rounded(lamp),
+                        position_mesh_m=_rounded(to_mesh[:3, :3] @ lamp + to_mesh[:3, 3]),
                     ),
-                    camera_position_mesh_m=in_mesh(rig.camera.centre),
+                    camera_position_mesh_m=_rounded(to_mesh[:3, :3] @ rig.camera.centre + to_mesh[:3, 3]),
                     exposures_s=list(rig.exposure_bracket_s),
                     expected={},
                 )
@@ -92,6 +89,11 @@ def registration_plan(plan: PlanFile, plan_path: Path, rig: Rig, folder: Path) -
         poses=poses,
         coverage={},
     )
+
+
+def _rounded(p: np.ndarray) -> list[float]:
+    """A position (3,) in metres as plan.json keeps it (to the µm)."""
+    return [round(float(v), 6) for v in p]
 
 
 def capture_views(
