@@ -239,7 +239,9 @@ def bench_register(objects, assets, spp, seed, out_dir, end_to_end) -> None:
     not expect it (turned about the axis, up to 2 cm off it, tilted 3°) on the simulated rig, its
     registration views rendered and exposed, the placement measured from them alone. Prints per case every
     mesh vertex's distance from where it really lies (RMS, worst), the rotation's error, the outline
-    residual and the times; then a cylinder painted in four sectors, whose turn only its colours fix; then
+    residual and the times; then each object resting on another of its faces (its likeliest stable pose
+    other than the plan's), which the measurement must find; then a cylinder painted in four sectors, whose
+    turn only its colours fix; then
     end to end, each object 12, −8 mm off and turned 200°: registered with hlr-lab register (through the
     drivers), the placed plan acquired and fitted, beside the plan acquired as it was: the worst region's
     Rd, Rs and n errors against the truth, the poses fit flagged, the registration's rig and wall time.
@@ -256,6 +258,8 @@ def bench_register(objects, assets, spp, seed, out_dir, end_to_end) -> None:
         cylinder_line,
         end_to_end_bench,
         end_to_end_line,
+        face_bench,
+        face_line,
         register_bench,
         summary_lines,
     )
@@ -264,6 +268,10 @@ def bench_register(objects, assets, spp, seed, out_dir, end_to_end) -> None:
     with bench_folder(out_dir) as folder, console.status("") as status:
         results = register_bench(folder, sim_rig(), objects=names, assets=assets, spp=spp, seed=seed,
                                  progress=status.update, done=lambda r: _print([case_line(r)]))  # fmt: skip
+        status.update("each object on another face…")
+        face_bench(
+            folder, sim_rig(), objects=names, spp=spp, seed=seed, done=lambda r: _print([face_line(r)])
+        )
         status.update("the painted cylinder…")
         cylinder_bench(sim_rig(), spp=spp, seed=seed, done=lambda r: _print([cylinder_line(r)]))
         _print(summary_lines(results))

@@ -18,7 +18,8 @@ def registration_lines(done: Registered) -> list[str]:
         f"the object lies {shift[0]:+.2f} ± {se_shift[0]:.2f}, {shift[1]:+.2f} ± {se_shift[1]:.2f}, "
         f"{shift[2]:+.2f} ± {se_shift[2]:.2f} mm from where the plan put it, turned {r.offset_turn_deg:+.2f}° "
         f"(± {se_rot[2]:.2f}°) about the axis, tilted {r.offset_tilt_deg:.2f}°",
-        f"outline: {r.residual_px:.2f} px RMS, {100 * (r.outline_seen or 0):.1f} % of it found on the photographs; "
+        f"outline: {r.residual_px:.2f} px RMS, {100 * (r.outline_seen or 0):.1f} % of it found on the photographs, "
+        f"{r.outline_offset_px or 0.0:+.2f} px outside the mesh's all round; "
         f"the turn from the {done.measured.found.turn_from}",
     ]
     if done.measured.face is not None:

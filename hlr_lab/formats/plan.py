@@ -37,7 +37,8 @@ class PlacementRecord(OpenModel):
     """How the object's ``mesh_to_turntable`` was found (docs/formats.md, docs/placement.md): ``measured``
     by ``hlr-lab register`` from the photographs in ``photographs``, ``ambiguous`` (measured, but a turn
     about the axis is not determined: ``why``), or ``assumed`` (where the plan put it). The measured
-    numbers: the outline's residual (px RMS) and the share of the outline found, the standard errors of the
+    numbers: the outline's residual (px RMS), the share of the outline found and the photographed outline's
+    offset all round (px, positive outside the mesh's: fitted with the placement), the standard errors of the
     shift (mm) and of the rotation vector (degrees), and the offset from ``nominal_mesh_to_turntable`` (the
     placement the plan assumed): the shift (mm), the rotation vector (degrees), its turn about the vertical
     and its tilt (degrees)."""
@@ -49,6 +50,7 @@ class PlacementRecord(OpenModel):
     photographs: str | None = None
     residual_px: Annotated[float, Field(ge=0)] | None = None
     outline_seen: Annotated[float, Field(ge=0, le=1)] | None = None
+    outline_offset_px: float | None = None  # the photographed outline outside (+) the mesh's, all round
     se_shift_mm: Vec3 | None = None
     se_rotation_deg: Vec3 | None = None
     offset_shift_mm: Vec3 | None = None

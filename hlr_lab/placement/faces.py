@@ -10,6 +10,8 @@ one whose outlines fit best is taken. None fitting, the refusal names what was t
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,16 +65,9 @@ def register_on_faces(
         return Rest(register(planned, yaw_step_deg=yaw_step_deg), planned)
     except PlacementError as as_planned:
         refusal = as_planned
-    transforms, probabilities = trimesh.poses.compute_stable_poses(mesh.trimesh)
-    up = _mesh_up(nominal)
     fits: list[Rest] = []
     tried = []
-    for rank, (rest, probability) in enumerate(zip(transforms, probabilities, strict=True)):
-        placed = _resting(mesh, rest, scale)
-        if np.degrees(np.arccos(np.clip(_mesh_up(placed) @ up, -1, 1))) < SAME_FACE_DEG:
-            continue  # the plan's own face: refused above
-        if len(tried) == RESTS_TRIED:
-            break
+    for rank, placed, probability in itertools.islice(other_rests(mesh, nominal, scale), RESTS_TRIED):
         tried.append(f"{rank} (p = {probability:.2f})")
         outlines = Outlines(mesh, camera, _frame(mesh, placed), views)
         try:
@@ -87,6 +82,20 @@ def register_on_faces(
             f"{', '.join(tried) or 'none: it has no other'})"
         )
     return min(fits, key=lambda r: r.found.residual_px)
+
+
+def other_rests(
+    mesh: ColouredMesh, nominal: np.ndarray, scale: float
+) -> Iterator[tuple[int, np.ndarray, float]]:
+    """The mesh's stable resting poses other than the one ``nominal`` (4, 4) stands it in, likeliest first:
+    each one's rank among all of them, its mesh → turntable (4, 4: centred on the axis, resting on the
+    plate, ``scale`` mesh units → metres) and the probability that a drop lands on it."""
+    transforms, probabilities = trimesh.poses.compute_stable_poses(mesh.trimesh)
+    up = _mesh_up(nominal)
+    for rank, (rest, probability) in enumerate(zip(transforms, probabilities, strict=True)):
+        placed = _resting(mesh, rest, scale)
+        if np.degrees(np.arccos(np.clip(_mesh_up(placed) @ up, -1, 1))) >= SAME_FACE_DEG:
+            yield rank, placed, float(probability)
 
 
 def _frame(mesh: ColouredMesh, nominal: np.ndarray) -> PlacementFrame:

@@ -1,5 +1,6 @@
 """Where the object lies, from its outlines: a search over turns about the axis, then a least-squares fit of
-the six numbers of :class:`~hlr_lab.placement.pose.PlacementFrame` to the outlines of every view.
+the six numbers of :class:`~hlr_lab.placement.pose.PlacementFrame`, and of the photographed outline's offset
+all round (:data:`MAX_OUTLINE_OFFSET_PX`), to the outlines of every view.
 
 The outline of a polygon mesh is made of its *contour edges* (one neighbouring face toward the camera, one
 away) that are not hidden: points along them, about a pixel apart, lie exactly on the silhouette's border.
@@ -14,7 +15,7 @@ object), is reported as ambiguous rather than guessed. docs/placement.md says wh
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -43,10 +44,28 @@ MAX_SHIFT_MM = 30.0  # the search range: off the axis, in the plate's plane
 MAX_TILT_DEG = 5.0  # and tilted from how the plan stands it
 # a contour point this near the photographed border was seen there (else: not lit, or not the object)
 SEEN_PX = 3.0
-# the outline's RMS residual over its seen points: the right mesh gives 0.2–0.6 px (bench register; masks
-# ray-cast from the mesh itself: 0.27 px); the lopsided test box 2 % too large 0.97 px, 3 % 1.44 px
-# (tests/test_placement.py): above this, the object is not the plan's mesh
+# the outline where the surface the camera sees faces further down than this (the z of its unit normal,
+# turntable frame) is left out: every lamp is above the plate, so no lamp lights it head on, its shading
+# fades toward the edge and the half-bright rule cuts the mask short there (bench register, at the truth:
+# +0.2 to +0.6 px where the normal points down, ±0.1 px elsewhere), which lifted the fitted object
+# (bunny and Spot 0.07 mm up, a region's n 4 % off end to end). Left out, with the 3 px half-bright window
+# (photographs.py): the vertices' errors 0.074 → 0.035 mm RMS (bunny), 0.088 → 0.028 (Spot), 0.071 → 0.054
+# (pebble); −0.5 or −0.15 instead did no better over the three. A box's bottom edge stays: the face the camera
+# sees there is its side.
+UNDERSIDE_NZ = -0.3
+# the outline's RMS residual over its seen points: the right mesh gives 0.2–0.4 px (bench register; masks
+# ray-cast from the mesh itself: 0.27 px); the lopsided test box 4 % longer and narrower 1.03 px, 6 % 1.25 px
+# (tests/test_placement.py; a mesh merely too large is the outline's offset's to refuse): above this, the
+# object is not the plan's mesh
 EXPECTED_RESIDUAL_PX, MAX_RESIDUAL_PX = 0.6, 1.2
+# the photographed outline's offset from the mesh's, all round (px, positive outside), fitted with the placement:
+# the half-bright rule's edge lies a little outside or inside where the shading brightens or darkens toward
+# the outline (bench register: +0.09 px on the painted bunny, −0.12 px on Spot, +0.03 px on the pebble), and
+# a uniform offset left in the fit moves the object up or down (0.03 mm; the vertices' errors with it fitted:
+# 0.035 → 0.023 mm RMS on the bunny, 0.028 → 0.020 on Spot at 200°, 12 mm, −8 mm). Beyond the largest, the
+# object is larger or smaller than the mesh says: the lopsided test box 1 % larger than its mesh −0.47 px,
+# 0.5 % −0.24 px (tests/test_placement.py)
+EXPECTED_OFFSET_PX, MAX_OUTLINE_OFFSET_PX = 0.15, 0.35
 MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photographed one is no match
 AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
 # a candidate whose cost after two rounds is this many times the best's is refined no further: the rounds
@@ -62,8 +81,9 @@ class Registration:
     """Where the object was found: ``params`` (6,) of ``frame`` (rotation vector in degrees about the planned
     centre, then the shift in mm), their standard errors ``se`` (6,), ``mesh_to_turntable`` (4, 4), the
     outline residual's RMS (px) over the ``points`` contour points found on the photographed outline
-    (within :data:`SEEN_PX`), the share of the contour points so found (``outline_seen``), and, when a turn
-    about the axis is not determined by the outlines, why (``ambiguous``)."""
+    (within :data:`SEEN_PX`), the share of the contour points so found (``outline_seen``), when a turn
+    about the axis is not determined by the outlines, why (``ambiguous``), and the photographed outline's
+    offset from the mesh's (``outline_offset_px``, px, positive outside: :data:`MAX_OUTLINE_OFFSET_PX`)."""
 
     params: np.ndarray
     se: np.ndarray
@@ -73,6 +93,7 @@ class Registration:
     outline_seen: float
     ambiguous: str | None
     turn_from: str = "outlines"  # or "colours": what fixed the turn about the axis
+    outline_offset_px: float = 0.0  # how far the photographed outline lay outside the mesh's, all round
 
 
 def turn_angles(params: np.ndarray) -> tuple[float, float]:
@@ -101,8 +122,11 @@ class Outlines:
         tm = mesh.trimesh
         self._adjacent_faces = np.asarray(tm.face_adjacency)  # (E, 2)
         self._shared_edges = np.asarray(tm.face_adjacency_edges)  # (E, 2) vertices, beside _adjacent_faces
-        edges, uses = np.unique(np.asarray(tm.edges_sorted), axis=0, return_counts=True)
+        edges, first, uses = np.unique(
+            np.asarray(tm.edges_sorted), axis=0, return_index=True, return_counts=True
+        )
         self._rim_edges = edges[uses == 1]  # (R, 2): an open mesh's rims are outlines too
+        self._rim_faces = np.asarray(tm.edges_face)[first[uses == 1]]  # (R,): the face of each
         self._centroids = mesh.vertices[mesh.faces].mean(axis=1)  # (F, 3)
         # the search's stand-in for the surface: points spread evenly over it (seeded: the same every run)
         self._samples = np.asarray(trimesh.sample.sample_surface(tm, SEARCH_SAMPLES, seed=0)[0])
@@ -117,16 +141,27 @@ class Outlines:
         m = self.frame.matrix(params)
         inverse = np.linalg.inv(m)
         chosen = []
+        lit = self._lit_faces(m)
         for cam in self.cameras:
             eye = inverse[:3, :3] @ cam.centre + inverse[:3, 3]  # the camera centre in the mesh frame
             toward = np.einsum("ij,ij->i", self.mesh.face_normals, eye - self._centroids) > 0  # (F,)
             a, b = toward[self._adjacent_faces[:, 0]], toward[self._adjacent_faces[:, 1]]
-            points = self._along(np.concatenate([self._shared_edges[a != b], self._rim_edges]), cam, m)
+            # the face of a contour edge that the camera sees must face a lamp (module docstring)
+            front = np.where(a, self._adjacent_faces[:, 0], self._adjacent_faces[:, 1])
+            contour = self._shared_edges[(a != b) & lit[front]]
+            rims = self._rim_edges[lit[self._rim_faces]]
+            points = self._along(np.concatenate([contour, rims]), cam, m)
             pixels = self._project(cam, m, points)
             border = _border_distance(self._mask(cam, m))
             near = _sample(border, pixels) <= OUTLINE_PX
             chosen.append(points[near])
         return chosen
+
+    def _lit_faces(self, m: np.ndarray) -> np.ndarray:
+        """(F,) bool: the faces that do not face down, the mesh lying as ``m`` (4, 4) says (the underside,
+        which no registration lamp lights head on, is left out: :data:`UNDERSIDE_NZ`)."""
+        turned = self.mesh.face_normals @ m[:3, :3].T  # m may scale: the direction is what counts
+        return turned[:, 2] >= UNDERSIDE_NZ * np.linalg.norm(turned, axis=1)
 
     def _along(self, edges: np.ndarray, cam: Camera, m: np.ndarray) -> np.ndarray:
         """(N, 3) mesh-frame points along ``edges`` (E, 2), about a pixel apart in ``cam``'s image (each
@@ -182,11 +217,12 @@ class Outlines:
         """(H, W) bool: the object's image in view ``k`` lying as ``m`` (4, 4) mesh → turntable says."""
         return self._mask(self.cameras[k], m)
 
-    def view_residuals_px(self, params: np.ndarray) -> list[float]:
+    def view_residuals_px(self, params: np.ndarray, offset_px: float = 0.0) -> list[float]:
         """Per view, the outline's RMS residual (px) at ``params`` over its contour points on the
-        photographed outline (within :data:`SEEN_PX`); NaN for a view without any."""
+        photographed outline (within :data:`SEEN_PX`), the outline's offset ``offset_px`` taken off; NaN
+        for a view without any."""
         points = self.contour_points(params)
-        residual = self.residuals(params, points)
+        residual = self.residuals(params, points) + offset_px
         out = []
         for part in np.split(residual, np.cumsum([len(p) for p in points])[:-1]):
             seen = part[np.abs(part) <= SEEN_PX]
@@ -324,10 +360,10 @@ def turn_by_colours(
     spread = float(np.std(per_view, ddof=1) / np.sqrt(len(per_view))) if len(per_view) > 1 else 0.0
     se_yaw = max(spread, COLOUR_FLOOR_DEG)
     m = rotation_about_vertical(yaw, centre) @ found.mesh_to_turntable
-    params = outlines.frame.params(m)
     se = found.se.copy()
     se[2] = se_yaw
-    return Registration(params, se, m, found.residual_px, found.points, found.outline_seen, None, "colours")
+    return replace(found, params=outlines.frame.params(m), se=se, mesh_to_turntable=m, ambiguous=None,
+                   turn_from="colours")  # fmt: skip
 
 
 def rotation_about_vertical(yaw_deg: float, centre: np.ndarray) -> np.ndarray:
@@ -365,31 +401,42 @@ def _competes(fit: tuple[np.ndarray, float, list[np.ndarray]], better: list, yaw
     )
 
 
+def _offset_residuals(x: np.ndarray, outlines: Outlines, points: list[np.ndarray]) -> np.ndarray:
+    """(ΣN_k,) px: the outline residuals at the placement ``x[:6]`` with the photographed outline ``x[6]`` px
+    outside the mesh's (a contour point lies that far inside the photographed border)."""
+    return outlines.residuals(x[:6], points) + x[6]
+
+
 def _refine(
-    outlines: Outlines, params: np.ndarray, *, rounds: int = 8
+    outlines: Outlines, start: np.ndarray, *, rounds: int = 8
 ) -> tuple[np.ndarray, float, list[np.ndarray]]:
-    """ICP on the outlines from ``params``: choose the contour points, fit, until the placement stops moving
-    (0.001° and 0.001 mm), at most ``rounds`` times. Returns the params, the mean robust cost per point and
-    the last points."""
-    points = outlines.contour_points(params)
+    """ICP on the outlines from ``start`` (6 or 7: a placement, with or without the outline's offset):
+    choose the contour points, fit, until the placement stops moving (0.001° and 0.001 mm), at most
+    ``rounds`` times. Returns the seven numbers, the mean robust cost per point and the last points."""
+    x = start if len(start) == 7 else np.append(start, 0.0)
+    points = outlines.contour_points(x[:6])
     cost = np.inf
     for _ in range(rounds):
         fit = least_squares(
-            outlines.residuals, params, args=(points,), loss="soft_l1", f_scale=ROBUST_PX, x_scale=1.0
+            _offset_residuals, x, args=(outlines, points), loss="soft_l1", f_scale=ROBUST_PX, x_scale=1.0
         )
-        moved = np.abs(fit.x - params).max()
-        params = fit.x
+        moved = np.abs(fit.x - x).max()
+        x = fit.x
         cost = 2 * fit.cost / max(len(fit.fun), 1)
-        points = outlines.contour_points(params)
+        points = outlines.contour_points(x[:6])
         if moved < 1e-3:
             break
-    return params, float(cost), points
+    return x, float(cost), points
 
 
 def _result(
-    outlines: Outlines, params: np.ndarray, points: list[np.ndarray], ambiguous: str | None
+    outlines: Outlines, x: np.ndarray, points: list[np.ndarray], ambiguous: str | None
 ) -> Registration:
-    residual = outlines.residuals(params, points)
+    """The registration at ``x`` (7: the placement's six numbers, the outline's offset), checked: refused
+    when too little of the outline is found, the residual or the offset says another mesh or scale, or the
+    placement lies outside the search range; its standard errors."""
+    params, offset = x[:6], float(x[6])
+    residual = _offset_residuals(x, outlines, points)
     seen = np.abs(residual) <= SEEN_PX
     if seen.mean() < MIN_SEEN:
         raise PlacementError(
@@ -404,6 +451,12 @@ def _result(
             f"right place gives ≲ {EXPECTED_RESIDUAL_PX:g} px: is the object on the plate the plan's mesh (at "
             "the plan's scale)?"
         )
+    if abs(offset) > MAX_OUTLINE_OFFSET_PX:
+        raise PlacementError(
+            f"the photographed outline lies {offset:+.2f} px {'outside' if offset > 0 else 'inside'} the mesh's "
+            f"all round, where the right mesh gives ≲ {EXPECTED_OFFSET_PX:g} px: is the object on the plate the "
+            "plan's mesh at the plan's scale, and the camera in focus?"
+        )
     # how far from the axis the object's centre lies, against where the plan put it (an object whose vertices'
     # mean is off the axis moves it across the plate when it is merely turned: that is no distance)
     planned_mm = 1000 * float(np.hypot(*outlines.frame.centre[:2]))
@@ -417,15 +470,18 @@ def _result(
             "register again"
         )
     # the standard errors (a jackknife of six refits) only for a placement that is kept
-    step = 1e-3  # degrees and mm: central differences, far above the residuals' rounding
+    step = 1e-3  # degrees, mm and px: central differences, far above the residuals' rounding
     jac = np.stack(
         [
-            (outlines.residuals(params + step * e, points) - outlines.residuals(params - step * e, points))
+            (
+                _offset_residuals(x + step * e, outlines, points)
+                - _offset_residuals(x - step * e, outlines, points)
+            )
             / (2 * step)
-            for e in np.eye(6)
+            for e in np.eye(7)
         ],
         axis=1,
-    )[seen]  # (N_seen, 6) px per degree and per mm
+    )[seen]  # (N_seen, 7) px per degree, per mm and per px of offset
     residual_seen = residual[seen]
     robust_sigma = 1.4826 * float(np.median(np.abs(residual_seen - np.median(residual_seen))))
     # neighbouring contour points read the same border pixels: count the outline's length in pixels, not
@@ -439,8 +495,8 @@ def _result(
     jtj = jac.T @ jac
     # a ridge far below any determined direction's curvature: a direction the outlines do not see (the turn
     # of a round object) gets a huge standard error instead of a singular matrix
-    cov = np.linalg.inv(jtj + 1e-12 * np.trace(jtj) * np.eye(6)) * robust_sigma**2 * inflate
-    se = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)), _jackknife_se(outlines, params, points))
+    cov = np.linalg.inv(jtj + 1e-12 * np.trace(jtj) * np.eye(7)) * robust_sigma**2 * inflate
+    se = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)), _jackknife_se(outlines, x, points))[:6]
     if ambiguous is None and se[2] > AMBIGUOUS_SE_DEG:
         ambiguous = (
             f"the outlines hardly change as the object turns about the axis (yaw ± {min(se[2], 999):.0f}°): "
@@ -454,22 +510,24 @@ def _result(
         points=int(seen.sum()),
         outline_seen=float(seen.mean()),
         ambiguous=ambiguous,
+        outline_offset_px=offset,
     )
 
 
-def _jackknife_se(outlines: Outlines, params: np.ndarray, points: list[np.ndarray]) -> np.ndarray:
-    """(6,) standard errors from the fits that leave one view out (the jackknife over views; zeros with
+def _jackknife_se(outlines: Outlines, x: np.ndarray, points: list[np.ndarray]) -> np.ndarray:
+    """(7,) standard errors of ``x`` (the placement, the outline's offset) from the fits that leave one view
+    out (the jackknife over views; zeros with
     fewer than three views). The outline's errors are not independent pixel to pixel — a mask's edge biased
     where the brightness changes fast, a straight edge quantised the same way along its length — so the
     Jacobian's errors alone came out 10–50× below the true errors (pebble: ±0.007° against 0.1–0.4°); how
     much the placement moves when a whole view is dropped measures what the views disagree on."""
     views = len(points)
     if views < 3:
-        return np.zeros(6)
+        return np.zeros(len(x))
     estimates = []
     for left_out in range(views):
         kept = [p if k != left_out else p[:0] for k, p in enumerate(points)]
-        fit = least_squares(outlines.residuals, params, args=(kept,), loss="soft_l1", f_scale=ROBUST_PX)
+        fit = least_squares(_offset_residuals, x, args=(outlines, kept), loss="soft_l1", f_scale=ROBUST_PX)
         estimates.append(fit.x)
     spread = np.asarray(estimates) - np.mean(estimates, axis=0)
     return np.sqrt((views - 1) / views * (spread**2).sum(axis=0))

@@ -125,6 +125,7 @@ def placement_record(measured: Measured, plan: PlanFile) -> PlacementRecord:
         photographs=str(measured.folder.resolve()),
         residual_px=round(found.residual_px, 3),
         outline_seen=round(found.outline_seen, 4),
+        outline_offset_px=round(found.outline_offset_px, 3),
         se_shift_mm=_rounded(se[3:]),
         se_rotation_deg=_rounded(se[:3]),
         offset_shift_mm=_rounded(offset[3:]),

@@ -30,7 +30,7 @@ def write_summary(
     """Write ``folder``/summary.html for ``measured`` (the views of ``photographs``, the regions of ``plan``)."""
     found = measured.found
     outlines = measured.outlines
-    per_view = outlines.view_residuals_px(found.params)
+    per_view = outlines.view_residuals_px(found.params, found.outline_offset_px)
     caster = RayCaster(measured.mesh)
     figures, rows = [], []
     for k, (view, frames) in enumerate(zip(measured.observed, photographs.views, strict=True)):
@@ -61,7 +61,8 @@ def write_summary(
                 f"tilt {record.offset_tilt_deg:.2f}°")],
         ["standard errors", escape(f"shift {_mm(se_shift)} mm, rotation {_mm(se_rot, '.3f')}°")],
         ["outline", escape(f"{record.residual_px:.2f} px RMS, {100 * (record.outline_seen or 0):.1f} % of it "
-                           "found on the photographs")],
+                           f"found on the photographs, {record.outline_offset_px or 0.0:+.2f} px outside the "
+                           "mesh's all round")],
     ]  # fmt: skip
     body = (
         table(["", ""], facts, numeric_from=2)
