@@ -150,7 +150,7 @@ def register_bench(
     return results
 
 
-ON_ITS_SIDE = Placed(5, -4, 60)  # the object on the mesh's likeliest other face, turned and shifted so
+ON_ITS_SIDE = Placed(5, -4, 60)  # the object on its likeliest other face, then turned 60° and 5, −4 mm off
 
 
 @dataclass(frozen=True)

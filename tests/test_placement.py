@@ -258,7 +258,7 @@ def test_a_placement_outside_the_search_range_or_another_object_is_refused():
     nominal = placement(big)
     big_frame = PlacementFrame(nominal, big.transformed(nominal).vertices.mean(axis=0))
     with pytest.raises(
-        PlacementError, match=r"outline lies -0\.4\d px inside the mesh's all round.*plan's scale"
+        PlacementError, match=r"outline lies 0\.4\d px inside the mesh's all round.*plan's scale"
     ):
         register(Outlines(big, half_size_camera(), big_frame, outlines.views), yaw_step_deg=90)
     # another shape of about the same size (6 % longer, 6 % narrower): no uniform offset explains it, the

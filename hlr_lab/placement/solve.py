@@ -146,7 +146,7 @@ class Outlines:
             eye = inverse[:3, :3] @ cam.centre + inverse[:3, 3]  # the camera centre in the mesh frame
             toward = np.einsum("ij,ij->i", self.mesh.face_normals, eye - self._centroids) > 0  # (F,)
             a, b = toward[self._adjacent_faces[:, 0]], toward[self._adjacent_faces[:, 1]]
-            # the face of a contour edge that the camera sees must face a lamp (module docstring)
+            # the face of a contour edge that the camera sees must not face down (UNDERSIDE_NZ)
             front = np.where(a, self._adjacent_faces[:, 0], self._adjacent_faces[:, 1])
             contour = self._shared_edges[(a != b) & lit[front]]
             rims = self._rim_edges[lit[self._rim_faces]]
@@ -453,7 +453,7 @@ def _result(
         )
     if abs(offset) > MAX_OUTLINE_OFFSET_PX:
         raise PlacementError(
-            f"the photographed outline lies {offset:+.2f} px {'outside' if offset > 0 else 'inside'} the mesh's "
+            f"the photographed outline lies {abs(offset):.2f} px {'outside' if offset > 0 else 'inside'} the mesh's "
             f"all round, where the right mesh gives ≲ {EXPECTED_OFFSET_PX:g} px: is the object on the plate the "
             "plan's mesh at the plan's scale, and the camera in focus?"
         )
