@@ -89,7 +89,7 @@ def register_case(
     plan = read_plan(plan_path)
     mesh = load_planned_mesh(plan, plan_path)
     nominal = mesh_to_turntable(plan)
-    frame = PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
+    frame = PlacementFrame.about(mesh.vertices, nominal)
     true = frame.matrix(placed.params())
     world = replace(sim_scene(plan, plan_path, None), mesh_to_turntable=true)
     views, render_s = _photographed(world, rig, spp=spp, seed=seed)
@@ -178,7 +178,7 @@ def face_case(
     mesh = load_planned_mesh(plan, plan_path)
     nominal = mesh_to_turntable(plan)
     rank, resting, _ = next(other_rests(mesh, nominal, plan.object.scale))
-    frame = PlacementFrame(resting, mesh.transformed(resting).vertices.mean(axis=0))
+    frame = PlacementFrame.about(mesh.vertices, resting)
     true = frame.matrix(placed.params())
     world = replace(sim_scene(plan, plan_path, None), mesh_to_turntable=true)
     views, _ = _photographed(world, rig, spp=spp, seed=seed)
@@ -299,7 +299,7 @@ def cylinder_case(rig: Rig, placed: Placed, *, spp: int, seed: int) -> CylinderF
     the colours (the regions' expected chromaticity: their Rd's)."""
     mesh, face_region = painted_cylinder()
     nominal = placement(mesh)
-    frame = PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
+    frame = PlacementFrame.about(mesh.vertices, nominal)
     true = frame.matrix(placed.params())
     materials = [Material(rd, (0.05, 0.05, 0.05), 40.0) for rd in CYLINDER_RD]
     world = SceneSpec(mesh.vertices, mesh.faces, face_region, materials, true)

@@ -189,7 +189,7 @@ def _outlines_of(mesh: ColouredMesh, true_params: np.ndarray, angles=(0.0, 60.0,
 
     camera = half_size_camera()
     nominal = placement(mesh)
-    frame = PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
+    frame = PlacementFrame.about(mesh.vertices, nominal)
     truth = Outlines(mesh, camera, frame, [ObservedView(a, np.ones((1, 1), bool)) for a in angles])
     m = frame.matrix(true_params)
     caster = RayCaster(mesh.transformed(m))  # each pixel whose centre sees the object: the half-covered edge
@@ -256,7 +256,7 @@ def test_a_placement_outside_the_search_range_or_another_object_is_refused():
     # the photographed outline, which lies 0.47 px inside the mesh's all round (the right mesh: ≲ 0.01 px)
     big = ColouredMesh(mesh.vertices * 1.01, mesh.faces)
     nominal = placement(big)
-    big_frame = PlacementFrame(nominal, big.transformed(nominal).vertices.mean(axis=0))
+    big_frame = PlacementFrame.about(big.vertices, nominal)
     with pytest.raises(
         PlacementError, match=r"outline lies 0\.4\d px inside the mesh's all round.*plan's scale"
     ):
@@ -265,7 +265,7 @@ def test_a_placement_outside_the_search_range_or_another_object_is_refused():
     # outline misses by 1.25 px RMS where the right mesh lies within 0.27 px
     other = ColouredMesh(mesh.vertices * np.array([1.06, 0.94, 1.0]), mesh.faces)
     nominal = placement(other)
-    other_frame = PlacementFrame(nominal, other.transformed(nominal).vertices.mean(axis=0))
+    other_frame = PlacementFrame.about(other.vertices, nominal)
     with pytest.raises(PlacementError, match=r"misses the photographed one by 1\.\d\d px RMS.*plan's scale"):
         register(Outlines(other, half_size_camera(), other_frame, outlines.views), yaw_step_deg=90)
 
@@ -406,9 +406,7 @@ def test_an_object_on_another_face_is_found_resting_there():
     side = next(
         _resting(mesh, t, 1.0) for t in transforms if abs((t[:3, :3].T @ [0, 0, 1]) @ [0, 0, 1]) < 0.5
     )  # a pose whose up is not the plan's
-    true = PlacementFrame(side, mesh.transformed(side).vertices.mean(axis=0)).matrix(
-        np.array([0, 0, 50.0, 8, -3, 0])
-    )
+    true = PlacementFrame.about(mesh.vertices, side).matrix(np.array([0, 0, 50.0, 8, -3, 0]))
     camera = half_size_camera()
     angles = (0.0, 90.0, 180.0, 270.0)
     caster = RayCaster(mesh.transformed(true))

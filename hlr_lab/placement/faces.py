@@ -60,7 +60,7 @@ def register_on_faces(
     """Register ``views`` standing as ``nominal`` (4, 4) mesh → turntable says; failing that, resting on
     another of the mesh's stable faces (``scale``: mesh units → metres). :class:`PlacementError` when no face
     fits, naming the plan's refusal and the faces tried. ``yaw_step_deg``: the search's (:func:`register`)."""
-    planned = Outlines(mesh, camera, _frame(mesh, nominal), views)
+    planned = Outlines(mesh, camera, PlacementFrame.about(mesh.vertices, nominal), views)
     try:
         return Rest(register(planned, yaw_step_deg=yaw_step_deg), planned)
     except PlacementError as as_planned:
@@ -69,7 +69,7 @@ def register_on_faces(
     tried = []
     for rank, placed, probability in itertools.islice(other_rests(mesh, nominal, scale), RESTS_TRIED):
         tried.append(f"{rank} (p = {probability:.2f})")
-        outlines = Outlines(mesh, camera, _frame(mesh, placed), views)
+        outlines = Outlines(mesh, camera, PlacementFrame.about(mesh.vertices, placed), views)
         try:
             fits.append(
                 Rest(register(outlines, yaw_step_deg=yaw_step_deg), outlines, rank, float(probability))
@@ -96,10 +96,6 @@ def other_rests(
         placed = _resting(mesh, rest, scale)
         if np.degrees(np.arccos(np.clip(_mesh_up(placed) @ up, -1, 1))) >= SAME_FACE_DEG:
             yield rank, placed, float(probability)
-
-
-def _frame(mesh: ColouredMesh, nominal: np.ndarray) -> PlacementFrame:
-    return PlacementFrame(nominal, mesh.transformed(nominal).vertices.mean(axis=0))
 
 
 def _mesh_up(placement: np.ndarray) -> np.ndarray:

@@ -21,6 +21,12 @@ class PlacementFrame:
     nominal: np.ndarray
     centre: np.ndarray
 
+    @classmethod
+    def about(cls, vertices: np.ndarray, nominal: np.ndarray) -> PlacementFrame:
+        """The frame about the centre (the vertices' mean) of ``vertices`` (N, 3, mesh frame) placed as
+        ``nominal`` (4, 4) mesh → turntable says."""
+        return cls(nominal, (vertices @ nominal[:3, :3].T + nominal[:3, 3]).mean(axis=0))
+
     def matrix(self, params: np.ndarray) -> np.ndarray:
         """(4, 4) mesh → turntable for ``params`` (6,): rotation vector (degrees) about ``centre``, then the
         shift (mm)."""

@@ -53,9 +53,8 @@ def registration_plan(plan: PlanFile, plan_path: Path, rig: Rig, folder: Path) -
     kinematics = rig.gantry.kinematics
     poses = []
     for k, turn in enumerate(registration_views(rig)):
-        to_mesh = mesh_from_tt @ np.linalg.inv(
-            rotation_z(np.radians(turn))
-        )  # world at this turn → mesh frame
+        # the world at this turn → the mesh's frame
+        to_mesh = mesh_from_tt @ np.linalg.inv(rotation_z(np.radians(turn)))
         lamps = list(enumerate(registration_lamps(rig)))
         for j, (az, el) in lamps if k % 2 == 0 else lamps[::-1]:  # back the way it came: no return swing
             lamp = kinematics.centre + kinematics.arm_radius * kinematics.unit_direction(

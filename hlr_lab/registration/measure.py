@@ -112,8 +112,7 @@ def placement_record(measured: Measured, plan: PlanFile) -> PlacementRecord:
     assumed to lie before any registration (:func:`~hlr_lab.formats.planned_object.nominal_placement`)."""
     found = measured.found
     nominal = nominal_placement(plan)
-    centre = measured.mesh.transformed(nominal).vertices.mean(axis=0)
-    offset = PlacementFrame(nominal, centre).params(found.mesh_to_turntable)
+    offset = PlacementFrame.about(measured.mesh.vertices, nominal).params(found.mesh_to_turntable)
     turn, tilt = turn_angles(offset)
     se = np.minimum(found.se, 999.0)  # an undetermined turn's error is "huge", not 10¹²
     return PlacementRecord(
