@@ -222,16 +222,19 @@ def test_fit_recovers_the_simulated_materials(acquired, capsys):
 def test_the_systematic_moves_are_what_refits_under_the_moved_rig_give(acquired, tmp_path):
     """The session fitted under a rig file whose calibration records give covariances: each term's
     first-order move of (Rd, Rs, n), the pixels held, against a full refit with the rig moved by that
-    term (its selection, HDR and all) — the largest camera mode, the largest gantry mode, the black level:
-    within 0.5 standard errors plus 20 % of the move. The refit's pixels move with the rig (at borders and
-    grazing angles they come and go), a jitter the first-order move, its pixels held, has not: measured
-    up to 0.5 SE at a 3 SE move here, 0.1–0.2 SE on the calibrated bench's smaller moves.
+    term (its selection, HDR and all) — the largest camera mode, the largest gantry mode, the largest of
+    the measured placement's six, the black level: within 0.5 standard errors plus 20 % of the move. The
+    refit's pixels move with the rig (at borders and grazing angles they come and go), a jitter the
+    first-order move, its pixels held, has not: measured up to 0.5 SE at a 3 SE move here, 0.1–0.2 SE on
+    the calibrated bench's smaller moves.
     The sensitivity term moves Rd and Rs by its share exactly and n not at all; each entry's *_sys is the
     terms' moves in quadrature."""
     from dataclasses import replace
 
+    from hlr_lab.formats.plan import PlacementRecord
+    from hlr_lab.formats.planned_object import mesh_to_turntable
     from hlr_lab.reflectance.session_fit import fit_session, open_session, placed_mesh
-    from hlr_lab.reflectance.systematic import rig_terms
+    from hlr_lab.reflectance.systematic import placement_terms, rig_terms
     from hlr_lab.rig.file import CAMERA_PARAMETERS
     from tests.test_systematic import rig_with_records
 
@@ -240,20 +243,32 @@ def test_the_systematic_moves_are_what_refits_under_the_moved_rig_give(acquired,
     assert len(camera) == len(CAMERA_PARAMETERS)
     rig = rig_with_records(tmp_path, camera, gantry, (0.004, 0.3))
     session = replace(open_session(acquired[1]), rig=rig)
+    assert fit_session(session).materials.systematic.placement.startswith(
+        "the object's placement was assumed"
+    )
+    plan = session.plan
+    placement = PlacementRecord(status="measured", method="outlines", date="2026-12-04T00:00:00Z",
+                                nominal_mesh_to_turntable=mesh_to_turntable(plan).tolist(),
+                                se_shift_mm=[0.03, 0.05, 0.04], se_rotation_deg=[0.1, 0.2, 0.15])  # fmt: skip
+    session = replace(session, plan=plan.model_copy(
+        update={"object": plan.object.model_copy(update={"placement": placement})}))  # fmt: skip
     result = fit_session(session)
     record = result.materials.systematic
     assert record is not None
     assert record.uncalibrated is None
+    assert record.placement is None
     names = [t.name for t in record.terms]
     rows = {d["id"]: d["systematic"] for d in result.diagnostics["regions"]}
     keys = [f"{p} {c}" for p in ("Rd", "Rs") for c in "RGB"] + ["n"]
 
     def moved_by(term_index: int):
-        term = rig_terms(
-            rig,
-            placed_mesh(session).vertices,
-        )[term_index]
-        moved = rig
+        vertices = placed_mesh(session).vertices
+        term = [*rig_terms(rig, vertices), *placement_terms(placement, vertices.mean(axis=0))][term_index]
+        moved, placed = rig, session.plan
+        if term.object_moved is not None:
+            nominal = mesh_to_turntable(placed)
+            placed = placed.model_copy(update={"object": placed.object.model_copy(
+                update={"mesh_to_turntable": (term.object_moved @ nominal).tolist()})})  # fmt: skip
         if term.camera is not None:
             moved = replace(moved, camera=term.camera)
         if term.kinematics is not None:
@@ -261,14 +276,21 @@ def test_the_systematic_moves_are_what_refits_under_the_moved_rig_give(acquired,
         if term.black_level_dn is not None:
             sensor = moved.file.sensor.model_copy(update={"black_level_dn": term.black_level_dn})
             moved = replace(moved, file=moved.file.model_copy(update={"sensor": sensor}))
-        return fit_session(replace(session, rig=moved), systematic=False).materials
+        return fit_session(replace(session, rig=moved, plan=placed), systematic=False).materials
 
     def size(index: int) -> float:
         return float(np.sqrt(sum(rows[e.id][index]["n"] ** 2 for e in result.materials.regions)))
 
     cameras = [i for i, n in enumerate(names) if n.startswith("camera")]
     lamps = [i for i, n in enumerate(names) if n.startswith("gantry")]
-    for index in (max(cameras, key=size), max(lamps, key=size), names.index("black level")):
+    placed = [i for i, n in enumerate(names) if n.startswith("placement")]
+    assert len(placed) == 6
+    for index in (
+        max(cameras, key=size),
+        max(lamps, key=size),
+        max(placed, key=size),
+        names.index("black level"),
+    ):
         again = {e.id: e for e in moved_by(index).regions}
         for e in result.materials.regions:
             g = again[e.id]

@@ -98,8 +98,9 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
                           on_gaps=_say_gaps)  # fmt: skip
     console.print(materials_table(result.materials))
     systematic = result.materials.systematic
-    if systematic is not None and systematic.uncalibrated:
-        console.print(f"[yellow]systematic:[/] {escape(systematic.uncalibrated)}", soft_wrap=True)
+    for left_out in (systematic.uncalibrated, systematic.placement) if systematic is not None else ():
+        if left_out:
+            console.print(f"[yellow]systematic:[/] {escape(left_out)}", soft_wrap=True)
     if "warning" in result.diagnostics["black_level"]:
         console.print(f"[yellow]warning:[/] {escape(result.diagnostics['black_level']['warning'])}")
     if "warning" in result.diagnostics["alignment"]:

@@ -93,6 +93,7 @@ class Systematic(OpenModel):
     terms: list[SystematicTerm]
     estimator: EstimatorName
     uncalibrated: str | None = None  # what had no calibration record, and what to do
+    placement: str | None = None  # the object's placement assumed, not measured: not in *_sys
 
 
 class NotMeasured(OpenModel):

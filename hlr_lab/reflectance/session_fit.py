@@ -46,7 +46,7 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.alignment import PoseAlignment, pose_alignment
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, exposure_agreement, merge_bracket
-from hlr_lab.reflectance.systematic import RigTerm, rig_terms
+from hlr_lab.reflectance.systematic import RigTerm, placement_note, placement_terms, rig_terms
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
     PixelGeometry,
@@ -447,10 +447,11 @@ def fit_session(
     record = None
     if systematic and responds:
         with times("systematic"):
-            terms = rig_terms(rig, mesh.vertices)
+            placement = plan.object.placement
+            terms = [*rig_terms(rig, mesh.vertices), *placement_terms(placement, mesh.vertices.mean(axis=0))]
             shifts = _systematic_shifts(session, caster, pooled, responds, terms, progress)
         entries = [_with_systematic(e, shifts.get(e.id), terms) for e in entries]
-        record = _systematic_record(terms, shifts, diagnostics, method)
+        record = _systematic_record(terms, shifts, diagnostics, method, placement_note(placement))
     fitted = {e.id for e in entries}
     notes = {d["id"]: d for d in diagnostics["regions"]}
     missing = [
@@ -662,7 +663,7 @@ def _moved_inputs(
         intensity = intensity + (term.black_level_dn - rig.file.sensor.black_level_dn) * part.black_slope
     if term.sensitivity_factor is not None:
         intensity = intensity / term.sensitivity_factor
-    if term.camera is not None or term.kinematics is not None:
+    if term.camera is not None or term.kinematics is not None or term.object_moved is not None:
         moved_pose = pose
         if term.kinematics is not None:
             ticks = view.measured["gantry_ticks"]
@@ -675,9 +676,9 @@ def _moved_inputs(
             )
         # the change, added to what the fit had (the same arithmetic either side: no rounding taken for a move)
         base = light_terms_again(caster, rig.camera, pose, part, recast=False)
-        after = light_terms_again(
-            caster, term.camera or rig.camera, moved_pose, part, recast=term.camera is not None
-        )
+        after = light_terms_again(caster, term.camera or rig.camera, moved_pose, part,
+                                  recast=term.camera is not None or term.object_moved is not None,
+                                  object_moved=term.object_moved)  # fmt: skip
         irradiance = irradiance + (after.irradiance - base.irradiance)
         cos_alpha = np.clip(cos_alpha + (after.cos_alpha - base.cos_alpha), 1e-6, 1.0)
         cos_beta = np.clip(cos_beta + (after.cos_beta - base.cos_beta), 1e-6, 1.0)
@@ -704,10 +705,11 @@ def _with_systematic(entry: MaterialEntry, shifts: np.ndarray | None, terms: lis
 
 
 def _systematic_record(
-    terms: list[RigTerm], shifts: dict[int, np.ndarray], diagnostics: dict, method
+    terms: list[RigTerm], shifts: dict[int, np.ndarray], diagnostics: dict, method, placement: str | None
 ) -> dict:
-    """``materials.json``'s ``systematic``: how it was propagated and from what; each region's moves per
-    term go to the diagnostics (the largest first), for a reader asking what dominates."""
+    """``materials.json``'s ``systematic``: how it was propagated and from what, and what of the placement
+    it leaves out (``placement``); each region's moves per term go to the diagnostics, for a reader asking
+    what dominates."""
     names = [f"{p} {c}" for p in ("Rd", "Rs") for c in "RGB"] + ["n"]
     for d in diagnostics["regions"]:
         moves = shifts.get(d["id"])
@@ -720,6 +722,8 @@ def _systematic_record(
         d["systematic"] = rows
     uncalibrated = sorted({t.device for t in terms if t.source == "uncalibrated"})
     record = {"method": "linearised", "terms": [t.as_record() for t in terms], "estimator": method}
+    if placement:
+        record["placement"] = placement
     if uncalibrated:
         record["uncalibrated"] = (
             f"no calibration record for the {', '.join(uncalibrated)}: the rig file's drawing was taken to be "

@@ -16,6 +16,9 @@ quadrature into the systematic uncertainty of each parameter.
   (``[calibration.gantry] covariance``), every mode (no ray cast: the lamp alone moves).
 - The sensor: sensitivity × lamp power and the black level (``[calibration.radiometric]``
   ``sensitivity_se_rel``, ``black_level_se_dn``).
+- The object's placement, when ``hlr-lab register`` measured it (the plan's ``object.placement``): its
+  shift's and its turn's standard errors, six independent terms (each a ray cast of the samples). A
+  placement only assumed has no standard error to give: the record says so (:func:`placement_note`).
 
 A calibration without a covariance (written by an older hlr-lab) gives its standard errors as
 independent terms. A camera or gantry never calibrated is no small move of a good belief: its drawing
@@ -32,7 +35,9 @@ from typing import Literal
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from hlr_lab.formats.plan import PlacementRecord
 from hlr_lab.geometry.camera import Camera
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.rig.file import CAMERA_PARAMETERS, GANTRY_PARAMETERS, Rig
@@ -56,8 +61,9 @@ Source = Literal["covariance", "standard errors", "uncalibrated"]
 class RigTerm:
     """One independent one-σ move of the rig the fit believes: exactly one of ``camera`` (the camera
     moved), ``kinematics`` (the gantry's), ``black_level_dn`` (the black level moved to this),
-    ``sensitivity_factor`` (sensitivity × power times this) or ``fraction`` (a device never calibrated:
-    this share of each parameter, keyed "rd", "rs", "n") is set, with ``device`` what it belongs to.
+    ``sensitivity_factor`` (sensitivity × power times this), ``object_moved`` (4, 4: the object lying so
+    moved, a rigid move of the turntable frame) or ``fraction`` (a device never calibrated: this share of
+    each parameter, keyed "rd", "rs", "n") is set, with ``device`` what it belongs to.
 
     ``name`` is what it moves, ``size`` the move in words (for the record), ``source`` where its σ came
     from: the calibration's covariance, its standard errors, or the uncalibrated default."""
@@ -69,8 +75,9 @@ class RigTerm:
     kinematics: GantryKinematics | None = None
     black_level_dn: float | None = None
     sensitivity_factor: float | None = None
+    object_moved: np.ndarray | None = None
     fraction: dict[str, float] | None = None
-    device: Literal["camera", "gantry", "sensor"] = "sensor"
+    device: Literal["camera", "gantry", "sensor", "placement"] = "sensor"
 
     def as_record(self) -> dict:
         return {"name": self.name, "size": self.size, "source": self.source}
@@ -83,6 +90,42 @@ def rig_terms(rig: Rig, object_points: np.ndarray) -> list[RigTerm]:
     camera's modes are measured.
     """
     return [*camera_terms(rig, object_points), *gantry_terms(rig), *sensor_terms(rig)]
+
+
+def placement_terms(record: PlacementRecord | None, centre: np.ndarray) -> list[RigTerm]:
+    """The measured placement's standard errors as six independent terms: a shift along each axis of the
+    turntable frame and a turn about each through the object's ``centre`` (3,; turntable frame, m), as
+    ``hlr-lab register`` states them (docs/placement.md). None for a placement assumed or without them."""
+    if (
+        record is None
+        or record.status == "assumed"
+        or record.se_shift_mm is None
+        or record.se_rotation_deg is None
+    ):
+        return []
+    terms = []
+    for axis, name in enumerate("xyz"):
+        move = np.eye(4)
+        move[axis, 3] = record.se_shift_mm[axis] / 1000
+        terms.append(RigTerm(f"placement shift {name}", f"{record.se_shift_mm[axis]:.3g} mm", "standard errors",
+                             object_moved=move, device="placement"))  # fmt: skip
+    for axis, name in enumerate("xyz"):
+        move = np.eye(4)
+        move[:3, :3] = Rotation.from_rotvec(
+            np.radians(record.se_rotation_deg[axis]) * np.eye(3)[axis]
+        ).as_matrix()
+        move[:3, 3] = centre - move[:3, :3] @ centre
+        terms.append(RigTerm(f"placement turn about {name}", f"{record.se_rotation_deg[axis]:.3g}°", "standard errors",
+                             object_moved=move, device="placement"))  # fmt: skip
+    return terms
+
+
+def placement_note(record: PlacementRecord | None) -> str | None:
+    """What the systematic part leaves out of the placement, or None when it is in (measured)."""
+    if record is not None and record.status != "assumed" and record.se_shift_mm is not None:
+        return None
+    return ("the object's placement was assumed, not measured: how far it lies from the plan's is not in *_sys "
+            "(hlr-lab register measures it: docs/placement.md)")  # fmt: skip
 
 
 def camera_terms(rig: Rig, object_points: np.ndarray) -> list[RigTerm]:

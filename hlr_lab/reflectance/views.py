@@ -213,13 +213,15 @@ def light_terms_again(
     samples: PoseSamples,
     *,
     recast: bool,
+    object_moved: np.ndarray | None = None,
 ) -> LightTerms:
     """The light terms of ``samples`` (one pose's, the same pixels) under ``camera`` and ``pose`` — a rig
-    believed a little differently (docs/fitting.md, "Systematic uncertainty"). ``recast``: the camera
-    moved, so each pixel's centre ray is cast again (a pixel whose ray now misses keeps its old point);
-    otherwise the samples' points and normals serve. The footprint's nodes move as the centre's log cos β
-    does (the rig's small moves turn the whole pixel's lobe alike)."""
-    cam, light, directional = pose_frame(camera, pose)
+    believed a little differently (docs/fitting.md, "Systematic uncertainty"); ``object_moved`` (4, 4): the
+    object lying moved by this rigid move of the turntable frame from where the plan places it. ``recast``:
+    the camera or the object moved, so each pixel's centre ray is cast again (a pixel whose ray now misses
+    keeps its old point); otherwise the samples' points and normals serve. The footprint's nodes move as the
+    centre's log cos β does (the rig's small moves turn the whole pixel's lobe alike)."""
+    cam, light, directional = pose_frame(camera, pose, object_moved)
     point, normal = samples.point.astype(np.float64), samples.normal.astype(np.float64)
     if recast and len(point):
         surface = caster.surface(cam, samples.pixel.astype(np.float64))
@@ -254,11 +256,17 @@ def _towards(points, normals, light, camera_centre, directional, power):
     return l_dir, v_dir, irradiance, np.clip(np.einsum("ij,ij->i", normals, half), 0.0, 1.0)
 
 
-def pose_frame(camera: Camera, pose: PoseGeometry) -> tuple[Camera, np.ndarray, np.ndarray | None]:
+def pose_frame(
+    camera: Camera, pose: PoseGeometry, object_moved: np.ndarray | None = None
+) -> tuple[Camera, np.ndarray, np.ndarray | None]:
     """The pose seen from the turntable, where the mesh sits still: the camera, the lamp's position (3,)
-    and, for a distant lamp, the direction toward it (3,; None for a point lamp)."""
+    and, for a distant lamp, the direction toward it (3,; None for a point lamp). ``object_moved`` (4, 4),
+    a rigid move of the turntable frame: the object lies so moved from where the plan places it, which,
+    seen from the object, is the camera and the lamp moved back."""
     world_from_tt = rotation_z(np.radians(pose.turntable_deg))
-    to_tt = world_from_tt[:3, :3].T  # world → turntable (a rotation about the table's axis)
+    if object_moved is not None:
+        world_from_tt = world_from_tt @ object_moved
+    to_tt = world_from_tt[:3, :3].T  # world → turntable (a rotation)
     light = to_tt @ (pose.light_world - world_from_tt[:3, 3])
     directional = (
         None if pose.directional_from is None else to_tt @ (pose.light_world - pose.directional_from)

@@ -230,8 +230,9 @@ def _uncertainty_note(materials: MaterialsFile) -> str:
         f"own uncertainty leaves uncertain ({len(record.terms)} independent terms, {', '.join(sources)}; "
         "propagated to first order — docs/fitting.md). Combined: the square root of the sum of their squares."
     )
-    if record.uncalibrated:
-        text += f" <b>{h.escape(record.uncalibrated)}.</b>"
+    for left_out in (record.uncalibrated, record.placement):
+        if left_out:
+            text += f" <b>{h.escape(left_out)}.</b>"
     return f'<p class="note">{text}</p>'
 
 
