@@ -34,7 +34,8 @@ def truth():
 
 def photographs(truth, tilts_deg, turntable_deg, seed=0) -> list[np.ndarray]:
     """The board on a wedge of each tilt at each turntable angle, lit by the gantry lamp from above the
-    camera's side, as the procedure sees it: the mean of FRAMES_PER_VIEW raw 12-bit frames."""
+    camera's side, as the procedure sees it: the mean of FRAMES_PER_VIEW raw 12-bit frames (of one render:
+    a still camera's frames differ by the sensor's noise, not by the renderer's)."""
     from sim.render.renderer import Renderer
 
     g = truth.gantry
@@ -42,13 +43,13 @@ def photographs(truth, tilts_deg, turntable_deg, seed=0) -> list[np.ndarray]:
     sensor, rng = SensorModel(), np.random.default_rng(seed)
     frames = []
     for tilt in tilts_deg:
-        renderer = Renderer(charuco_scene(BOARD, Wedge(tilt_deg=tilt)), truth.camera, spp=8)
+        renderer = Renderer(charuco_scene(BOARD, Wedge(tilt_deg=tilt)), truth.camera, spp=16)
         for angle in turntable_deg:
-            shots = []
-            for k in range(FRAMES_PER_VIEW):
-                radiance = renderer.render(angle, lamp, lamp_on=True, seed=FRAMES_PER_VIEW * len(frames) + k)
-                exposure = 0.7 * sensor.top / (sensor.sensitivity * max(radiance.max(), 1e-9))
-                shots.append(sensor.expose(radiance, exposure, rng).astype(np.float64))
+            radiance = renderer.render(angle, lamp, lamp_on=True, seed=len(frames))
+            exposure = 0.7 * sensor.top / (sensor.sensitivity * max(radiance.max(), 1e-9))
+            shots = [
+                sensor.expose(radiance, exposure, rng).astype(np.float64) for _ in range(FRAMES_PER_VIEW)
+            ]
             frames.append(np.mean(shots, axis=0))
     return frames
 
