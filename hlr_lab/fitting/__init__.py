@@ -108,11 +108,14 @@ def fit_region(
     theta_c_deg: float | Literal["auto"] = 20.0,
     method: EstimatorName = DEFAULT_ESTIMATOR,
     footprint: np.ndarray | None = None,
+    patch: np.ndarray | None = None,
 ) -> RegionFit:
     """Fit (Rd, Rs, n) of eq. (1) to one region's pixels; see the module docstring for the arguments.
     ``footprint``: (N, K) log cos β at K nodes over each pixel's area, so that the robust estimator fits
     the lobe as the pixels saw it, the mean of its values at the nodes; None: every pixel a point sample.
-    The paper's estimator takes the pixel centre, as the paper does.
+    The paper's estimator takes the pixel centre, as the paper does. ``patch``: (N,) int, the surface patch
+    each pixel saw; the robust estimator's standard errors then count patches where that gives the larger
+    (``fitting.robust``, step 5); None: every pixel on its own.
 
     Raises InputError for malformed input, InsufficientSamples when fewer than MIN_DIFFUSE diffuse-only
     or MIN_HIGHLIGHT highlight pixels remain, DegenerateSamples when the highlight pixels span too little
@@ -120,7 +123,9 @@ def fit_region(
     """
     if method not in ESTIMATORS:
         raise InputError(f"unknown method {method!r}; use one of {', '.join(ESTIMATORS)}", field="method")
-    s = check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint if method == "robust" else None)
+    robust = method == "robust"
+    s = check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint if robust else None,
+                      patch if robust else None)  # fmt: skip
     estimator = ESTIMATORS[method].fit
     if theta_c_deg == "auto":
         theta, est = _auto_theta_c(s, estimator, refit=ESTIMATORS[method].per_theta_c)

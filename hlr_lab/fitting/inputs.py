@@ -43,13 +43,17 @@ class DegenerateSamples(HlrLabError):
 class Samples:
     """One region's pixels: intensity (N, 3), irradiance (N, 1) or (N, 3), cos_alpha (N,), cos_beta (N,) at
     the pixel centre, and ``footprint`` (N, K): log cos β at K quadrature nodes over each pixel's area, whose
-    mean lobe is the one the pixel saw (None: every pixel a point sample)."""
+    mean lobe is the one the pixel saw (None: every pixel a point sample); ``patch`` (N,) int ≥ 0: the patch
+    of surface each pixel saw — what the model gets wrong on a patch it gets wrong in all of that patch's
+    pixels, so the standard errors count patches, not pixels, where that is the larger (None: every pixel
+    on its own)."""
 
     intensity: np.ndarray
     irradiance: np.ndarray
     cos_alpha: np.ndarray
     cos_beta: np.ndarray
     footprint: np.ndarray | None = None
+    patch: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.cos_alpha)
@@ -94,12 +98,14 @@ class Samples:
             self.cos_alpha[which],
             self.cos_beta[which],
             None if self.footprint is None else self.footprint[which],
+            None if self.patch is None else self.patch[which],
         )
 
 
-def check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint=None) -> Samples:
+def check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint=None, patch=None) -> Samples:
     """Convert and validate; one InputError naming the argument and how many values are wrong.
-    ``footprint``: (N, K) log cos β at K nodes over each pixel's area, or None."""
+    ``footprint``: (N, K) log cos β at K nodes over each pixel's area, or None; ``patch``: (N,) the surface
+    patch of each pixel (integers ≥ 0), or None."""
     i = _array("intensity", intensity)
     if i.ndim != 2 or i.shape[1] != 3:
         raise InputError(f"must have shape (N, 3), got {i.shape}", field="intensity")
@@ -123,7 +129,14 @@ def check_samples(intensity, irradiance, cos_alpha, cos_beta, footprint=None) ->
             raise InputError(f"must have shape ({n}, K) like intensity, got {nodes.shape}", field="footprint")
         _count_bad("footprint", np.any(nodes > 1e-9, axis=1), "above 0 (a log cos β)")
         nodes = np.minimum(nodes, 0.0)
-    return Samples(i, irr, np.minimum(ca, 1.0), np.minimum(cb, 1.0), nodes)
+    patches = None
+    if patch is not None:
+        patches = np.asarray(patch)
+        if patches.shape != (n,) or not np.issubdtype(patches.dtype, np.integer):
+            raise InputError(f"must be ({n},) integers like intensity, got {patches.dtype} {patches.shape}",
+                             field="patch")  # fmt: skip
+        _count_bad("patch", patches < 0, "below 0 (a patch is an index)")
+    return Samples(i, irr, np.minimum(ca, 1.0), np.minimum(cb, 1.0), nodes, patches)
 
 
 def _array(name: str, value) -> np.ndarray:

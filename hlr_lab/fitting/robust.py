@@ -10,7 +10,9 @@
    standardised by that noise model (held at the starting fit): inter-reflections and the odd bad pixel
    lose their pull instead of biasing Rd, and no division by cosⁿβ ever amplifies noise. From the
    subsample's start one pass usually suffices (see ``_gauss_newton``).
-5. Standard errors from the sandwich covariance H⁻¹ (Σ ψ² J Jᵀ/σ²) H⁻¹; the answer's response to
+5. Standard errors from the sandwich covariance H⁻¹ (Σ ψ² J Jᵀ/σ²) H⁻¹ — or, where the pixels' surface
+   patches are known and that is the larger, the same with each patch's scores summed before squaring
+   (what the model misses on a patch it misses in all its pixels: ``_patch_se``); the answer's response to
    moved inputs (a rig quantity believed a little wrong: docs/fitting.md, "Systematic uncertainty") by the
    implicit function theorem, δp = H⁻¹ δg, the gradient's change at the answer (:class:`Linearised`).
 6. Rd and Rs are reflectances: a channel that comes out below 0 (a near-black surface, whose noise
@@ -69,6 +71,8 @@ def fit_robust(s: Samples, highlight: np.ndarray, n_range: tuple[float, float], 
         held[below] = True
         p, cov, rms = _gauss_newton(s, np.where(held, 0.0, p), variance, n_range, held=held)
         se = np.where(held, se, np.sqrt(np.clip(np.diag(cov), 0, None)))
+    if s.patch is not None:
+        se = np.where(held, se, np.maximum(se, _patch_se(s, p, variance, held)))
     response = Linearised(s, p, variance, held)
     # the noise at the lobe's peak; a lobe fitted below zero (no highlight seen) has none: the floor's
     mu_peak = max(float(np.mean(p[3:6]) * np.median(s.irradiance)), 0.0)
@@ -322,26 +326,10 @@ def _assemble_vector(grads: np.ndarray, rs: np.ndarray) -> np.ndarray:
 
 
 def _chunk_sums(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
-    rd, rs, n = p[:3], p[3:6], p[6]
-    rd0, rs0 = noise.p[:3], noise.p[3:6]
-    ca = s.cos_alpha[sl]
-    e, lb = s.lobe(n, sl)  # the lobe as the pixels see it, and d(log lobe)/dn
-    shared_light = s.irradiance.shape[1] == 1
-    jac = np.empty((3, len(ca)))
     hess, weighted, meat = np.zeros((3, 3, 3)), np.zeros((3, 3, 3)), np.zeros((3, 3, 3))
     grads = np.zeros((3, 3))
     cost = rss = 0.0
-    lobe0 = np.empty(0)  # the start's lobe under this light: set at c = 0, and per channel if lights differ
-    for c in range(3):
-        if c == 0 or not shared_light:
-            light = s.irradiance[sl, 0 if shared_light else c]
-            np.multiply(light, ca, out=jac[0])  # ∂μ/∂rd
-            np.multiply(light, e, out=jac[1])  # ∂μ/∂rs
-            np.multiply(jac[1], lb, out=jac[2])  # ∂μ/∂n ÷ rs
-            lobe0 = light * noise.lobe[sl]
-        mu = rd[c] * jac[0] + rs[c] * jac[1]
-        r = s.channels[c, sl] - mu
-        inv_var = 1.0 / noise(rd0[c] * jac[0] + rs0[c] * lobe0)
+    for c, jac, r, inv_var in _channels(s, p, noise, sl):
         t2 = r * r * inv_var
         t = np.sqrt(t2)
         beyond = np.maximum(t - HUBER_K, 0.0)
@@ -355,3 +343,54 @@ def _chunk_sums(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
         meat[c] = (jac * (psi * psi)) @ jac.T  # ψ(t)²/σ²
         grads[c] = jac @ psi
     return hess, weighted, meat, grads, cost, rss
+
+
+def _channels(s: Samples, p: np.ndarray, noise: _Variance, sl: slice):
+    """Per channel c of the pixels ``sl``: c, the Jacobian (3, M) over (∂rd_c, ∂rs_c, ∂n ÷ rs_c) — one
+    buffer, valid until the next channel —, the residuals (M,) and the noise model's 1/σ² (M,)."""
+    rd, rs, n = p[:3], p[3:6], p[6]
+    rd0, rs0 = noise.p[:3], noise.p[3:6]
+    ca = s.cos_alpha[sl]
+    e, lb = s.lobe(n, sl)  # the lobe as the pixels see it, and d(log lobe)/dn
+    shared_light = s.irradiance.shape[1] == 1
+    jac = np.empty((3, len(ca)))
+    lobe0 = np.empty(0)  # the start's lobe under this light: set at c = 0, and per channel if lights differ
+    for c in range(3):
+        if c == 0 or not shared_light:
+            light = s.irradiance[sl, 0 if shared_light else c]
+            np.multiply(light, ca, out=jac[0])  # ∂μ/∂rd
+            np.multiply(light, e, out=jac[1])  # ∂μ/∂rs
+            np.multiply(jac[1], lb, out=jac[2])  # ∂μ/∂n ÷ rs
+            lobe0 = light * noise.lobe[sl]
+        mu = rd[c] * jac[0] + rs[c] * jac[1]
+        yield c, jac, s.channels[c, sl] - mu, 1.0 / noise(rd0[c] * jac[0] + rs0[c] * lobe0)
+
+
+def _patch_se(s: Samples, p: np.ndarray, noise: _Variance, held: np.ndarray) -> np.ndarray:
+    """(7,) standard errors counting the surface's patches (``s.patch``) rather than its pixels: the
+    sandwich H⁻¹ (Σ_g u_g u_gᵀ) H⁻¹ · G/(G − 1), u_g the sum over patch g's pixels and channels of their
+    ψ(t)/σ · J (the cluster-robust sandwich; G the patches). What the model misses in one patch it misses
+    in each of its pixels alike — a shading normal a little off, a texel —, which the pixels' own sandwich
+    counts as that many independent errors."""
+    assert s.patch is not None
+    patches, index = np.unique(s.patch, return_inverse=True)
+    if len(patches) < 2:
+        return np.zeros(7)
+    scores = np.zeros((len(patches), 7))
+    rs = p[3:6]
+    for start in range(0, len(s), _CHUNK):
+        sl = slice(start, start + _CHUNK)
+        where = index[sl]
+        for c, jac, r, inv_var in _channels(s, p, noise, sl):
+            t = np.sqrt(r * r * inv_var)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                psi = r * inv_var * np.minimum(1.0, HUBER_K / t)  # ψ(t)/σ
+            for k, column in ((c, 0), (3 + c, 1)):
+                scores[:, k] += np.bincount(where, weights=psi * jac[column], minlength=len(patches))
+            scores[:, 6] += rs[c] * np.bincount(where, weights=psi * jac[2], minlength=len(patches))
+    free = ~held
+    hessian = _normal_equations(s, p, noise)[0]
+    h_inv = np.linalg.pinv(hessian * np.outer(free, free))
+    scores *= free
+    cov = h_inv @ (scores.T @ scores) @ h_inv * len(patches) / (len(patches) - 1)
+    return np.sqrt(np.clip(np.diag(cov), 0, None))
