@@ -22,7 +22,7 @@ from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.acquisition.run import PLANNED_ONLY, acquire_session
 from hlr_lab.acquisition.white_reference import reference_meter
 from hlr_lab.errors import InputError
-from hlr_lab.files import atomic_write_all, model_json
+from hlr_lab.files import LINK_REFUSED, atomic_write_all, model_json
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, EstimatorName
 from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import PlacementRecord, PlanFile, build_plan, read_plan
@@ -37,11 +37,15 @@ from hlr_lab.object.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.object.segment import Segmentation, segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanResult, PlanSettings, plan_lights
+from hlr_lab.reflectance.radiance_file import RadianceHeader, write_radiance
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
     MATERIALS,
+    RADIANCE,
     FitResult,
     FitStep,
+    PoseRadiance,
+    Session,
     fit_session,
     open_session,
 )
@@ -190,24 +194,67 @@ def fit_into(
     systematic: bool = True,
     progress: Callable[[FitStep], None] = lambda _: None,
     on_gaps: Callable[[list[str], int], None] = lambda _notes, _missing: None,
+    radiance: bool = False,
 ) -> FitResult:
     """Fit ``session``'s frames and write materials.json (``output``, default SESSION/materials.json)
     with its diagnostics beside it; each pose's light scaled by the lamp's output the run measured
     (unless not ``correct_lamp``); the rig's own uncertainty propagated into ``*_sys`` unless not
-    ``systematic``. ``on_gaps(notes, missing frames)`` hears what was left out before the
-    fit starts. Refuses a session without frames, and an output over one of the session's files."""
+    ``systematic``. ``radiance``: also each pose's merged radiance as ``radiance/POSE.exr`` beside the
+    output (:mod:`hlr_lab.reflectance.radiance_file`), each written as its pose is done.
+    ``on_gaps(notes, missing frames)`` hears what was left out before the fit starts. Refuses a session
+    without frames, and an output over one of the session's files."""
     output = output or session / MATERIALS
     diagnostics = output.with_name(DIAGNOSTICS)
-    check_outputs([output, diagnostics])
     s = open_session(session, allow_incomplete=allow_incomplete, correct_lamp=correct_lamp)
+    exr = radiance_files(s, output.parent / RADIANCE) if radiance else {}
+    check_outputs([output, diagnostics, *exr.values()])
     on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
-    result = fit_session(s, theta_c_deg=theta_c_deg, method=method, systematic=systematic, progress=progress)
+    if exr:
+        next(iter(exr.values())).parent.mkdir(exist_ok=True)
+    result = fit_session(s, theta_c_deg=theta_c_deg, method=method, systematic=systematic, progress=progress,
+                         on_radiance=functools.partial(_write_radiance, s, exr) if exr else None)  # fmt: skip
     # both or neither: materials.json without its diagnostics would be a fit the report cannot show
     atomic_write_all([(output, model_json(result.materials).encode()),
                       (diagnostics, (json.dumps(result.diagnostics, indent=1) + "\n").encode())])  # fmt: skip
     return result
+
+
+def radiance_files(session: Session, folder: Path) -> dict[str, Path]:
+    """Pose id → the radiance file ``fit --radiance`` writes for it in ``folder``; InputError for a pose
+    id that is not a plain file name, and for a ``folder`` that is a symbolic link or not a folder (a
+    link would carry every file elsewhere)."""
+    if folder.is_symlink():
+        raise InputError(LINK_REFUSED, path=folder, field="--radiance")
+    if folder.exists() and not folder.is_dir():
+        raise InputError(
+            "is not a folder: move it away for the radiance files", path=folder, field="--radiance"
+        )
+    files = {}
+    for view in session.views:
+        if Path(view.pose).name != view.pose or view.pose.startswith("."):
+            raise InputError(f"pose {view.pose!r} cannot name a file: give the plan's poses plain ids",
+                             path=session.plan_path, field="poses.id")  # fmt: skip
+        files[view.pose] = folder / f"{view.pose}.exr"
+    return files
+
+
+def _write_radiance(session: Session, files: dict[str, Path], done: PoseRadiance) -> None:
+    frames = [done.view.sidecars[e["file"]] for e in done.view.frames]
+    camera, lamp = session.rig.camera, done.pose.light_world
+    header = RadianceHeader(
+        pose=done.view.pose,
+        turntable_deg=float(done.pose.turntable_deg),
+        lamp_m=(float(lamp[0]), float(lamp[1]), float(lamp[2])),
+        lamp_power=float(done.pose.power),
+        exposures_s=tuple(float(f["exposure_s"]) for f in frames),
+        gains_db=tuple(float(f["gain_db"]) for f in frames),
+        camera_matrix=tuple(tuple(float(x) for x in row) for row in camera.matrix),
+        distortion=tuple(float(x) for x in np.ravel(camera.distortion)),
+    )
+    r = done.radiance
+    write_radiance(files[done.view.pose], r.value, r.usable, done.used, header)
 
 
 def report_into(
@@ -220,7 +267,7 @@ def report_into(
     output = output or session / REPORT
     check_outputs([output], [session / MATERIALS, session / DIAGNOSTICS])
     s = open_session(session, allow_incomplete=True)  # fit said what is missing (so does materials.json)
-    page, figures = build_report(s, progress=progress)
+    page, figures = build_report(s, progress=progress, page_folder=output.parent)
     write_report(output, page)
     return output, figures, output.stat().st_size
 

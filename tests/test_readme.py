@@ -30,7 +30,8 @@ def readme_commands() -> list[list[str]]:
 
 def test_the_readme_lists_the_whole_measurement():
     assert [c[0] for c in readme_commands()] == [
-        "paint", "segment", "segment", "plan", "plan", "plan", "plan", "acquire", "acquire", "fit", "fit", "report"
+        "paint", "segment", "segment", "plan", "plan", "plan", "plan", "acquire", "acquire", "fit", "fit", "fit",
+        "report"
     ]  # fmt: skip
 
 
@@ -45,4 +46,5 @@ def test_the_readme_examples_run_as_written(tmp_path, monkeypatch, bunny_path, s
         allowed = (0, EXIT_UNCOVERED) if command[0] == "plan" else (0,)
         assert status in allowed, f"hlr-lab {shlex.join(command)}: exit {status}\n{capsys.readouterr().err}"
     assert (tmp_path / "session" / "report.html").is_file()
+    assert list((tmp_path / "session" / "radiance").glob("*.exr"))  # fit --radiance
     assert (tmp_path / "materials.json").is_file()

@@ -13,7 +13,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.display.materials import materials_table, stage_progress
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName
 from hlr_lab.pipeline import fit_into
-from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS
+from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, RADIANCE
 
 
 def _theta_c(value: str) -> float | Literal["auto"]:
@@ -67,8 +67,15 @@ def _theta_c(value: str) -> float | Literal["auto"]:
     help="Leave out the systematic uncertainties (rd_sys, rs_sys, n_sys: what the rig file's calibration "
     "leaves uncertain, propagated to first order); saves their time (docs/fitting.md).",
 )
+@click.option(
+    "--radiance",
+    is_flag=True,
+    help="Also write each pose's merged linear radiance as OpenEXR (radiance/POSE.exr beside materials.json: "
+    "R, G, B float32, masks of the usable pixels and of those the fit used, the pose's light and camera "
+    "in the header; docs/formats.md).",
+)
 def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, output: Path | None,
-        allow_incomplete: bool, no_lamp_correction: bool, no_systematic: bool) -> None:  # fmt: skip
+        allow_incomplete: bool, no_lamp_correction: bool, no_systematic: bool, radiance: bool) -> None:  # fmt: skip
     """Fit per-region Phong materials (Rd, Rs, n, each with its standard error) to a session's frames.
 
     Each pose's bracket is merged into linear radiance (no clipped or noise-dominated value used, dark
@@ -90,12 +97,13 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
       hlr-lab fit sessions/bunny-1 --theta-c 10 --method paper -o bunny-materials.json
       hlr-lab fit sessions/stopped-run --allow-incomplete
       hlr-lab fit sessions/quick-look --no-systematic
+      hlr-lab fit sessions/bunny-1 --radiance
     """
     output = output or session / MATERIALS
     with stage_progress(console) as show:
         result = fit_into(session, output, theta_c_deg=theta_c, method=method, allow_incomplete=allow_incomplete,
                           correct_lamp=not no_lamp_correction, systematic=not no_systematic, progress=show,
-                          on_gaps=_say_gaps)  # fmt: skip
+                          on_gaps=_say_gaps, radiance=radiance)  # fmt: skip
     console.print(materials_table(result.materials))
     systematic = result.materials.systematic
     for left_out in (systematic.uncalibrated, systematic.placement) if systematic is not None else ():
@@ -111,6 +119,8 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
         if "note" in d:
             console.print(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")
     console.print(f"wrote {escape(str(output))} and {escape(str(output.with_name(DIAGNOSTICS)))}")
+    if radiance:
+        console.print(f"wrote each pose's radiance as {escape(str(output.with_name(RADIANCE)))}/POSE.exr")
 
 
 def _say_gaps(notes: list[str], missing: int) -> None:

@@ -65,6 +65,9 @@ from hlr_lab.session.lamp import WHITE_REFERENCE, lamp_at
 from hlr_lab.session.metadata import SESSION, read_record, session_plan
 
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
+RADIANCE = (
+    "radiance"  # fit --radiance: each pose's merged radiance as POSE.exr, in a folder beside materials.json
+)
 DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
 CLEAR_OF_NOISE = 3.0  # pixels whose mean is below this many noise σ are too dark to say whether they are lit
@@ -317,6 +320,17 @@ def _finite(v, lo: float, hi: float, *, closed: bool = False) -> bool:
     return type(v) in (int, float) and math.isfinite(v) and (lo <= v if closed else lo < v) and v <= hi
 
 
+@dataclass(frozen=True, eq=False)
+class PoseRadiance:
+    """A pose as the fit saw it: its view, its measured light, its merged radiance and ``used`` (H, W) bool,
+    the pixels the fit took from it."""
+
+    view: View
+    pose: PoseGeometry
+    radiance: Radiance
+    used: np.ndarray
+
+
 def view_radiance(session: Session, view: View, mesh: ColouredMesh) -> Radiance:
     """The view's bracket merged into linear radiance with the rig's radiometric calibration, where the
     object (``mesh``, turntable frame) may appear. A bracket whose frames contradict their recorded
@@ -377,6 +391,7 @@ def fit_session(
     selection: Selection = DEFAULT_SELECTION,
     systematic: bool = True,
     progress: Callable[[FitStep], None] = lambda _: None,
+    on_radiance: Callable[[PoseRadiance], None] | None = None,
 ) -> FitResult:
     """Fit every region of ``session``: each view's frames merged to radiance (HDR), its pixels placed
     on the mesh and kept or left out (``selection``: grazing light or view, borders, shadows), pooled per
@@ -384,7 +399,8 @@ def fit_session(
     region, "auto"). A region whose highlight was not measured gets its diffuse colour only, with the
     reason; one never seen gets a diagnostics line. ``systematic``: each entry also gets the systematic
     uncertainty the rig file's own uncertainty gives it (``rd_sys``, …; :mod:`.systematic`; the robust
-    estimator's). ``progress`` hears of each pose, region and systematic term.
+    estimator's). ``progress`` hears of each pose, region and systematic term; ``on_radiance`` of each
+    pose's merged radiance and the pixels the fit took from it, as the pose is done.
 
     Returns
     -------
@@ -411,6 +427,10 @@ def fit_session(
             alignment.append(_alignment(session, view, geometry, radiance))
         for rid in np.unique(samples.region):
             pooled[int(rid)].add(i, view.pose, samples, samples.region == rid)
+        if on_radiance is not None:
+            used = np.zeros(radiance.usable.shape, bool)
+            used[samples.pixel[:, 1], samples.pixel[:, 0]] = True
+            on_radiance(PoseRadiance(view, pose, radiance, used))
     if pooled and not any(p.any_light() for p in pooled.values()):
         raise InputError(
             f"every pixel of the object is black in every frame of its {len(session.views)} pose(s): the lamp lit "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
     MATERIALS,
+    RADIANCE,
     Session,
     placed_mesh,
     view_pose,
@@ -48,9 +50,12 @@ class ReportFigures:
     psnr_db: dict[str, float] = field(default_factory=dict)  # per view (pose id)
 
 
-def build_report(session: Session, progress=lambda _: None) -> tuple[str, ReportFigures]:
+def build_report(
+    session: Session, progress=lambda _: None, page_folder: Path | None = None
+) -> tuple[str, ReportFigures]:
     """The report page (self-contained HTML) of a fitted session, and its figures; ``progress`` is told
-    each step."""
+    each step. ``page_folder``: where the page will be written (default: the session), whence its links
+    to the poses' radiance files (``fit --radiance``) are made."""
     materials_path = session.path / MATERIALS
     if not materials_path.is_file():
         raise InputError("no materials.json in the session: run hlr-lab fit on it first", path=session.path)
@@ -65,7 +70,7 @@ def build_report(session: Session, progress=lambda _: None) -> tuple[str, Report
     diagnostics_path = session.path / DIAGNOSTICS
     diagnostics = json.loads(diagnostics_path.read_text()) if diagnostics_path.is_file() else {"regions": []}
     figures = ReportFigures()
-    poses_html = _poses(session, materials, figures, progress)
+    poses_html = _poses(session, materials, figures, progress, page_folder or session.path)
     body = [
         f"<h1>hlr-lab report: {h.escape(session.path.name)}</h1>",
         _misplaced(diagnostics),
@@ -266,7 +271,9 @@ def _curves(diagnostics: dict, measured: set[int]) -> str:
     )
 
 
-def _poses(session: Session, materials: MaterialsFile, figures: ReportFigures, progress) -> str:
+def _poses(
+    session: Session, materials: MaterialsFile, figures: ReportFigures, progress, page_folder: Path
+) -> str:
     mesh = placed_mesh(session)
     caster = RayCaster(mesh)
     rows = []
@@ -297,6 +304,11 @@ def _poses(session: Session, materials: MaterialsFile, figures: ReportFigures, p
         rows.append(
             "<div>" + "".join(h.figure(im, cap) for im, cap in zip(images, captions, strict=True)) + "</div>"
         )
+        exr = session.path / RADIANCE / f"{view.pose}.exr"
+        if exr.is_file():  # fit --radiance wrote it
+            link = Path(os.path.relpath(exr, page_folder)).as_posix()
+            rows.append(f'<p class="note">{h.escape(view.pose)}: linear radiance, masks and the pose in the header: '
+                        f'<a href="{h.escape(link)}">{h.escape(link)}</a> (OpenEXR)</p>')  # fmt: skip
     return "".join(rows)
 
 
