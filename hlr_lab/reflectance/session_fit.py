@@ -65,9 +65,8 @@ from hlr_lab.session.lamp import WHITE_REFERENCE, lamp_at
 from hlr_lab.session.metadata import SESSION, read_record, session_plan
 
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
-RADIANCE = (
-    "radiance"  # fit --radiance: each pose's merged radiance as POSE.exr, in a folder beside materials.json
-)
+# fit --radiance: each pose's merged radiance as POSE.exr, in this folder beside materials.json
+RADIANCE = "radiance"
 DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
 CLEAR_OF_NOISE = 3.0  # pixels whose mean is below this many noise σ are too dark to say whether they are lit
