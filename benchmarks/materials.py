@@ -231,7 +231,7 @@ def scene_line(r: SceneResult) -> str:
     if r.unmeasured:
         line += f"; specular unmeasured: {r.unmeasured}"
     if r.unfitted:
-        line += f"; no entry: {r.unfitted}"
+        line += f"; not measured (materials.json not_measured): {r.unfitted}"
     return line
 
 
@@ -259,5 +259,5 @@ def coverage_lines(results: list[SceneResult]) -> list[str]:
         )
     unmeasured = sum(len(r.unmeasured) for r in results)
     unfitted = sum(len(r.unfitted) for r in results)
-    lines.append(f"regions with Rd only: {unmeasured}; regions without an entry: {unfitted}")
+    lines.append(f"regions with Rd only: {unmeasured}; regions not measured at all: {unfitted}")
     return lines
