@@ -211,8 +211,6 @@ def fit_into(
     on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
-    if exr:
-        next(iter(exr.values())).parent.mkdir(exist_ok=True)
     result = fit_session(s, theta_c_deg=theta_c_deg, method=method, systematic=systematic, progress=progress,
                          on_radiance=functools.partial(_write_radiance, s, exr) if exr else None)  # fmt: skip
     # both or neither: materials.json without its diagnostics would be a fit the report cannot show

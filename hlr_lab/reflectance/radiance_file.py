@@ -11,8 +11,8 @@ string (``hlrLab``) at full precision.
 
 from __future__ import annotations
 
+import io
 import json
-import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -20,7 +20,7 @@ import numpy as np
 import OpenEXR
 
 from hlr_lab import __version__
-from hlr_lab.files import fsync_directory
+from hlr_lab.files import atomic_write_bytes
 
 UNITS = (
     "linear radiance in the rig's units: DN per second of exposure at 0 dB gain, black level subtracted, "
@@ -57,7 +57,8 @@ class RadianceImage:
 def write_radiance(
     path: Path, value: np.ndarray, usable: np.ndarray, fit: np.ndarray, header: RadianceHeader
 ) -> None:
-    """Write one pose's radiance to ``path`` (.exr) atomically: a temporary beside it, renamed over it.
+    """Write one pose's radiance to ``path`` (.exr) atomically (:func:`hlr_lab.files.atomic_write_bytes`:
+    a temporary beside it, renamed over it; a symbolic link refused, a full disk said so).
 
     Parameters
     ----------
@@ -88,16 +89,10 @@ def write_radiance(
         "hlrLabUnits": header.units,
         "hlrLab": json.dumps(asdict(header)),
     }
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.exr")
-    try:
-        with OpenEXR.File(attributes, channels) as f:
-            f.write(str(tmp))
-        with open(tmp, "rb") as written:
-            os.fsync(written.fileno())
-        os.replace(tmp, path)
-        fsync_directory(path.parent)
-    finally:
-        tmp.unlink(missing_ok=True)
+    encoded = io.BytesIO()
+    with OpenEXR.File(attributes, channels) as f:
+        f.write(encoded)
+    atomic_write_bytes(path, encoded.getvalue())
 
 
 def read_radiance(path: Path) -> RadianceImage:

@@ -551,12 +551,13 @@ def _fit_one(
     if unlit:
         diag["note"] = unlit
         return None, diag, None, None
+    patch = surface_patches(p.stacked("point"))
     try:
         fit = fit_region(intensity, irradiance, cos_alpha, cos_beta, theta_c_deg=theta_c_deg, method=method,
-                         footprint=footprint, patch=surface_patches(p.stacked("point")))  # fmt: skip
+                         footprint=footprint, patch=patch)  # fmt: skip
     except (InsufficientSamples, DegenerateSamples) as exc:
         diag["specular"] = f"unmeasured: {exc}"
-        entry, diag, respond = _diffuse_outcome(region, p, str(exc), method, diag)
+        entry, diag, respond = _diffuse_outcome(region, p, patch, str(exc), method, diag)
         return entry, diag, None, respond
     held, below_black = _held_note(fit.held_at_zero)
     if below_black:  # no near-black surface: pixels that do not follow the model get no entry
@@ -574,7 +575,7 @@ def _fit_one(
             f"the lobe's reach; plan a light whose highlight falls on this region"
         )
         diag["specular"] = f"unmeasured: {reason}"
-        entry, diag, respond = _diffuse_outcome(region, p, reason, method, diag)
+        entry, diag, respond = _diffuse_outcome(region, p, patch, reason, method, diag)
         return entry, diag, None, respond
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
     if not rs > SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
@@ -618,13 +619,13 @@ def _fit_response(fit: RegionFit, *, rd_only: bool = False) -> Respond | None:
 
 
 def _diffuse_outcome(
-    region: RegionEntry, p: _Pooled, reason: str, method: EstimatorName, diag: dict
+    region: RegionEntry, p: _Pooled, patch: np.ndarray, reason: str, method: EstimatorName, diag: dict
 ) -> tuple[MaterialEntry | None, dict, Respond | None]:
     """A region whose highlight was not measured: its diffuse colour from the pixels beyond
-    ``DIFFUSE_ONLY_BETA_DEG`` (``_diffuse_only``), or the note why there is none; and how that Rd moves
-    with the inputs (the same pixels' least squares again)."""
+    ``DIFFUSE_ONLY_BETA_DEG`` (``_diffuse_only``; ``patch`` (N,) each pixel's surface patch), or the note
+    why there is none; and how that Rd moves with the inputs (the same pixels' least squares again)."""
     inputs = p.inputs()
-    entry = _diffuse_only(region, inputs, reason, method, surface_patches(p.stacked("point")))
+    entry = _diffuse_only(region, inputs, reason, method, patch)
     if isinstance(entry, str):
         diag["note"] = entry
         return None, diag, None
