@@ -46,7 +46,7 @@ FAULTS = {
     "servo reply corrupted": 5,
     "Modbus reply dropped": 5,
     "Modbus link dropped": 3,
-    "camera frame cut short": 3,
+    "camera frame lost beyond its resends": 3,
     "axis knocked off during an exposure": 2,
     "Modbus device failure": 0.2,  # rarer: each ends a run, and long runs are what show a leak
     "servo overload": 0.1,
@@ -175,6 +175,7 @@ def _inject(world: SimRig, rng: random.Random, interval_s: float, counts: Counte
     grow while that link is idle (a long exposure) and then fall on one exchange as a burst longer than
     any bounded retry, which is a test of the queue, not of the driver."""
     names, weights = list(FAULTS), list(FAULTS.values())
+    assert world.gige is not None  # the soak's world photographs: it has a camera
     while not stop.wait(rng.uniform(0.5, 1.5) * interval_s):
         fault = rng.choices(names, weights)[0]
         servo = rng.choice(world.endpoints.servo_ids)
@@ -183,7 +184,7 @@ def _inject(world: SimRig, rng: random.Random, interval_s: float, counts: Counte
             "servo reply corrupted": (world.bus.fault(servo), "corrupt_replies"),
             "Modbus reply dropped": (world.turntable.faults, "no_reply"),
             "Modbus device failure": (world.turntable.faults, "exception"),
-            "camera frame cut short": (world.camera_server, "cut_replies"),
+            "camera frame lost beyond its resends": (world.gige.faults, "drop_for_good"),
         }
         if fault in one_shot:
             faults, name = one_shot[fault]

@@ -9,6 +9,7 @@ file descriptors and sockets closed).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
 from sim.camera import GantryGeometry, SimCamera, StageGeometry
 from sim.clock import WorldClock
@@ -29,7 +30,9 @@ class Endpoints:
     dynamixel: str
     modbus: str
     servo_ids: tuple[int, ...]
-    camera: str | None = None  # host:port of the camera endpoint (sim.camera_server), when there is one
+    # the camera, when there is one: a GigE Vision device's address "127.0.0.N" (sim.gige), or the
+    # "host:port" of a frame endpoint (sim.camera_server)
+    camera: str | None = None
     stage_unit: int = rm.STAGE_UNIT
     lamp_unit: int = rm.RELAY_UNIT
     lamp_coil: int = rm.LAMP_COIL
@@ -69,7 +72,10 @@ class SimRig:
         spp: int = 16,
         seed: int = 0,
         run_reference: Patch | None = None,
+        camera_link: Literal["gige", "network"] = "gige",
     ):
+        """camera_link: how the camera is reached — a GigE Vision device on its own loopback address, as a
+        lab's machine-vision camera is (through the GenICam driver), or the older frame endpoint."""
         # the arm rests horizontal along +x (its zero ticks), inside any sensible joint limits
         rest = dict(zip(servo_ids, gantry.zero_ticks, strict=False))  # a test may leave a servo out
         self.clock = WorldClock(speed_factor)  # the world's time (the lamp's, and a run's warm-up)
@@ -77,6 +83,7 @@ class SimRig:
         self.turntable = TurntableServer.simulated(speed_factor=speed_factor)
         self.camera: SimCamera | None = None
         self.camera_server = None
+        self.gige = None
         try:
             host, port = self.turntable.serve_tcp()
             camera_endpoint = None
@@ -97,8 +104,12 @@ class SimRig:
                     lamp or LampModel(),
                     self.clock,
                 )
-                self.camera_server = CameraServer(self.camera)
-                camera_endpoint = self.camera_server.serve_tcp()
+                if camera_link == "gige":
+                    self.gige = _gige_camera(self.camera, camera)
+                    camera_endpoint = self.gige.address
+                else:
+                    self.camera_server = CameraServer(self.camera)
+                    camera_endpoint = self.camera_server.serve_tcp()
             self.endpoints = Endpoints(
                 self.bus.serve_pty(), f"{host}:{port}", tuple(servo_ids), camera_endpoint
             )
@@ -123,6 +134,8 @@ class SimRig:
         self._closed = True
         if self.camera_server:
             self.camera_server.close()
+        if self.gige:
+            self.gige.close()
         self.bus.close()
         self.turntable.close()
 
@@ -131,3 +144,12 @@ class SimRig:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _gige_camera(camera: SimCamera, spec: CameraSpec):
+    """``camera`` as a GigE Vision device on a loopback address of its own."""
+    from sim.gige.device import GigECamera
+
+    device = GigECamera(camera.capture, width=spec.width, height=spec.height, sensor_bits=camera.sensor.bits)
+    device.serve_on_loopback()
+    return device

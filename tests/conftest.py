@@ -20,7 +20,7 @@ from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.rig.file import Rig, sim_rig
-from tests.renderer_guard import require_renderer
+from tests.renderer_guard import require_aravis, require_renderer
 
 # generated broken files (tests/test_readers_property.py): a CI-sized run, or the nightly one
 settings.register_profile("ci", max_examples=150, database=None)
@@ -58,9 +58,12 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """A test marked ``renderer`` is skipped where Mitsuba or libLLVM is missing (failed in CI)."""
+    """A test marked ``renderer`` is skipped where Mitsuba, libLLVM or Aravis is missing, one marked
+    ``genicam`` where Aravis is (failed in CI)."""
     if item.get_closest_marker("renderer"):
         require_renderer()
+    if item.get_closest_marker("genicam"):
+        require_aravis()
 
 
 @pytest.fixture(autouse=True)

@@ -91,14 +91,14 @@ def test_a_fault_in_the_second_job_is_retried_and_the_night_goes_on(tmp_path, bu
 def test_a_job_that_keeps_failing_is_skipped_and_a_rig_not_confirmed_safe_stops_everything(
     tmp_path, builtin_plan
 ):
-    """The second job's camera cuts every frame short: the run stops safely (lamp, turntable and gantry
+    """The second job's camera loses a packet of every frame for good: the run stops safely (lamp, turntable and gantry
     confirmed), is run once more, stops again, and is skipped; the third job still runs. Then a night
     whose second job's turntable refuses every request, the stop included: the rig is not confirmed
     safe, the campaign stops (exit status 1) and the third job never starts."""
     night = load_campaign(campaign_file(tmp_path, builtin_plan))
 
     def camera_broken(world):
-        world.camera_server.cut_replies = 10**6
+        world.gige.faults.drop_for_good = 10**6
 
     results = run_campaign(night, links_for=links_with({"j1": camera_broken}), calibrate=no_calibration)
     assert [(r.name, r.status, r.attempts) for r in results] == [("j0", "done", 1), ("j1", "skipped", 2),

@@ -1,4 +1,5 @@
-"""The network camera driver against the simulated rig's camera endpoint (Mitsuba frames over TCP)."""
+"""The network camera driver (a frame endpoint: one JSON line per request) against the simulated rig's
+older camera endpoint (Mitsuba frames over TCP; the simulated rig serves a GigE Vision camera by default)."""
 
 import socket
 import threading
@@ -23,7 +24,9 @@ GAIN_X2_DB = 20 * np.log10(2.0)
 def sim():
     c = half_size_camera()
     spec = CameraSpec(c.matrix, c.distortion, c.rotation, c.translation, c.width, c.height)
-    with SimRig(speed_factor=40.0, scene=builtin_scene("cylinder"), camera=spec, spp=4) as s:
+    with SimRig(
+        speed_factor=40.0, scene=builtin_scene("cylinder"), camera=spec, spp=4, camera_link="network"
+    ) as s:
         s.turntable.stage.lamp = True  # the stage model's lamp is what the renderer reads
         yield s
 

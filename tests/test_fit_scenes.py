@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from drivers.net_camera import NetworkCamera
+from drivers.genicam_camera import GenICamCamera, GenICamConfig
 from hlr_lab.acquisition.poses import acquire
 from hlr_lab.cli.main import main
 from hlr_lab.formats.materials import read_materials
@@ -127,7 +127,7 @@ def measure(
         e = world.endpoints
         devices = stack.enter_context(open_devices(rig, gantry_port=e.dynamixel, stage_address=e.modbus))
         devices.connect()
-        camera = NetworkCamera(e.camera)
+        camera = GenICamCamera(GenICamConfig(e.camera))
         stack.callback(camera.close)
         start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
         acquire(

@@ -12,6 +12,7 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler
 from pymodbus.client import ModbusTcpClient
 
 from drivers.dynamixel import UrlPortHandler
+from drivers.genicam_camera import GenICamCamera, GenICamConfig
 from sim.dynamixel.bus import CLIENT_REPLY_TIMEOUT_MS
 from sim.rig import SimRig
 from sim.turntable import register_map as rm
@@ -133,9 +134,6 @@ def test_the_camera_photographs_where_the_axes_are():
 
 
 def test_sim_serve_with_a_scene_serves_a_camera():
-    import socket
-
-    import numpy as np
 
     with sim_serve("--scene", "builtin:cylinder") as proc:
         endpoints = json.loads(proc.stdout.readline())
@@ -144,22 +142,17 @@ def test_sim_serve_with_a_scene_serves_a_camera():
         assert client.connect()
         assert not client.write_coil(rm.LAMP_COIL, True, device_id=rm.RELAY_UNIT).isError()
         client.close()
-        cam_host, cam_port = endpoints["camera"].split(":")
-        with (
-            socket.create_connection((cam_host, int(cam_port)), timeout=60) as conn,
-            conn.makefile("rb") as reply,
-        ):
-            conn.sendall(b'{"exposure_s": 0.5}\n')
-            header = json.loads(reply.readline())
-            frame = np.frombuffer(reply.read(header["width"] * header["height"] * 3 * 2), dtype="<u2")
-            assert header["meta"]["lamp"] is True
-            assert header["meta"]["exposure_s"] == 0.5
-            assert frame.size == 1280 * 960 * 3
-            # the arm rests horizontal along +x (servos at their zero ticks); under this distant light the
-            # cylinder side facing it reads Rd · exposure · sensitivity = 230/255 · 0.5 s · 4095 ≈ 1847 DN
-            brightest = frame.reshape(960, 1280, 3).max()
-            assert 0.95 * 1847 < brightest < 1.2 * 1847
-            conn.sendall(b'{"exposure": 1}\n')
-            assert "error" in json.loads(reply.readline())
+        camera = GenICamCamera(GenICamConfig(endpoints["camera"]))  # a GigE Vision camera on 127.0.0.N
+        try:
+            camera.set_exposure(0.5)
+            frame = camera.capture()
+        finally:
+            camera.close()
+        assert frame.meta["lamp"] is True
+        assert frame.exposure_s == frame.meta["exposure_s"] == 0.5
+        assert frame.pixels.shape == (960, 1280, 3)
+        # the arm rests horizontal along +x (servos at their zero ticks); under this distant light the
+        # cylinder side facing it reads Rd · exposure · sensitivity = 230/255 · 0.5 s · 4095 ≈ 1847 DN
+        assert 0.95 * 1847 < frame.pixels.max() < 1.2 * 1847
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0

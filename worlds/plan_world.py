@@ -215,9 +215,15 @@ def _scene_file(plan: PlanFile, scene_path: Path) -> SceneSpec:
 
 def rig_file_text(dynamixel: str, modbus: str, camera: str | None, *, reply_timeout_s: float = 20.0) -> str:
     """The built-in simulated rig's file with the links of a running simulated rig filled in: what an
-    operator's rig.toml is to a real bench (``hlr-lab acquire --rig`` in another process)."""
+    operator's rig.toml is to a real bench (``hlr-lab acquire --rig`` in another process). ``camera``: the
+    simulated GigE Vision camera's address (a [camera.genicam] section), or a frame endpoint "host:port"."""
     text = (resources.files("hlr_lab.data") / SIM_RIG).read_text(encoding="utf-8")
-    camera_lines = f'address = "{camera}"\nreply_timeout_s = {reply_timeout_s}\n' if camera else ""
+    camera_lines = f"reply_timeout_s = {reply_timeout_s}\n" if camera else ""
+    if camera and ":" in camera:
+        camera_lines += f'address = "{camera}"\n'
+    elif camera:  # a table of its own, after every key of [camera]
+        text += f'\n[camera.genicam]\ndevice = "{camera}"\nframe_timeout_s = {reply_timeout_s}\n'
+
     for section, lines in (
         ("[camera]", camera_lines),
         ("[gantry]", f'port = "{dynamixel}"\n'),

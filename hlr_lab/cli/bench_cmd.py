@@ -99,16 +99,26 @@ def bench_fit(sizes, no_grid) -> None:
 )
 def bench_sim(transactions, frames) -> None:
     """The simulated rig: round trips to the Dynamixel bus (real dynamixel-sdk over its pseudo-terminal)
-    and the Modbus stage (pymodbus over TCP and RTU); render time per frame and memory over re-renders.
+    and the Modbus stage (pymodbus over TCP and RTU); a frame's transport from the camera (GigE Vision
+    through Aravis, and the older TCP endpoint); render time per frame and memory over re-renders.
 
     \b
     Example:
       hlr-lab bench sim -n 2000
     """
-    from benchmarks.sim import render_figures, render_report, transactions_report  # the simulator: CLI only
+    from benchmarks.sim import (  # the simulator: CLI only
+        camera_transport_figures,
+        render_figures,
+        render_report,
+        round_trip_report,
+        transactions_report,
+    )
 
     with console.status("") as status:
         _print(transactions_report(transactions, progress=status.update))
+        status.update("timing the camera's frames…")
+        title = "a frame from trigger to pixels, already exposed (GigE Vision: target ≤ TCP + 20 ms):"
+        _print(round_trip_report(title, camera_transport_figures()))
     if frames:
         with console.status(f"rendering (then {frames} re-renders)…"):
             _print(render_report(render_figures(frames)))

@@ -31,8 +31,9 @@ def sim() -> None:
 def serve(scene_spec, true_rig, object_offset, speed_factor) -> int:
     """Run the simulated devices until interrupted; print their endpoints as one JSON line.
 
-    Any Dynamixel or Modbus tool can talk to the servo bus and the turntable. With --scene, a camera
-    endpoint renders the scene where the simulated axes are (protocol in sim/camera_server.py).
+    Any Dynamixel or Modbus tool can talk to the servo bus and the turntable. With --scene, a GigE Vision
+    camera on its own loopback address ("camera": "127.0.0.N") renders the scene where the simulated axes
+    are; any GenICam client opens it (arv-tool-0.8 -a 127.0.0.N features; docs/camera.md).
 
     \b
     Examples:

@@ -237,20 +237,33 @@ def _opencv_camera(rig: Rig, endpoint: str | None) -> Camera:
     return OpenCVCamera(OpenCVCameraConfig(**{**c, "exposure_range_s": tuple(c["exposure_range_s"])}))
 
 
+def _genicam_camera(rig: Rig, endpoint: str | None) -> Camera:
+    from drivers.genicam_camera import GenICamCamera, GenICamConfig  # Aravis: only when such a camera opens
+
+    g = rig.file.camera.genicam
+    if g is None:  # the simulated rig's GigE Vision camera (camera_kind chose it by its address): defaults
+        assert endpoint is not None
+        return GenICamCamera(GenICamConfig(endpoint, frame_timeout_s=rig.file.camera.reply_timeout_s))
+    return GenICamCamera(GenICamConfig(**{**g.model_dump(), "device": endpoint or g.device}))
+
+
 # the one table of camera kinds: a rig file names one by its key in [camera] (a frame endpoint by default)
 CAMERA_KINDS = {
+    "genicam": CameraKind("genicam", lambda rig: g.device if (g := rig.file.camera.genicam) else None, _genicam_camera),
     "network": CameraKind("address", lambda rig: rig.file.camera.address, _network_camera),
     "opencv": CameraKind("capture", lambda rig: c.device if (c := rig.file.camera.capture) else None, _opencv_camera),
 }  # fmt: skip
 
 
 def camera_kind(rig: Rig, endpoint: str | None = None) -> str:
-    """Which of :data:`CAMERA_KINDS` ``rig``'s camera is (a simulated rig's ``endpoint`` is a network one)."""
+    """Which of :data:`CAMERA_KINDS` ``rig``'s camera is. A simulated rig's ``endpoint`` says it: a bare
+    address (127.0.0.N) is a GigE Vision camera, a "host:port" a frame endpoint."""
     if endpoint is None:
         for name, kind in CAMERA_KINDS.items():
             if getattr(rig.file.camera, kind.key) is not None:
                 return name
-    return "network"
+        return "network"
+    return "network" if ":" in endpoint else "genicam"
 
 
 def open_camera(rig: Rig, endpoint: str | None = None) -> Camera:

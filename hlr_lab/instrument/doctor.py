@@ -245,8 +245,21 @@ def _examine_camera(rig: Rig, endpoint: str | None) -> list[Finding]:
         camera = open_camera(rig, endpoint)
     except HlrLabError as exc:
         return [Finding("camera", "problem", str(exc))]
-    camera.close()
-    return [Finding("camera", "ok", "opens and takes the frame format")]
+    try:
+        describe = getattr(camera, "describe", None)  # a GenICam camera says what it is
+        about = describe() if describe else {}
+    finally:
+        camera.close()
+    if not about:
+        return [Finding("camera", "ok", "opens and takes the frame format")]
+    said = [f"{about.get('vendor', '?')} {about.get('model', '?')}, serial {about.get('serial', '?')}"]
+    if "firmware" in about:
+        said.append(f"firmware {about['firmware']}")
+    said.append(f"pixel format {about['pixel_format']} of {', '.join(about['pixel_formats'])}")
+    said.append(f"exposure {1e3 * about['exposure_s']:g} ms")
+    if "temperature_c" in about:
+        said.append(f"{about['temperature_c']:.1f} °C")
+    return [Finding("camera", "ok", "opens and takes the frame format: " + "; ".join(said))]
 
 
 def _ask(device: str, question: Callable[[], list[Finding]], silent: str | None = None) -> list[Finding]:

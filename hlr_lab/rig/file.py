@@ -63,6 +63,29 @@ class _CaptureSection(StrictModel):
     stale_frames: int = Field(default=2, ge=0)
 
 
+class _GenICamSection(StrictModel):
+    """A machine-vision camera through Aravis (drivers.genicam_camera): GigE Vision or USB3 Vision."""
+
+    device: str = Field(min_length=1)  # Aravis's id ("Basler-21234567", as arv-tool-0.8 lists it) or IP
+    pixel_format: str = "RGB12"  # a PFNC name the camera offers: Mono12/16, Bayer*12/16, RGB8, RGB12, …
+    features: dict[str, bool | int | float | str] = {}  # set as the camera opens, in this order
+    frame_timeout_s: float = Field(default=20.0, gt=0, le=3600)
+    packet_size: int | None = Field(default=None, ge=576, le=65535)  # GigE Vision; None: negotiated
+    gain_raw_per_db: float | None = Field(default=None, gt=0)  # a camera with GainRaw instead of Gain
+    max_gain_db: float = Field(default=24.0, ge=0)
+
+    @field_validator("pixel_format")
+    @classmethod
+    def _a_decoded_format(cls, name: str) -> str:
+        from drivers.pfnc import FORMATS
+
+        if name not in FORMATS:
+            raise ValueError(
+                f"{name!r} is not a pixel format hlr-lab decodes; use one of {', '.join(sorted(FORMATS))}"
+            )
+        return name
+
+
 class _CameraSection(StrictModel):
     width: int = Field(gt=0, le=65535)
     height: int = Field(gt=0, le=65535)
@@ -74,10 +97,12 @@ class _CameraSection(StrictModel):
     # rotation of the camera about its optical axis after look_at_m/up, right-handed about its +z
     roll_deg: float = Field(default=0.0, ge=-180, le=180)
     exposure_bracket_s: Annotated[list[Annotated[float, Field(gt=0, le=3600)]], Field(min_length=1)] = [0.01]
-    # how frames are taken: a frame endpoint "host:port" (drivers.net_camera), or [camera.capture] for a
-    # camera driven through OpenCV; the simulated rig supplies its own endpoint
+    # how frames are taken: [camera.genicam] for a machine-vision camera (Aravis), [camera.capture] for
+    # one driven through OpenCV, or a frame endpoint "host:port" (drivers.net_camera); the simulated rig
+    # supplies its own camera
     address: str | None = None
     capture: _CaptureSection | None = None
+    genicam: _GenICamSection | None = None
     # a frame that has not arrived this long after its exposure ends is a camera that stopped answering
     reply_timeout_s: float = Field(default=20.0, gt=0, le=3600)
 
@@ -121,8 +146,12 @@ class _CameraSection(StrictModel):
 
     @model_validator(mode="after")
     def _one_way_to_the_camera(self):
-        if self.address and self.capture:
-            raise ValueError("give either address (a frame endpoint) or [camera.capture] (OpenCV), not both")
+        given = [name for name in ("address", "capture", "genicam") if getattr(self, name)]
+        if len(given) > 1:
+            raise ValueError(
+                f"give one way to the camera, not {' and '.join(given)}: [camera.genicam] (a GenICam camera), "
+                "[camera.capture] (OpenCV) or address (a frame endpoint)"
+            )
         return self
 
 

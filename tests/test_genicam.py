@@ -1,0 +1,235 @@
+"""The GenICam camera path, checked by software nobody here wrote: Aravis's own tools against the
+simulated GigE Vision camera, and the project's driver against Aravis's own fake camera
+(``arv-fake-gv-camera-0.8``). The simulated camera here serves synthetic frames (no renderer), so each
+pixel value is known; faults are injected in the device, as the soak and the stop tests do."""
+
+import contextlib
+import re
+import shutil
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from drivers.errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, LimitError
+from drivers.genicam_camera import GenICamCamera, GenICamConfig
+from drivers.protocols import Camera
+from sim.gige.device import GigECamera
+
+pytestmark = pytest.mark.genicam
+
+H, W = 120, 160
+COLOUR = (300, 2000, 3500)  # a 12-bit RGB frame of one colour, so a demosaiced one is exact
+
+
+def flat_frame(exposure_s: float, gain_db: float):
+    frame = np.empty((H, W, 3), np.uint16)
+    frame[...] = COLOUR
+    return frame, {"lamp": True}
+
+
+@pytest.fixture
+def device():
+    camera = GigECamera(flat_frame, width=W, height=H, sensor_bits=12)
+    camera.serve_on_loopback()
+    yield camera
+    camera.close()
+
+
+@contextlib.contextmanager
+def opened(device, **config):
+    camera = GenICamCamera(GenICamConfig(device.address, **config))
+    try:
+        yield camera
+    finally:
+        camera.close()
+
+
+def ramp(fmt_bits: int, channels: int) -> np.ndarray:
+    """The device's GreyDiagonalRamp test pattern, as its XML documents it (docs/camera.md)."""
+    y, x, c = np.ogrid[:H, :W, :channels]
+    return (17 * x + 29 * y + 997 * c) % (1 << fmt_bits)
+
+
+def aravis_tool(*args: str, timeout: float = 60) -> str:
+    result = subprocess.run(args, capture_output=True, text=True, timeout=timeout, check=False)
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+# -- Aravis's tools as the peer of the simulated camera -------------------------------------------------
+
+
+def test_arv_tool_lists_and_sets_the_simulated_cameras_features(device):
+    listed = aravis_tool("arv-tool-0.8", "-a", device.address, "features")
+    for name in ("ExposureTime", "Gain", "BlackLevel", "PixelFormat", "TriggerMode", "TriggerSource",
+                 "TriggerSoftware", "AcquisitionMode", "DeviceTemperature", "Mono12p", "BayerRG12"):  # fmt: skip
+        assert f"'{name}'" in listed
+    aravis_tool(
+        "arv-tool-0.8", "-a", device.address, "control", "ExposureTime=25000", "Gain=6", "PixelFormat=Mono16"
+    )
+    read = aravis_tool("arv-tool-0.8", "-a", device.address, "control", "ExposureTime", "Gain", "PixelFormat",
+                       "PayloadSize")  # fmt: skip
+    for line in ("ExposureTime = 25000 us", "Gain = 6 dB", "PixelFormat = Mono16"):
+        assert line in read
+    assert f"PayloadSize = {H * W * 2} " in read
+    assert (device.feature("ExposureTime"), device.feature("Gain")) == (25000.0, 6.0)
+
+
+def test_arv_tool_is_refused_a_gain_beyond_the_range(device):
+    result = subprocess.run(["arv-tool-0.8", "-a", device.address, "control", "Gain=30"], capture_output=True,
+                            text=True, timeout=60, check=False)  # fmt: skip
+    assert "invalid-parameter" in result.stdout + result.stderr
+    assert device.feature("Gain") == 0.0
+
+
+def test_arv_camera_test_streams_with_no_missing_packets(device):
+    out = aravis_tool("arv-camera-test-0.8", "-n", device.address, "--duration=3", timeout=120)
+    stats = {k: int(v) for k, v in re.findall(r"^(n_\w+)\s+= (\d+)", out, re.MULTILINE)}
+    assert stats["n_completed_buffers"] >= 10
+    assert stats["n_missing_packets"] == stats["n_failures"] == stats["n_missing_frames"] == 0
+
+
+# -- the project's driver against the simulated camera ---------------------------------------------------
+
+
+@pytest.mark.parametrize(("fmt", "bits", "channels"), [("Mono16", 16, 1), ("Mono12p", 12, 1),
+                                                       ("Mono12Packed", 12, 1), ("RGB12", 12, 3)])  # fmt: skip
+def test_the_driver_reads_the_test_pattern_bit_exact(device, fmt, bits, channels):
+    with opened(device, pixel_format=fmt, features={"TestPattern": "GreyDiagonalRamp"}) as camera:
+        assert isinstance(camera, Camera)
+        frame = camera.capture()
+    assert frame.bits == bits
+    np.testing.assert_array_equal(frame.pixels, ramp(bits, channels))
+
+
+def test_frames_carry_the_exposure_and_gain_the_camera_reports(device):
+    with opened(device) as camera:
+        camera.set_exposure(0.0123456)
+        camera.set_gain(6.0)
+        frame = camera.capture()
+    assert (frame.exposure_s, frame.gain_db) == (pytest.approx(0.0123456, abs=1e-12), 6.0)
+    assert frame.meta == {"lamp": True, "exposure_s": frame.exposure_s, "gain_db": 6.0}
+    np.testing.assert_array_equal(frame.pixels, np.broadcast_to(COLOUR, (H, W, 3)))
+
+
+def test_a_bayer_mosaic_is_demosaiced_to_its_colour(device):
+    with opened(device, pixel_format="BayerRG12p") as camera:
+        frame = camera.capture()
+    assert frame.pixels.shape == (H, W, 3)
+    np.testing.assert_array_equal(frame.pixels[2:-2, 2:-2], np.broadcast_to(COLOUR, (H - 4, W - 4, 3)))
+
+
+def test_settings_outside_the_limits_are_refused_before_they_are_sent(device):
+    with opened(device) as camera:
+        with pytest.raises(LimitError, match="gain 30 dB is outside"):
+            camera.set_gain(30)
+        with pytest.raises(LimitError, match="must be positive"):
+            camera.set_exposure(0)
+    assert device.feature("Gain") == 0.0
+    with pytest.raises(LimitError, match="not one hlr-lab decodes"):
+        GenICamCamera(GenICamConfig(device.address, pixel_format="YUV422_8"))
+    with pytest.raises(DeviceFault, match="has no feature Sharpness"):
+        GenICamCamera(GenICamConfig(device.address, features={"Sharpness": 3}))
+
+
+def test_lost_packets_are_resent_and_the_frames_are_whole(device):
+    device.faults.drop_ratio = 0.2
+    with opened(device, packet_size=1500) as camera:
+        frames = [camera.capture() for _ in range(5)]
+        stats = camera.statistics()
+    for frame in frames:
+        np.testing.assert_array_equal(frame.pixels, np.broadcast_to(COLOUR, (H, W, 3)))
+    assert stats["n_resent_packets"] > 0
+    assert device.packets_resent >= stats["n_resent_packets"]
+    assert stats["n_completed_buffers"] == 5
+
+
+def test_a_frame_lost_beyond_its_resends_is_never_returned_and_the_next_one_comes(device):
+    with opened(device) as camera:
+        device.faults.drop_for_good = 1
+        with pytest.raises(ChecksumError, match="frame incomplete"):
+            camera.capture()
+        np.testing.assert_array_equal(camera.capture().pixels, np.broadcast_to(COLOUR, (H, W, 3)))
+
+
+def test_a_frame_that_never_comes_is_a_timeout(device):
+    with opened(device, frame_timeout_s=0.5) as camera:
+        device.faults.lost_triggers = 1
+        with pytest.raises(DeviceTimeout, match=r"no frame 0\.5 s after the exposure"):
+            camera.capture()
+        assert camera.capture().pixels.shape == (H, W, 3)
+
+
+def test_a_camera_that_stops_answering_is_named_and_released_after_its_heartbeat(device):
+    """The device goes silent (unplugged): the capture fails with one line naming the camera; silent past
+    its heartbeat timeout, it gives up the client's control, so another client can take it."""
+    with opened(device) as camera:
+        device.faults.silent = True
+        t0 = time.monotonic()
+        with pytest.raises(
+            DeviceError, match=rf"camera {device.address}: .*(hung or unplugged|control away)"
+        ):
+            camera.capture()
+        assert time.monotonic() - t0 < 30
+    time.sleep(3.5)  # GevHeartbeatTimeout: 3 s
+    device.faults.silent = False
+    with opened(device) as camera:
+        assert camera.capture().pixels.shape == (H, W, 3)
+
+
+# -- the project's driver against Aravis's own fake camera ---------------------------------------------
+
+
+@pytest.fixture
+def fake_camera():
+    """``arv-fake-gv-camera-0.8`` on 127.0.0.1 (the simulated cameras take 127.0.0.2 and up)."""
+    if not shutil.which("arv-fake-gv-camera-0.8"):
+        pytest.fail("arv-fake-gv-camera-0.8 is missing: scripts/setup installs aravis-tools")
+    proc = subprocess.Popen(["arv-fake-gv-camera-0.8", "-i", "127.0.0.1"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)  # fmt: skip
+    deadline = time.monotonic() + 20
+    while subprocess.run(["arv-tool-0.8", "-a", "127.0.0.1", "control", "DeviceVendorName"], capture_output=True,
+                         timeout=30, check=False).returncode:  # fmt: skip
+        assert time.monotonic() < deadline, "Aravis's fake camera did not start"
+        time.sleep(0.2)
+    yield proc
+    proc.kill()
+    proc.wait()
+
+
+def test_the_driver_sets_and_reads_back_aravis_fake_camera(fake_camera):
+    """The fake camera has the older ExposureTimeAbs and GainRaw, no chunks: the exposure comes back from
+    the feature, and its Mono16 diagonal ramp, 256 · (x + y + frame) mod 65535 at 10 ms and no gain
+    (Aravis's arvfakecamera.c), arrives bit-exact."""
+    with contextlib.closing(GenICamCamera(GenICamConfig("127.0.0.1", pixel_format="Mono16"))) as camera:
+        about = camera.describe()
+        assert (about["vendor"], about["model"]) == ("Aravis", "Fake")
+        assert "Mono16" in about["pixel_formats"]
+        camera.set_exposure(0.01)
+        camera.set_gain(0.0)
+        with pytest.raises(LimitError, match="gain_raw_per_db"):
+            camera.set_gain(6.0)
+        frame = camera.capture()
+    assert (frame.exposure_s, frame.bits, frame.pixels.shape) == (0.01, 16, (512, 512, 1))
+    y, x = np.ogrid[:512, :512]
+    ids = np.arange(65535)
+    frame_id = int(ids[256 * ids % 65535 == frame.pixels[0, 0, 0]][0])  # 256 and 65535 are coprime: one id
+    np.testing.assert_array_equal(frame.pixels[..., 0], (256 * (x + y + frame_id)) % 65535)
+
+
+def test_a_camera_that_disappears_mid_run_stops_the_capture_with_its_name(fake_camera):
+    with contextlib.closing(
+        GenICamCamera(GenICamConfig("127.0.0.1", pixel_format="Mono16", frame_timeout_s=2))
+    ) as camera:
+        assert camera.capture().pixels.shape == (512, 512, 1)
+        fake_camera.kill()
+        fake_camera.wait()
+        with pytest.raises(DeviceError, match=r"camera 127\.0\.0\.1: "):
+            camera.capture()
+
+
+def test_an_absent_camera_is_named_with_what_to_check():
+    with pytest.raises(DeviceError, match=r"camera 127\.0\.0\.254: cannot open .*arv-tool-0\.8"):
+        GenICamCamera(GenICamConfig("127.0.0.254"))
