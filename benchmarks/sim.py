@@ -135,6 +135,7 @@ def camera_transport_figures(
     rendering: only the transport is timed): through GigE Vision (the simulated device, Aravis, the
     GenICam driver) in Mono16 and RGB12, and through the older TCP frame endpoint."""
     import numpy as np
+
     from drivers.genicam_camera import GenICamCamera, GenICamConfig
     from drivers.net_camera import NetworkCamera
     from sim.camera_server import CameraServer
