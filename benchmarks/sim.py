@@ -156,7 +156,7 @@ def camera_transport_figures(
             try:
                 camera.capture()  # the first frame allocates
                 figures[f"GigE Vision, {width}×{height} {fmt}"] = _timed(
-                    lambda: camera.capture() and COMM_SUCCESS, n
+                    lambda camera=camera: camera.capture() and COMM_SUCCESS, n
                 )
             finally:
                 camera.close()
