@@ -65,7 +65,7 @@ class GenICamConfig:
     """Which camera, how its frames come, and any feature to set as it opens."""
 
     device: str  # Aravis's device id ("Basler-21234567", as arv-tool-0.8 lists it) or an IP address
-    pixel_format: str = "RGB12"  # a PFNC name the camera offers (drivers.pfnc.FORMATS)
+    pixel_format: str | None = None  # a PFNC name the camera offers (drivers.pfnc.FORMATS); None: its own
     features: dict[str, bool | int | float | str] = field(default_factory=dict)  # set once, in this order
     frame_timeout_s: float = 20.0  # past the exposure: a frame that has not arrived is lost
     packet_size: int | None = None  # GigE Vision bytes per packet; None: negotiated
@@ -77,7 +77,7 @@ class GenICamCamera:
     """A :class:`~drivers.protocols.Camera` on Aravis, software-triggered, one raw frame at a time."""
 
     def __init__(self, config: GenICamConfig):
-        if config.pixel_format not in pfnc.FORMATS:
+        if config.pixel_format is not None and config.pixel_format not in pfnc.FORMATS:
             raise LimitError(
                 f"pixel format {config.pixel_format!r} is not one hlr-lab decodes; choose one of "
                 + ", ".join(sorted(pfnc.FORMATS)),
@@ -112,7 +112,15 @@ class GenICamCamera:
 
     def _configure(self) -> None:
         c = self.config
-        self._set("PixelFormat", c.pixel_format)
+        if c.pixel_format is not None:
+            self._set("PixelFormat", c.pixel_format)
+        self.pixel_format = str(self._get("PixelFormat"))
+        if self.pixel_format not in pfnc.FORMATS:
+            raise DeviceFault(
+                f"sends {self.pixel_format}, which hlr-lab does not decode; set pixel_format in [camera.genicam]",
+                device=self.name,
+                code=0,
+            )
         self.width, self.height = self._get("Width"), self._get("Height")
         for name, value in (("TriggerSelector", "FrameStart"), ("TriggerMode", "On"), ("TriggerSource", "Software"),
                             ("AcquisitionMode", "Continuous")):  # fmt: skip
@@ -246,7 +254,7 @@ class GenICamCamera:
             )
         data = buffer.get_data()
         try:
-            pixels = pfnc.decode(data, self.config.pixel_format, self.width, self.height)
+            pixels = pfnc.decode(data, self.pixel_format, self.width, self.height)
         except ValueError as exc:
             raise ChecksumError(f"frame cut short ({exc})", device=self.name) from exc
         exposure_s, gain_db, meta = self.exposure_s, self.gain_db, {}
@@ -258,7 +266,7 @@ class GenICamCamera:
                 meta = json.loads(self._chunk_parser.get_string_value(buffer, "ChunkSimulatorTruth") or "{}")
         return RawFrame(
             pixels=pixels,
-            bits=pfnc.FORMATS[self.config.pixel_format].bits,
+            bits=pfnc.FORMATS[self.pixel_format].bits,
             exposure_s=exposure_s,
             gain_db=gain_db,
             captured_at=time.time(),
@@ -283,7 +291,7 @@ class GenICamCamera:
         about["pixel_formats"] = list(
             self._device.dup_available_enumeration_feature_values_as_strings("PixelFormat")
         )
-        about["pixel_format"] = self.config.pixel_format
+        about["pixel_format"] = self.pixel_format
         about["exposure_s"] = self.exposure_s
         return about
 

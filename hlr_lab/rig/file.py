@@ -67,7 +67,7 @@ class _GenICamSection(StrictModel):
     """A machine-vision camera through Aravis (drivers.genicam_camera): GigE Vision or USB3 Vision."""
 
     device: str = Field(min_length=1)  # Aravis's id ("Basler-21234567", as arv-tool-0.8 lists it) or IP
-    pixel_format: str = "RGB12"  # a PFNC name the camera offers: Mono12/16, Bayer*12/16, RGB8, RGB12, …
+    pixel_format: str | None = None  # a PFNC name it offers (Mono12p, BayerRG12, RGB12, …); None: its own
     features: dict[str, bool | int | float | str] = {}  # set as the camera opens, in this order
     frame_timeout_s: float = Field(default=20.0, gt=0, le=3600)
     packet_size: int | None = Field(default=None, ge=576, le=65535)  # GigE Vision; None: negotiated
@@ -76,10 +76,10 @@ class _GenICamSection(StrictModel):
 
     @field_validator("pixel_format")
     @classmethod
-    def _a_decoded_format(cls, name: str) -> str:
+    def _a_decoded_format(cls, name: str | None) -> str | None:
         from drivers.pfnc import FORMATS
 
-        if name not in FORMATS:
+        if name is not None and name not in FORMATS:
             raise ValueError(
                 f"{name!r} is not a pixel format hlr-lab decodes; use one of {', '.join(sorted(FORMATS))}"
             )

@@ -72,7 +72,7 @@ class GigECamera:
         width: int,
         height: int,
         sensor_bits: int,
-        pixel_format: str = "RGB12",
+        pixel_format: str | None = None,
         identity: Identity = Identity(),
         temperature_c: Callable[[], float] = lambda: 38.0,
     ):
@@ -94,7 +94,8 @@ class GigECamera:
         self._threads: list[threading.Thread] = []
         self.frames_sent = 0
         self.packets_resent = 0
-        self._init_registers(len(xml), pixel_format)
+        # the sensor's own depth unless asked otherwise: RGB8, RGB12 or RGB16
+        self._init_registers(len(xml), pixel_format or {8: "RGB8", 16: "RGB16"}.get(sensor_bits, "RGB12"))
 
     # -- registers --------------------------------------------------------------------------------
 
@@ -190,10 +191,10 @@ class GigECamera:
 
     def _answer_loop(self) -> None:
         while not self._stop.is_set():
-            self._drop_stale_control()
             try:
                 datagram, peer = self._gvcp.recvfrom(2048)
-            except (TimeoutError, OSError):
+            except (TimeoutError, OSError):  # nothing waiting: only now is silence the client's, not ours
+                self._drop_stale_control()
                 continue
             command = gvcp.parse_command(datagram)
             if command is None or self.faults.silent:
