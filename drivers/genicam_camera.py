@@ -29,12 +29,16 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from drivers import pfnc
 from drivers.errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, LimitError
 from drivers.protocols import RawFrame
 
 log = logging.getLogger(__name__)
 N_BUFFERS = 4
+CHUNKS = ("ChunkExposureTime", "ChunkGain", "ChunkSimulatorTruth")  # the last: the simulated camera's
+FRAME_RETENTION_S = 2.0  # how long a frame's packets may pause before it is given up as incomplete
 STREAM_STATISTICS = ("n_completed_buffers", "n_failures", "n_timeouts", "n_missing_frames",
                      "n_received_packets", "n_missing_packets", "n_resend_requests", "n_resent_packets",
                      "n_size_mismatch_errors")  # fmt: skip
@@ -125,7 +129,9 @@ class GenICamCamera:
         for name, value in (("TriggerSelector", "FrameStart"), ("TriggerMode", "On"), ("TriggerSource", "Software"),
                             ("AcquisitionMode", "Continuous")):  # fmt: skip
             self._set(name, value)
-        self._chunks = self._has("ChunkModeActive")
+        # the chunks this camera can send; each frame reads those it carries (a camera may need
+        # ChunkSelector/ChunkEnable in [camera.genicam.features] to send them)
+        self._chunks = [name for name in CHUNKS if self._has(name)] if self._has("ChunkModeActive") else []
         if self._chunks:
             self._set("ChunkModeActive", True)
             self._chunk_parser = self._camera.create_chunk_parser()
@@ -146,6 +152,11 @@ class GenICamCamera:
             raise DeviceError(
                 "cannot open its stream (a firewall, or another program streaming)", device=self.name
             )
+        if isinstance(self._stream, self._arv.GvStream):
+            # a busy computer, not the camera, is what loses packets on a lab PC: a socket buffer that
+            # holds a whole frame, and a frame kept waiting for its resends through a pause of the host
+            self._stream.set_property("socket-buffer", self._arv.GvStreamSocketBuffer.AUTO)
+            self._stream.set_property("frame-retention", int(FRAME_RETENTION_S * 1e6))
         for _ in range(N_BUFFERS):
             self._stream.push_buffer(self._arv.Buffer.new_allocate(self._payload))
         self._call(self._camera.start_acquisition)
@@ -204,7 +215,9 @@ class GenICamCamera:
     def set_exposure(self, seconds: float) -> None:
         if not seconds > 0:
             raise LimitError(f"exposure {seconds} s must be positive", device=self.name)
-        self._set(self._exposure_feature, float(seconds * 1e6))
+        # the camera's own range, as its other roundings: the frame says what it used (Camera protocol)
+        lo_us, hi_us = self._call(self._camera.get_float_bounds, self._exposure_feature)
+        self._set(self._exposure_feature, float(np.clip(seconds * 1e6, lo_us, hi_us)))
         self.exposure_s = float(self._get(self._exposure_feature)) / 1e6  # what the camera made of it
 
     def set_gain(self, gain_db: float) -> None:
@@ -257,21 +270,31 @@ class GenICamCamera:
             pixels = pfnc.decode(data, self.pixel_format, self.width, self.height)
         except ValueError as exc:
             raise ChecksumError(f"frame cut short ({exc})", device=self.name) from exc
-        exposure_s, gain_db, meta = self.exposure_s, self.gain_db, {}
-        if self._chunks:
-            exposure_s = self._chunk_parser.get_float_value(buffer, "ChunkExposureTime") / 1e6
-            if self._has("ChunkGain"):
-                gain_db = self._chunk_parser.get_float_value(buffer, "ChunkGain")
-            if self._has("ChunkSimulatorTruth"):  # a simulated camera's account of the frame
-                meta = json.loads(self._chunk_parser.get_string_value(buffer, "ChunkSimulatorTruth") or "{}")
+        said = self._chunk_values(buffer)
         return RawFrame(
             pixels=pixels,
             bits=pfnc.FORMATS[self.pixel_format].bits,
-            exposure_s=exposure_s,
-            gain_db=gain_db,
+            exposure_s=said["ChunkExposureTime"] / 1e6 if "ChunkExposureTime" in said else self.exposure_s,
+            gain_db=said.get("ChunkGain", self.gain_db),
             captured_at=time.time(),
-            meta=meta,
+            meta=json.loads(said.get("ChunkSimulatorTruth") or "{}"),  # a simulated camera's account of it
         )
+
+    def _chunk_values(self, buffer: Any) -> dict[str, Any]:
+        """The chunks ``buffer`` carries, by feature name (one not sent with this frame is left out: the
+        values read back after setting stand in for it)."""
+        said: dict[str, Any] = {}
+        for name in self._chunks:
+            read = (
+                self._chunk_parser.get_string_value
+                if name == "ChunkSimulatorTruth"
+                else self._chunk_parser.get_float_value
+            )
+            try:
+                said[name] = read(buffer, name)
+            except Exception:  # GLib.Error: the chunk is not in this frame
+                continue
+        return said
 
     def statistics(self) -> dict[str, int]:
         """The stream's counters since it opened (Aravis's names: resent and missing packets, …)."""

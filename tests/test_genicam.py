@@ -114,6 +114,13 @@ def test_frames_carry_the_exposure_and_gain_the_camera_reports(device):
     np.testing.assert_array_equal(frame.pixels, np.broadcast_to(COLOUR, (H, W, 3)))
 
 
+def test_an_exposure_below_the_cameras_range_is_its_shortest_and_the_frame_says_so(device):
+    with opened(device) as camera:
+        camera.set_exposure(1e-8)
+        frame = camera.capture()
+    assert frame.exposure_s == device.feature("ExposureTime") / 1e6 == 1e-6
+
+
 def test_a_bayer_mosaic_is_demosaiced_to_its_colour(device):
     with opened(device, pixel_format="BayerRG12p") as camera:
         frame = camera.capture()

@@ -391,17 +391,17 @@ class GigECamera:
         except Exception:  # a frame that cannot be made is a frame that never comes, as on a real camera
             log.exception("simulated camera: frame failed")
 
-    def _payload(self, values: np.ndarray, truth: dict, fmt: PixelFormat | None = None) -> bytes:
+    def _payload(self, values: np.ndarray, truth: dict, fmt: PixelFormat) -> bytes:
         """The frame's bytes: the image, then (chunk mode) exposure, gain and truth chunks, each followed by
-        its id and length (GigE Vision chunk layout, read from the end)."""
-        image = encode(values, fmt or self.pixel_format)
+        its id and length (GigE Vision chunk layout, read from the end). ``truth`` holds the exposure (s)
+        and gain (dB) the frame was taken with."""
+        image = encode(values, fmt)
         if not self.feature("ChunkModeActive"):
             return image
         text = json.dumps(truth).encode()[: ft.TRUTH_CHUNK_BYTES - 1].ljust(ft.TRUTH_CHUNK_BYTES, b"\0")
-        exposure_us = truth.get("exposure_s", self.feature("ExposureTime") / 1e6) * 1e6
         chunks = [(image, ft.CHUNK_IMAGE),
-                  (struct.pack(">d", exposure_us), ft.CHUNK_EXPOSURE),
-                  (struct.pack(">d", truth.get("gain_db", self.feature("Gain"))), ft.CHUNK_GAIN),
+                  (struct.pack(">d", truth["exposure_s"] * 1e6), ft.CHUNK_EXPOSURE),
+                  (struct.pack(">d", truth["gain_db"]), ft.CHUNK_GAIN),
                   (text, ft.CHUNK_TRUTH)]  # fmt: skip
         return b"".join(data + struct.pack(">II", chunk_id, len(data)) for data, chunk_id in chunks)
 

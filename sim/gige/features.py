@@ -70,7 +70,7 @@ FEATURES: tuple[Feature, ...] = (
     Feature("TriggerMode", "enum", _at(12), "RW", "AcquisitionControl", entries={"Off": 0, "On": 1}),
     Feature("TriggerSource", "enum", _at(13), "RW", "AcquisitionControl", entries={"Software": 0}),
     Feature("TriggerSoftware", "command", _at(14), "WO", "AcquisitionControl"),
-    Feature("ExposureTime", "float", _at(15), "RW", "AcquisitionControl", 10.0, 3.6e9, "us"),
+    Feature("ExposureTime", "float", _at(15), "RW", "AcquisitionControl", 1.0, 3.6e9, "us"),
     Feature("Gain", "float", _at(16), "RW", "AnalogControl", 0.0, 24.0, "dB"),
     Feature("BlackLevel", "float", _at(17), "RW", "AnalogControl", 0.0, 255.0, "DN",
             description="Added to the sensor's own offset, in digital numbers of the sensor's bit depth."),
