@@ -84,6 +84,45 @@ def test_arv_tool_is_refused_a_gain_beyond_the_range(device):
     assert device.feature("Gain") == 0.0
 
 
+def test_two_thousand_broken_datagrams_leave_the_camera_answering(device, caplog):
+    """Random bytes, and GVCP headers with payloads that do not fit their command (short, odd, lying
+    about their length), from a client without control: each ignored or answered with an error status,
+    never a traceback; then a proper client opens the camera and gets its frame."""
+    import logging
+    import random
+    import socket
+    import struct
+
+    from sim.gige import gvcp
+
+    rng = random.Random(23)
+    codes = [
+        gvcp.DISCOVERY,
+        gvcp.READREG,
+        gvcp.WRITEREG,
+        gvcp.READMEM,
+        gvcp.WRITEMEM,
+        gvcp.PACKETRESEND,
+        0x1234,
+    ]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s, caplog.at_level(logging.WARNING):
+        s.settimeout(0.5)
+        for k in range(2000):
+            payload = rng.randbytes(rng.choice([0, 1, 3, 4, 6, 8, 12, 540]))
+            if k % 2:
+                datagram = rng.randbytes(rng.randint(0, 40))
+            else:
+                length = len(payload) if k % 4 else rng.randint(0, 600)
+                datagram = struct.pack(">BBHHH", 0x42, 1, rng.choice(codes), length, k) + payload
+            s.sendto(datagram, (device.address, gvcp.PORT))
+            if k % 100 == 0:  # now and then wait for the answer, so the device is not merely queued
+                with contextlib.suppress(TimeoutError):
+                    s.recv(2048)
+    assert not [r for r in caplog.records if r.name.startswith("sim.gige")]
+    with opened(device) as camera:
+        np.testing.assert_array_equal(camera.capture().pixels, np.broadcast_to(COLOUR, (H, W, 3)))
+
+
 def test_arv_camera_test_streams_with_no_missing_packets(device):
     out = aravis_tool("arv-camera-test-0.8", "-n", device.address, "--duration=3", timeout=120)
     stats = {k: int(v) for k, v in re.findall(r"^(n_\w+)\s+= (\d+)", out, re.MULTILINE)}

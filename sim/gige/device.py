@@ -201,6 +201,8 @@ class GigECamera:
                 continue
             try:
                 reply = self._answer(command, peer)
+            except (struct.error, ValueError):  # a payload too short for its command, or an odd pair count
+                reply = gvcp.ack(command, status=gvcp.INVALID_PARAMETER)
             except Exception:  # a bug answering one command must not take the camera down
                 log.exception("simulated camera: command 0x%04x failed", command.code)
                 reply = gvcp.ack(command, status=gvcp.INVALID_HEADER)
@@ -255,8 +257,9 @@ class GigECamera:
                 return gvcp.ack(
                     command, struct.pack(">I", len(writes) if code == gvcp.WRITEREG else len(writes[0][1]))
                 )
-            if code == gvcp.PACKETRESEND:
-                self._resend(*gvcp.words(payload)[:3])
+            if code == gvcp.PACKETRESEND:  # block id, first and last packet id (no acknowledge either way)
+                if len(payload) >= 12:
+                    self._resend(*gvcp.words(payload)[:3])
                 return None
             return gvcp.ack(command, status=gvcp.NOT_IMPLEMENTED)
 
