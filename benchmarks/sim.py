@@ -5,6 +5,7 @@ from __future__ import annotations
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -128,12 +129,23 @@ def render_figures(frames: int = 1000, sizes=((640, 480), (1280, 960)), spp: int
     return figures
 
 
-def camera_transport_figures(
-    n: int = 20, width: int = 1280, height: int = 960
-) -> dict[str, dict[str, float]]:
-    """Seconds per frame (median, p95) from trigger to decoded pixels, with a frame already made (no
-    rendering: only the transport is timed): through GigE Vision (the simulated device, Aravis, the
-    GenICam driver) in Mono16 and RGB12, and through the older TCP frame endpoint."""
+@dataclass(frozen=True)
+class CameraTransport:
+    """``hlr-lab bench sim``'s camera part: ms per frame (median, p95) by case, and the GigE Vision
+    stream's packet counters (Aravis's names) by case."""
+
+    timings: dict[str, dict[str, float]]
+    packets: dict[str, dict[str, int]]
+
+
+GIGE_CASES = (("Mono16", 0.0), ("RGB12", 0.0), ("Mono16", 0.01), ("Mono16", 0.05))  # format, packets lost
+
+
+def camera_transport_figures(n: int = 20, width: int = 1280, height: int = 960) -> CameraTransport:
+    """Per frame, from trigger to decoded pixels, with a frame already made (no rendering: only the
+    transport is timed): through GigE Vision (the simulated device, Aravis, the GenICam driver) in Mono16
+    and RGB12, then Mono16 with 1 % and 5 % of the stream's packets lost on their first sending (the
+    resends counted); and through the older TCP frame endpoint."""
     import numpy as np
 
     from drivers.genicam_camera import GenICamCamera, GenICamConfig
@@ -147,17 +159,19 @@ def camera_transport_figures(
         def capture(self, exposure_s: float, gain_db: float = 0.0) -> tuple[np.ndarray, dict]:
             return frame, {"exposure_s": exposure_s}
 
-    figures = {}
-    for fmt in ("Mono16", "RGB12"):
+    timings, packets = {}, {}
+    for fmt, lost in GIGE_CASES:
+        case = f"GigE Vision, {width}×{height} {fmt}" + (f", {lost:.0%} of packets lost" if lost else "")
         device = GigECamera(Ready().capture, width=width, height=height, sensor_bits=12)
         try:
             device.serve_on_loopback()
             camera = GenICamCamera(GenICamConfig(device.address, pixel_format=fmt))
             try:
                 camera.capture()  # the first frame allocates
-                figures[f"GigE Vision, {width}×{height} {fmt}"] = _timed(
-                    lambda camera=camera: camera.capture() and COMM_SUCCESS, n
-                )
+                device.faults.drop_ratio = lost
+                before = camera.statistics()
+                timings[case] = _timed(lambda camera=camera: camera.capture() and COMM_SUCCESS, n)
+                packets[case] = {k: v - before[k] for k, v in camera.statistics().items()}
             finally:
                 camera.close()
         finally:
@@ -167,14 +181,29 @@ def camera_transport_figures(
         camera = NetworkCamera(server.serve_tcp())
         try:
             camera.capture()
-            figures[f"TCP frame endpoint, {width}×{height} RGB 16-bit"] = _timed(
+            timings[f"TCP frame endpoint, {width}×{height} RGB 16-bit"] = _timed(
                 lambda: camera.capture() and COMM_SUCCESS, n
             )
         finally:
             camera.close()
     finally:
         server.close()
-    return figures
+    return CameraTransport(timings, packets)
+
+
+def camera_transport_report(figures: CameraTransport) -> list[str]:
+    """The camera part of ``hlr-lab bench sim`` as lines: times, then each GigE Vision case's packets."""
+    title = "a frame from trigger to pixels, already exposed (GigE Vision Mono16: target ≤ TCP + 20 ms):"
+    lines = round_trip_report(title, figures.timings)
+    lines.append(
+        "GigE Vision packets over those frames (received / lost and resent / missing; frames whole):"
+    )
+    for case, c in figures.packets.items():
+        lines.append(
+            f"  {case:<48} {c['n_received_packets']} / {c['n_resent_packets']} / {c['n_missing_packets']}; "
+            f"{c['n_completed_buffers']} of {c['n_completed_buffers'] + c['n_failures']}"
+        )
+    return lines
 
 
 def _rss_mb() -> float:

@@ -22,6 +22,7 @@ when a camera is opened, so the rest of the project runs without it.
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
 import threading
@@ -41,7 +42,8 @@ CHUNKS = ("ChunkExposureTime", "ChunkGain", "ChunkSimulatorTruth")  # the last: 
 FRAME_RETENTION_S = 2.0  # how long a frame's packets may pause before it is given up as incomplete
 STREAM_STATISTICS = ("n_completed_buffers", "n_failures", "n_timeouts", "n_missing_frames",
                      "n_received_packets", "n_missing_packets", "n_resend_requests", "n_resent_packets",
-                     "n_size_mismatch_errors")  # fmt: skip
+                     "n_size_mismatch_errors", "n_underruns", "n_ignored_packets", "n_duplicated_packets",
+                     "n_error_packets")  # fmt: skip
 
 
 class AravisMissing(DeviceError):
@@ -147,6 +149,10 @@ class GenICamCamera:
             else:
                 self._camera.gv_auto_packet_size()
         self._payload = int(self._camera.get_payload())
+        if self._camera.is_gv_device() and _on_loopback(c.device):
+            # Aravis's packet socket, bound to the loopback interface, takes in other simulated cameras'
+            # streams too (ignored packets, frames never completed): the plain UDP socket there
+            self._camera.gv_set_stream_options(self._arv.GvStreamOption.PACKET_SOCKET_DISABLED)
         self._stream = self._camera.create_stream(None, None)
         if self._stream is None:
             raise DeviceError(
@@ -157,6 +163,9 @@ class GenICamCamera:
             # holds a whole frame, and a frame kept waiting for its resends through a pause of the host
             self._stream.set_property("socket-buffer", self._arv.GvStreamSocketBuffer.AUTO)
             self._stream.set_property("frame-retention", int(FRAME_RETENTION_S * 1e6))
+            # Aravis sizes the socket buffer as the first frame begins, too late for that frame's own
+            # packets: resends may bring back all that a busy computer dropped (by default, a quarter)
+            self._stream.set_property("packet-request-ratio", 1.0)
         for _ in range(N_BUFFERS):
             self._stream.push_buffer(self._arv.Buffer.new_allocate(self._payload))
         self._call(self._camera.start_acquisition)
@@ -336,6 +345,14 @@ class GenICamCamera:
                 log.info("%s: stop acquisition: %s", self.name, _message(exc))
         self._stream = self._chunk_parser = self._device = None
         del camera
+
+
+def _on_loopback(device: str) -> bool:
+    """Whether ``device`` is an address on this computer (a simulated camera), not an id or a remote IP."""
+    try:
+        return ipaddress.ip_address(device).is_loopback
+    except ValueError:  # a device id ("Basler-21234567")
+        return False
 
 
 def _message(exc: BaseException) -> str:

@@ -13,7 +13,7 @@ import trimesh
 from hlr_lab.cli.main import main
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.object.procedural import pebble
-from tests.renderer_guard import require_renderer
+from tests.renderer_guard import require_aravis, require_renderer
 
 
 def run(capsys, *args):
@@ -183,10 +183,18 @@ def test_plan_benchmark_prints_figures(capsys):
 
 
 def test_sim_benchmark_prints_figures(capsys):
+    require_aravis()
     code, out, err = run(capsys, "bench", "sim", "-n", "20", "--frames", "0")
     assert code == 0, err
     assert "ping" in out
     assert "median" in out
+    # the camera's frames through GigE Vision, and the lost packets resent (none missing, every frame whole)
+    lost = re.search(r"Mono16, 5% of packets lost\s+(\d+) / (\d+) / (\d+); (\d+) of (\d+)", out)
+    assert lost, out
+    received, resent, missing, whole, frames = map(int, lost.groups())
+    assert received > 0
+    assert 0.02 * received < resent < 0.1 * received
+    assert (missing, whole) == (0, frames)
 
 
 def test_acquire_benchmark_prints_figures(capsys):

@@ -245,6 +245,16 @@ def fake_camera():
     proc.wait()
 
 
+def retaken(camera: GenICamCamera):
+    """One frame, taken again once if it came incomplete, as the acquisition's retry policy does: the fake
+    camera does not answer resend requests, and Aravis sizes its socket buffer only as the first frame
+    begins, so on a busy computer that first frame may lose packets for good."""
+    try:
+        return camera.capture()
+    except (ChecksumError, DeviceTimeout):
+        return camera.capture()
+
+
 def test_the_driver_sets_and_reads_back_aravis_fake_camera(fake_camera):
     """The fake camera has the older ExposureTimeAbs and GainRaw, no chunks: the exposure comes back from
     the feature, and its Mono16 diagonal ramp, 256 · (x + y + frame) mod 65535 at 10 ms and no gain
@@ -257,7 +267,7 @@ def test_the_driver_sets_and_reads_back_aravis_fake_camera(fake_camera):
         camera.set_gain(0.0)
         with pytest.raises(LimitError, match="gain_raw_per_db"):
             camera.set_gain(6.0)
-        frame = camera.capture()
+        frame = retaken(camera)
     assert (frame.exposure_s, frame.bits, frame.pixels.shape) == (0.01, 16, (512, 512, 1))
     y, x = np.ogrid[:512, :512]
     ids = np.arange(65535)
@@ -267,9 +277,9 @@ def test_the_driver_sets_and_reads_back_aravis_fake_camera(fake_camera):
 
 def test_a_camera_that_disappears_mid_run_stops_the_capture_with_its_name(fake_camera):
     with contextlib.closing(
-        GenICamCamera(GenICamConfig("127.0.0.1", pixel_format="Mono16", frame_timeout_s=2))
+        GenICamCamera(GenICamConfig("127.0.0.1", pixel_format="Mono16", frame_timeout_s=3))
     ) as camera:
-        assert camera.capture().pixels.shape == (512, 512, 1)
+        assert retaken(camera).pixels.shape == (512, 512, 1)
         fake_camera.kill()
         fake_camera.wait()
         with pytest.raises(DeviceError, match=r"camera 127\.0\.0\.1: "):

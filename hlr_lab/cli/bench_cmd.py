@@ -108,17 +108,16 @@ def bench_sim(transactions, frames) -> None:
     """
     from benchmarks.sim import (  # the simulator: CLI only
         camera_transport_figures,
+        camera_transport_report,
         render_figures,
         render_report,
-        round_trip_report,
         transactions_report,
     )
 
     with console.status("") as status:
         _print(transactions_report(transactions, progress=status.update))
         status.update("timing the camera's frames…")
-        title = "a frame from trigger to pixels, already exposed (GigE Vision: target ≤ TCP + 20 ms):"
-        _print(round_trip_report(title, camera_transport_figures()))
+        _print(camera_transport_report(camera_transport_figures()))
     if frames:
         with console.status(f"rendering (then {frames} re-renders)…"):
             _print(render_report(render_figures(frames)))

@@ -217,9 +217,15 @@ class GigECamera:
                 log.info(
                     "simulated camera %s: no heartbeat for %.1f s; control released", self.address, timeout_s
                 )
-                self._controller = None
-                self._put(gvcp.CONTROL_PRIVILEGE, 0)
-                self._acquiring = False
+                self._release_control()
+
+    def _release_control(self) -> None:
+        """No client holds control: acquisition stops and the stream channel closes (port 0), so no frame
+        still queued goes to a port its client no longer has (another program may have it by then)."""
+        self._controller = None
+        self._put(gvcp.CONTROL_PRIVILEGE, 0)
+        self._put(gvcp.SC_PORT, 0)
+        self._acquiring = False
 
     def _answer(self, command: gvcp.Command, peer: tuple[str, int]) -> bytes | None:
         with self._lock:
@@ -272,9 +278,11 @@ class GigECamera:
             value = struct.unpack(">I", data[:4])[0]
             if self._controller not in (None, peer):
                 return gvcp.ACCESS_DENIED
-            self._controller = peer if value & (gvcp.CCP_CONTROL | gvcp.CCP_EXCLUSIVE) else None
-            self._last_heard = time.monotonic()
-            self._put(gvcp.CONTROL_PRIVILEGE, value if self._controller else 0)
+            if value & (gvcp.CCP_CONTROL | gvcp.CCP_EXCLUSIVE):
+                self._controller, self._last_heard = peer, time.monotonic()
+                self._put(gvcp.CONTROL_PRIVILEGE, value)
+            else:
+                self._release_control()
             return gvcp.SUCCESS
         if self._controller != peer:
             return gvcp.ACCESS_DENIED  # only the application holding control may write
@@ -387,6 +395,8 @@ class GigECamera:
                     self._sent.popitem(last=False)
                 destination = self._destination()
                 lose = self._losses(len(packets))
+            if destination[1] == 0:  # the stream channel was closed meanwhile (its client left)
+                return
             for i, packet in enumerate(packets):
                 if i not in lose:
                     self._stream.sendto(packet, destination)
