@@ -39,7 +39,6 @@ from drivers.protocols import RawFrame
 log = logging.getLogger(__name__)
 N_BUFFERS = 4
 CHUNKS = ("ChunkExposureTime", "ChunkGain", "ChunkSimulatorTruth")  # the last: the simulated camera's
-FRAME_RETENTION_S = 2.0  # how long a frame's packets may pause before it is given up as incomplete
 STREAM_STATISTICS = ("n_completed_buffers", "n_failures", "n_timeouts", "n_missing_frames",
                      "n_received_packets", "n_missing_packets", "n_resend_requests", "n_resent_packets",
                      "n_size_mismatch_errors", "n_underruns", "n_ignored_packets", "n_duplicated_packets",
@@ -109,12 +108,36 @@ class GenICamCamera:
         lost = self._control_lost  # the handler holds the event only: no cycle keeps Aravis's objects alive
         self._device.connect("control-lost", lambda *_: lost.set())
         try:
+            self._take_control()
             self._configure()
         except BaseException:
             self.close()
             raise
 
     # -- set-up -------------------------------------------------------------------------------------
+
+    def _take_control(self) -> None:
+        """Hold the camera's control channel, waiting out a program that held it and ended without letting
+        go (killed, crashed): the camera frees it after its heartbeat timeout."""
+        if not self._camera.is_gv_device() or self._device.is_controller():
+            return
+        timeout_s = self._get("GevHeartbeatTimeout") / 1000 if self._has("GevHeartbeatTimeout") else 3.0
+        log.info("%s: held by another program; waiting up to %.1f s for it to let go", self.name, timeout_s)
+        deadline = time.monotonic() + timeout_s + 1.0
+        while not self._took_control():
+            if time.monotonic() > deadline:
+                raise DeviceError(
+                    "another program holds its control channel; close it (arv-viewer, another hlr-lab) and try "
+                    "again",
+                    device=self.name,
+                )
+            time.sleep(0.2)
+
+    def _took_control(self) -> bool:
+        try:
+            return bool(self._device.take_control())
+        except Exception:  # GLib.Error: access denied while the other program holds it
+            return False
 
     def _configure(self) -> None:
         c = self.config
@@ -159,12 +182,10 @@ class GenICamCamera:
                 "cannot open its stream (a firewall, or another program streaming)", device=self.name
             )
         if isinstance(self._stream, self._arv.GvStream):
-            # a busy computer, not the camera, is what loses packets on a lab PC: a socket buffer that
-            # holds a whole frame, and a frame kept waiting for its resends through a pause of the host
+            # a busy computer, not the camera, is what loses packets on a lab PC: a socket buffer that holds
+            # a whole frame — which Aravis sets as the first frame begins, too late for that frame's own
+            # packets — and resends that may bring back all that was dropped (Aravis's default: a quarter)
             self._stream.set_property("socket-buffer", self._arv.GvStreamSocketBuffer.AUTO)
-            self._stream.set_property("frame-retention", int(FRAME_RETENTION_S * 1e6))
-            # Aravis sizes the socket buffer as the first frame begins, too late for that frame's own
-            # packets: resends may bring back all that a busy computer dropped (by default, a quarter)
             self._stream.set_property("packet-request-ratio", 1.0)
         for _ in range(N_BUFFERS):
             self._stream.push_buffer(self._arv.Buffer.new_allocate(self._payload))

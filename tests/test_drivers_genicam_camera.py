@@ -208,6 +208,34 @@ def test_a_frame_that_never_comes_is_a_timeout(device):
         assert camera.capture().pixels.shape == (H, W, 3)
 
 
+def test_a_camera_held_by_a_program_that_died_is_taken_once_its_heartbeat_times_out(device):
+    """A client takes control and vanishes without letting go (a killed acquire): the next one waits for
+    the camera's heartbeat timeout, then opens it; one held by a live program is refused by name."""
+    import socket
+    import struct
+
+    from sim.gige import gvcp
+
+    def write(sock, address: int, value: int) -> None:
+        sock.sendto(
+            struct.pack(">BBHHHII", 0x42, 1, gvcp.WRITEREG, 8, 1, address, value), (device.address, gvcp.PORT)
+        )
+        assert struct.unpack(">H", sock.recv(64)[:2])[0] == gvcp.SUCCESS
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+        other.settimeout(5)
+        write(other, gvcp.CONTROL_PRIVILEGE, gvcp.CCP_CONTROL)
+        write(other, gvcp.HEARTBEAT_TIMEOUT, 1000)
+        t0 = time.monotonic()
+        with opened(device) as camera:  # the other client has gone silent: its control lapses after 1 s
+            assert 0.9 < time.monotonic() - t0 < 10
+            assert camera.capture().pixels.shape == (H, W, 3)
+    with opened(device) as holder:
+        holder.capture()
+        with pytest.raises(DeviceError, match="another program holds its control channel"):
+            GenICamCamera(GenICamConfig(device.address))
+
+
 def test_a_camera_that_stops_answering_is_named_and_released_after_its_heartbeat(device):
     """The device goes silent (unplugged): the capture fails with one line naming the camera; silent past
     its heartbeat timeout, it gives up the client's control, so another client can take it."""
