@@ -43,14 +43,21 @@ def test_segment_then_plan_on_the_builtin_object(capsys, tmp_path):
     )
     assert code == 0, err
     assert "coverage" in err
-    assert "plain count would need" in err
+    said = re.search(r"(\d+) lights; lower bound (\d+) \(LP [\d.]+\); optimum (proven|not proven)", err)
+    assert said, err
+    assert "chosen by:" in err
     p = read_plan(plan)
     assert p.poses
     assert all(c.satisfied for c in p.coverage.values())
     assert p.parameters.criterion == "capped"
     assert p.summary is not None
     assert p.summary.lights_by_criterion is not None
-    assert p.summary.lights_by_criterion["plain"] >= len(p.poses)
+    assert len(p.poses) <= min(p.summary.lights_by_criterion.values())  # never more than either greedy
+    assert int(said.group(1)) == len(p.poses)
+    assert int(said.group(2)) == p.summary.lower_bound
+    assert p.summary.lower_bound is not None
+    assert p.summary.lower_bound <= len(p.poses)
+    assert p.summary.chosen_by in {"greedy (capped)", "greedy (plain)", "integer programme"}
 
 
 def test_uncovered_regions_give_exit_status_3_and_a_written_plan(capsys, tmp_path):
@@ -174,10 +181,11 @@ def test_console_script_runs_as_a_process(tmp_path):
 
 @pytest.mark.slow
 def test_plan_benchmark_prints_figures(capsys):
-    code, out, err = run(capsys, "bench", "plan", "--large", "0")
+    code, out, err = run(capsys, "bench", "plan", "--large", "0", "--no-fewest")
     assert code == 0, err
     assert "builtin:pebble" in out
     assert "plan time" in out
+    assert "lower bound" in out
     assert "peak RSS" in out
     assert "measured max nearest-neighbour" in err
 

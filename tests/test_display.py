@@ -42,8 +42,9 @@ def test_the_coverage_table_sums_the_lights_beyond_its_columns_and_says_why_a_re
     assert f"p{MAX_POSE_COLUMNS:03d}" not in text
     cells = [[c.strip() for c in line.split("│")[1:-1]] for line in text.splitlines()]
     rows = {row[0]: row for row in cells if row and row[0].isdigit()}
-    for r in seg.regions:  # every region's row: its total, and "no" with the planner's own reason
-        assert rows[str(r.id)][-2] == f"{result.coverage[r.id]:.0f}"
+    for r in seg.regions:  # every region's row: its totals, and "no" with the planner's own reason
+        assert rows[str(r.id)][-3] == f"{result.coverage[r.id]:.0f}"
+        assert rows[str(r.id)][-2] == f"{result.diffuse[r.id]:.0f}"
         assert rows[str(r.id)][-1].startswith("no: " + result.uncovered[r.id][:20])
     lines = plan_summary(result, tmp_path / "plan.json")
     assert lines[0].startswith(f"{len(result.lights)} lights over 1 turntable view(s) 0°")

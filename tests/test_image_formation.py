@@ -31,10 +31,12 @@ def bunny_session(assets, tmp_path_factory):
 
 def test_the_bias_of_n_and_rs_on_the_bunny_is_the_pixels_footprint(bunny_session):
     result = image_formation(bunny_session, sub=3)
-    # at the peak of the lobe the data lie ~0.5 % below the centre-ray model and within 0.06 % of the box
-    # model (measured; 16 samples per pixel: their noise is far below this)
+    # at the peak of the lobe the data lie below the centre-ray model and much closer to the box model;
+    # how far depends on where the plan puts the highlights (measured: 0.5 % below on the planner's earlier
+    # plan, 0.03–0.06 % on the plan of fewest lights, with the box model within 0.01 %; the
+    # renderer's 16 samples per pixel over these thousands of pixels are deterministic)
     peak = result.residual_pct[:2]  # β < 4°
-    assert np.all(peak[:, CENTRE] < -0.3), peak
+    assert np.all(peak[:, CENTRE] < -0.02), peak
     assert np.all(np.abs(peak[:, BOX]) < 0.3 * np.abs(peak[:, CENTRE])), peak
     for r in result.regions:
         n_true, rs_true = r.truth

@@ -252,10 +252,12 @@ def test_the_systematic_moves_are_what_refits_under_the_moved_rig_give(acquired,
     """The session fitted under a rig file whose calibration records give covariances: each term's
     first-order move of (Rd, Rs, n), the pixels held, against a full refit with the rig moved by that
     term (its selection, HDR and all) — the largest camera mode, the largest gantry mode, the largest of
-    the measured placement's six, the black level: within 0.5 standard errors plus 20 % of the move. The
-    refit's pixels move with the rig (at borders and grazing angles they come and go), a jitter the
-    first-order move, its pixels held, has not: measured up to 0.5 SE at a 3 SE move here, 0.1–0.2 SE on
-    the calibrated bench's smaller moves.
+    the measured placement's six, the black level: within 0.5 standard errors plus 20 % of the move plus
+    5 % of the region's largest move (in SE). The refit's pixels move with the rig (at borders and grazing
+    angles they come and go), a jitter the first-order move, its pixels held, has not, and it grows with
+    how far the rig moved, in every parameter: measured up to 0.5 SE at a 3 SE move, and 1.0 SE in Rd at
+    a 16 SE move of Rs (a region lit from just above the table), 0.1–0.2 SE on the calibrated bench's
+    smaller moves.
     The sensitivity term moves Rd and Rs by its share exactly and n not at all; each entry's *_sys is the
     terms' moves in quadrature."""
     from dataclasses import replace
@@ -330,7 +332,8 @@ def test_the_systematic_moves_are_what_refits_under_the_moved_rig_give(acquired,
             got = np.concatenate([np.subtract(g.rd, e.rd), np.subtract(g.rs, e.rs), [g.n - e.n]])
             se = np.concatenate([e.rd_se, e.rs_se, [e.n_se]])
             predicted = np.array([rows[e.id][index][k] for k in keys])
-            within = np.abs(predicted - got) <= 0.5 * se + 0.2 * np.abs(predicted)
+            largest = np.max(np.abs(predicted) / se)
+            within = np.abs(predicted - got) <= (0.5 + 0.05 * largest) * se + 0.2 * np.abs(predicted)
             assert np.all(within), (names[index], e.id, predicted / se, got / se)
     share = 0.004 / 1.004
     for e in result.materials.regions:

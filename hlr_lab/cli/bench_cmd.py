@@ -9,6 +9,9 @@ import click
 from benchmarks.numerical import (
     fit_error_grid,
     grid_report,
+    optimum_figures,
+    optimum_objects,
+    optimum_report,
     plan_cases,
     plan_report,
     run_plan_case,
@@ -49,19 +52,30 @@ def bench() -> None:
     default=1_000_000,
     help="Also plan on the mesh subdivided to at least this many vertices (0: skip).",
 )
-def bench_plan(mesh_path, up, scale, min_vertices) -> None:
+@click.option(
+    "--assets", "assets", type=FOLDER, help="Folder holding spot/ (the fewest-lights cases add Spot)."
+)
+@click.option("--fewest/--no-fewest", default=True, help="Also the fewest-lights cases (about a minute).")
+def bench_plan(mesh_path, up, scale, min_vertices, assets, fewest) -> None:
     """Planning time and peak memory: the paper's 4.1 set-up (8 regions in view, sphere 2× the bounding
     sphere, θc = 5°, one view, candidate spacing 0.5°) on the mesh and on a ≥ 1 M-vertex subdivision.
+    Then the fewest lights: each case's lights against the greedy's and the lower bound.
 
     \b
     Example:
-      hlr-lab bench plan --mesh ../shared/assets/stanford-bunny.obj --up y
+      hlr-lab bench plan --mesh ../shared/assets/stanford-bunny.obj --up y --assets ../shared/assets
     """
     console.print(spacing_line())
     out.print("plan benchmark: one fresh process per case; mesh loading and segmentation excluded")
     for case in plan_cases(mesh_path, up, scale, min_vertices):
         with console.status(f"planning {case[0]}…"):
             _print(plan_report(run_plan_case(*case)))
+    if not fewest:
+        return
+    out.print("fewest lights (integer programme budget 3 s; the bound is on the planner's estimated counts):")
+    for name, placed, settings in optimum_objects(mesh_path, up, scale, assets):
+        with console.status(f"planning {name}…"):
+            _print([optimum_report(optimum_figures(name, placed, settings))])
 
 
 @bench.command("fit")

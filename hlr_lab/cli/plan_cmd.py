@@ -15,7 +15,7 @@ from hlr_lab.formats.plan import write_plan
 from hlr_lab.formats.regions import read_regions
 from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object, plan_object
-from hlr_lab.planning.planner import PlanSettings
+from hlr_lab.planning.planner import MAX_OPTIMUM_BUDGET_S, PlanSettings
 from hlr_lab.session.outputs import check_outputs, mesh_files
 
 EXIT_UNCOVERED = 3  # the plan was written but some regions cannot get their M samples
@@ -60,6 +60,13 @@ def parse_views(text: str) -> list[float] | None:
     "min_samples",
     Finite(min=1),
     "Highlight samples M each region needs (in the --count unit).",
+)
+@setting(
+    "--min-diffuse",
+    "min_diffuse",
+    Finite(min=0),
+    "Diffuse-only samples (outside every highlight cone; Rd is fitted from them) each region needs, in "
+    "the --count unit; lights are added where the highlight lights leave a region short (0: not planned).",
 )
 @setting(
     "--sphere-scale",
@@ -110,11 +117,20 @@ def parse_views(text: str) -> list[float] | None:
     "Grazing limit: surfaces seen or lit beyond this angle from their normal do not count.",
 )
 @setting("--shadows/--no-shadows", "shadows", None, "Ray-cast shadows (the paper did not).")
+@setting(
+    "--optimum-budget",
+    "optimum_budget_s",
+    Finite(0, MAX_OPTIMUM_BUDGET_S),
+    "Seconds for the integer programme that looks for fewer lights than the greedy (0: the LP bound only).",
+)
 @placement_options
 @output_option("plan.json")
 def plan(mesh_spec, texture, regions_file, delta_e, split_connected, min_fragment, rig_path, sim, up, scale,
          output, **settings) -> int:  # fmt: skip
-    """Plan light positions that give every region M highlight samples.
+    """Plan as few light positions as it can that give every region M highlight samples.
+
+    The greedy (both criteria) and an integer programme within --optimum-budget each choose lights; the
+    plan keeps the fewest and prints how far that can be from the fewest possible (a lower bound).
 
     Exits with status 3 (after writing the plan) when some region cannot be covered; the table and
     plan.json say why.

@@ -16,10 +16,14 @@ MAX_POSE_COLUMNS = 10  # later lights are summed in one "…" column, so that th
 
 
 def coverage_table(result: PlanResult, seg: Segmentation) -> Table:
-    """One row per region: its colour, the samples each light gives it (in the plan's count unit), the
-    total, and whether it is satisfied (if not, why)."""
-    unit = result.settings.count
-    t = Table(title=f"coverage ({unit}; M = {result.settings.min_samples:g})", title_justify="left")
+    """One row per region: its colour, the highlight samples each light gives it (in the plan's count
+    unit), their total, the diffuse-only samples of all the lights, and whether it is satisfied (if not,
+    why)."""
+    s = result.settings
+    t = Table(
+        title=f"coverage ({s.count}; M = {s.min_samples:g} highlight, {s.min_diffuse:g} diffuse-only samples)",
+        title_justify="left",
+    )
     t.add_column("region", justify="right")
     t.add_column("colour (sRGB)")
     shown = result.lights[:MAX_POSE_COLUMNS]
@@ -28,6 +32,7 @@ def coverage_table(result: PlanResult, seg: Segmentation) -> Table:
     if len(result.lights) > len(shown):
         t.add_column("…", justify="right")
     t.add_column("total", justify="right")
+    t.add_column("diffuse", justify="right")
     t.add_column("satisfied")
     for r in seg.regions:
         cells = [f"{light.expected[r.id]:.0f}" if light.expected[r.id] > 0 else "·" for light in shown]
@@ -35,8 +40,19 @@ def coverage_table(result: PlanResult, seg: Segmentation) -> Table:
             cells.append(f"{sum(light.expected[r.id] for light in result.lights[len(shown) :]):.0f}")
         ok = bool(result.satisfied[r.id])
         mark = "[green]yes[/]" if ok else f"[red]no[/]: {result.uncovered.get(r.id, '')}"
-        t.add_row(str(r.id), swatch(r.colour), *cells, f"{result.coverage[r.id]:.0f}", mark)
+        diffuse = f"{result.diffuse[r.id]:.0f}"
+        t.add_row(str(r.id), swatch(r.colour), *cells, f"{result.coverage[r.id]:.0f}", diffuse, mark)
     return t
+
+
+def optimum_line(result: PlanResult) -> str:
+    """ "N lights; lower bound B (LP); optimum proven / not proven within the budget"."""
+    o = result.optimum
+    proof = "optimum proven" if o.proven else f"optimum not proven within the budget ({o.status})"
+    highlights = sum(light.purpose == "highlights" for light in result.lights)
+    line = f"{highlights} lights; lower bound {o.lower_bound} (LP {o.lp_value:.2f}); {proof}"
+    added = len(result.lights) - highlights
+    return line + (f"; +{added} for diffuse-only samples" if added else "")
 
 
 def plan_summary(result: PlanResult, output: Path) -> list[str]:
@@ -56,9 +72,9 @@ def plan_summary(result: PlanResult, output: Path) -> list[str]:
             f"(--sphere-scale), not on the gantry's {result.sphere.gantry.arm_radius:.3f} m arm, so acquire "
             "refuses it; plan without --sphere-scale to measure on the rig"
         )
-    other = [k for k in by if k != crit]
-    if other:
-        lines.append(f"the {other[0]} count would need {by[other[0]]} lights (this plan: {crit}, {by[crit]})")
+    lines.append(optimum_line(result))
+    greedy = ", ".join(f"{k} {n}" for k, n in by.items())
+    lines.append(f"chosen by: {result.optimum.chosen_by} (the greedy alone: {greedy}; {crit} requested)")
     n_bad = int(np.sum(~result.satisfied))
     if n_bad:
         lines.append(

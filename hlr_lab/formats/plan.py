@@ -102,6 +102,7 @@ class PlanParameters(OpenModel):
     sphere_radius_m: float = Field(gt=0)
     count: Literal["pixels", "vertices"]
     criterion: Literal["capped", "plain"] = "capped"
+    min_diffuse: float | None = Field(default=None, ge=0)  # diffuse-only samples each region needs
     sphere_source: SphereSource = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
     # what hlr-lab's planner was run with, for the record (another tool's plan may leave them out)
     sphere_centre_m: Vec3 | None = None
@@ -139,6 +140,8 @@ class PlanPose(OpenModel):
     ]  # an hour at most
     expected: dict[str, float]
     greedy_step: int | None = None  # the order hlr-lab's greedy chose the light in
+    expected_diffuse: dict[str, float] | None = None  # diffuse-only samples per region (Rd)
+    purpose: Literal["highlights", "diffuse"] | None = None  # "diffuse": added for diffuse-only samples
 
 
 class RegionCoverage(OpenModel):
@@ -147,13 +150,20 @@ class RegionCoverage(OpenModel):
     samples: float = Field(ge=0)
     satisfied: bool
     needed: float | None = None
+    diffuse_samples: float | None = Field(default=None, ge=0)
+    diffuse_needed: float | None = None
 
 
 class PlanSummary(OpenModel):
     """What hlr-lab's planner reports about its plan, for people: every field optional (another tool's plan)."""
 
     lights: int | None = None
-    lights_by_criterion: dict[str, int] | None = None
+    lights_by_criterion: dict[str, int] | None = None  # each greedy's own count, before the fewest was kept
+    lower_bound: int | None = None  # no set of the candidates satisfies the same regions with fewer lights
+    lp_bound: float | None = None  # the set multicover's LP relaxation (fractional lights)
+    optimum_proven: bool | None = None  # the plan has the fewest lights (on the planner's estimated counts)
+    chosen_by: str | None = None  # "greedy (capped)", "greedy (plain)" or "integer programme"
+    optimum_status: str | None = None  # how the integer programme ended
     views_used: list[float] | None = None
     candidates: int | None = None
     reachable_candidates: int | None = None
@@ -256,6 +266,8 @@ def build_plan(
             exposures_s=list(exposures_s),
             expected={str(r): round(float(c), 1) for r, c in enumerate(light.expected) if c > 0},
             greedy_step=light.step,
+            expected_diffuse={str(r): round(float(c), 1) for r, c in enumerate(light.diffuse) if c > 0},
+            purpose=light.purpose,
         )
         for i, light in enumerate(result.lights)
     ]
@@ -278,6 +290,7 @@ def build_plan(
             sphere_radius_m=round(result.sphere.radius, 6),
             count=s.count,
             criterion=s.criterion,
+            min_diffuse=s.min_diffuse,
             sphere_centre_m=_r(result.sphere.centre),
             sphere_source=result.sphere.source,
             cone="half-angle theta_c about the mirror direction",
@@ -293,6 +306,8 @@ def build_plan(
                 samples=round(float(result.coverage[r]), 1),
                 satisfied=bool(result.satisfied[r]),
                 needed=s.min_samples,
+                diffuse_samples=round(float(result.diffuse[r]), 1),
+                diffuse_needed=s.min_diffuse,
             )
             for r in range(seg.n_regions)
         },
@@ -300,6 +315,11 @@ def build_plan(
         summary=PlanSummary(
             lights=len(result.lights),
             lights_by_criterion=result.lights_by_criterion,
+            lower_bound=result.optimum.lower_bound,
+            lp_bound=round(result.optimum.lp_value, 4),
+            optimum_proven=result.optimum.proven,
+            chosen_by=result.optimum.chosen_by,
+            optimum_status=result.optimum.status,
             views_used=sorted({p.turntable_deg for p in poses}),
             candidates=result.candidates,
             reachable_candidates=result.reachable,

@@ -33,6 +33,15 @@ PALETTE = np.array(  # 8-bit sRGB, pairwise ΔE > 30
         [120, 80, 40],
         [240, 140, 170],
         [90, 90, 90],
+        # more, for objects of many regions (each chosen farthest from those before it: ΔE ≥ 45)
+        [0, 0, 255],
+        [0, 255, 0],
+        [255, 0, 255],
+        [255, 0, 150],
+        [210, 255, 0],
+        [30, 0, 45],
+        [180, 180, 255],
+        [0, 255, 210],
     ],
     dtype=np.uint8,
 )

@@ -23,6 +23,10 @@ MIN_GAIN = 1.0
 # come from coarser samples than the exact counts, and chasing the last per cent costs many ray casts.
 TOLERANCE = 0.05
 MAX_EVALUATIONS = 32
+# Capped scores tie wherever estimates exceed what a region still needs; among those the light giving
+# short regions more samples in all is the better bet (an estimate may be high, the total rarely all
+# wrong). Small enough never to outweigh a whole sample of capped gain on a 1000-sample plain count.
+TIE_BREAK = 1e-4
 
 
 @dataclass(frozen=True)
@@ -45,9 +49,10 @@ class Selection:
 
 def score(estimates: np.ndarray, need: np.ndarray, capped: bool) -> np.ndarray:
     """(Q,) score of candidates with per-region counts ``estimates`` (Q, R) given what regions need (R,)."""
+    plain = estimates[:, need > 0].sum(axis=1)
     if capped:
-        return np.minimum(estimates, np.maximum(need, 0.0)).sum(axis=1)
-    return estimates[:, need > 0].sum(axis=1)
+        return np.minimum(estimates, np.maximum(need, 0.0)).sum(axis=1) + TIE_BREAK * plain
+    return plain
 
 
 def select_lights(
@@ -59,13 +64,15 @@ def select_lights(
     capped: bool,
     max_lights: int,
     first_views: Sequence[int] = (0,),
+    taken: Sequence[Choice] = (),
 ) -> Selection:
     """Choose lights until every region's need is met, nothing more helps, or ``max_lights``.
 
     ``estimates_of(v)`` gives view v's (Q, R) estimated counts (computed on first use; copied here, since
     exact counts overwrite them); ``evaluate(v, q, need)`` the exact (R,) counts (it may refine the
     candidate for the current need). Views beyond ``first_views`` are opened only when the open ones
-    cannot help any more (each new view is a turntable move).
+    cannot help any more (each new view is a turntable move). ``taken``: lights already chosen (their
+    views open), which the selection goes on from.
     """
     need = need.astype(np.float64).copy()
     estimates: dict[int, np.ndarray] = {}
@@ -77,10 +84,13 @@ def select_lights(
             estimates[v] = np.array(estimates_of(v), dtype=np.float64, copy=True)
             exact[v] = np.zeros(len(estimates[v]), bool)
 
-    for v in first_views:
+    for v in dict.fromkeys([*first_views, *(c.view for c in taken)]):
         ensure(v)
         used.append(v)
-    choices: list[Choice] = []
+    choices: list[Choice] = list(taken)
+    for c in taken:
+        need -= c.counts
+        estimates[c.view][c.candidate] = 0.0
     while (need > 0).any() and len(choices) < max_lights:
         best = _best(estimates, exact, used, need, capped, evaluate)
         if best is None:
@@ -105,6 +115,24 @@ def select_lights(
     return Selection(
         choices, views_used, hit_light_limit=bool((need > 0).any() and len(choices) >= max_lights)
     )
+
+
+def prune(selection: Selection, min_samples: float) -> Selection:
+    """``selection`` without the lights it can do without: a light goes when every region it served that has
+    its ``min_samples`` keeps them without it and it gives no short region anything (reverse delete, the
+    light with the least capped gain first). A greedy's early lights often become redundant later.
+    """
+    counts = np.array([c.counts for c in selection.choices]).reshape(len(selection.choices), -1)
+    total = counts.sum(axis=0)
+    satisfied = total >= min_samples - 1e-9
+    keep = np.ones(len(counts), bool)
+    for i in np.argsort(np.minimum(counts, min_samples).sum(axis=1), kind="stable"):
+        rest = total - counts[i]
+        if np.all(rest[satisfied] >= min_samples - 1e-9) and np.all(counts[i][~satisfied] <= 0):
+            keep[i], total = False, rest
+    choices = [c for c, k in zip(selection.choices, keep, strict=True) if k]
+    views_used = sorted({c.view for c in choices}, key=[c.view for c in choices].index)
+    return Selection(choices, views_used, selection.hit_light_limit)
 
 
 def _min_gain(need: np.ndarray) -> float:

@@ -5,7 +5,7 @@ visibility, shadows and grazing angles decide whether a sample counts; only reac
 are candidates; a region counts only up to what it still needs (the plain count is reported too);
 extra turntable views open when a region cannot be served from the first; M counts expected pixels.
 
-Candidates come at two densities: estimates for the greedy are computed on a coarse grid (θc/5), and
+Candidates come at two densities: estimates for the greedy are computed on a coarse grid (θc/3), and
 evaluating a coarse candidate exactly refines it over the dense grid (≤ ``spacing_deg``) points in its
 Voronoi cell — the lights of a plan are always dense-grid points with exact counts.
 All geometry runs in the turntable frame (the placed object at turntable angle 0).
@@ -13,9 +13,10 @@ All geometry runs in the turntable frame (the placed object at turntable angle 0
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -27,15 +28,30 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster, facing
 from hlr_lab.object.segment import Segmentation
 from hlr_lab.planning.coverage import ViewSamples, best_light, count_estimates, exact_counts
+from hlr_lab.planning.diffuse import diffuse_counts, diffuse_estimates
 from hlr_lab.planning.geometry import LightSphere, light_sphere, mirror_highlights
-from hlr_lab.planning.greedy import Selection, score, select_lights
-from hlr_lab.planning.samples import SurfaceSamples, surface_samples, vertex_samples
+from hlr_lab.planning.greedy import MIN_GAIN, Choice, Selection, prune, score, select_lights
+from hlr_lab.planning.optimum import CoverOptimum, minimum_cover
+from hlr_lab.planning.samples import ESTIMATE_PX, SurfaceSamples, surface_samples
 from hlr_lab.rig.file import Rig
 
 CountUnit = Literal["pixels", "vertices"]
 Criterion = Literal["capped", "plain"]
-COARSE_FRACTION_OF_THETA_C = 0.2  # estimate grid spacing = θc/5: five points across a cone's radius
-POOL_FRACTION = 4.0  # pool samples whose mirror points lie within θc/4 into one estimate cone
+Purpose = Literal["highlights", "diffuse"]
+# estimate grid spacing θc/3: three points across a cone's radius. θc/5 counted 2.8× the candidate pairs
+# for no better plan: on θc/3 the bound was proven on every bench case (bunny 8/12/16 patches, Spot,
+# pebble), with the same or fewer lights (docs/planning.md)
+COARSE_FRACTION_OF_THETA_C = 1 / 3
+# pool samples whose mirror points lie within θc/2 into one estimate cone: on ~16 px samples, θc/4 made
+# 6× the pools (pebble) for no better plan; θc/2 gave the same or fewer lights on bunny8, Spot and pebble
+POOL_FRACTION = 2.0
+INTEGER_PROGRAMME = "integer programme"
+# Diffuse-only samples are wide (the whole lit side of a region outside a 5° cone): candidates every 10°
+# find them, and the few best estimates are counted exactly.
+DIFFUSE_SPACING_DEG = 10.0
+EXACT_PER_ROUND = 24  # candidates counted exactly after a cover the estimates promised falls short
+DIFFUSE_EXACT_TRIES = 4
+MAX_OPTIMUM_BUDGET_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -53,7 +69,21 @@ class PlanSettings:
     max_lights: int = 64
     shadows: bool = True
     criterion: Criterion = "capped"  # "plain": the paper's count, every sample of a short region counts
-    compare_criteria: bool = True  # also plan with the other criterion, for the summary
+    min_diffuse: float = 100.0  # diffuse-only samples each region needs for Rd (0: not planned)
+    compare_criteria: bool = True  # also plan with the other criterion, and keep the one with fewer lights
+    optimum_budget_s: float = 3.0  # time for the integer programme (0: the LP bound only)
+
+    def __post_init__(self):
+        if not (math.isfinite(self.min_diffuse) and self.min_diffuse >= 0):
+            raise InputError(
+                f"the diffuse-only samples a region needs must be 0 or more, got {self.min_diffuse}",
+                field="--min-diffuse",
+            )
+        if not (math.isfinite(self.optimum_budget_s) and 0 <= self.optimum_budget_s <= MAX_OPTIMUM_BUDGET_S):
+            raise InputError(
+                f"the integer programme's budget must be 0 … {MAX_OPTIMUM_BUDGET_S:g} s, got {self.optimum_budget_s}",
+                field="--optimum-budget",
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,6 +99,27 @@ class PlannedLight:
     camera_turntable: np.ndarray  # (3,)
     expected: np.ndarray  # (R,) samples per region, in the count unit
     counted: np.ndarray  # indices into PlanResult.samples of the samples this light counts
+    diffuse: np.ndarray  # (R,) diffuse-only samples per region, in the count unit
+    purpose: Purpose = "highlights"  # or "diffuse": added for regions short of diffuse-only samples
+
+
+@dataclass(frozen=True)
+class PlanOptimum:
+    """How far the plan can be from the fewest lights for the regions it satisfies.
+
+    ``lower_bound``: no set of the candidates satisfies them with fewer lights (the LP relaxation of the
+    set multicover, or the integer programme's proof), on the planner's estimated counts; ``lp_value`` the
+    relaxation's optimum (fractional lights); ``proven``: the plan has the fewest lights (on those counts);
+    ``chosen_by``: which way of choosing gave the plan ("greedy (capped)", "greedy (plain)", "integer
+    programme"); ``status``: how the integer programme ended; ``seconds`` it took with the bound.
+    """
+
+    lower_bound: int
+    lp_value: float
+    proven: bool
+    chosen_by: str
+    status: str
+    seconds: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,15 +129,21 @@ class PlanResult:
     settings: PlanSettings
     sphere: LightSphere
     lights: list[PlannedLight]
-    coverage: np.ndarray  # (R,) total expected samples
-    satisfied: np.ndarray  # (R,) bool
+    coverage: np.ndarray  # (R,) total expected highlight samples
+    satisfied: np.ndarray  # (R,) bool: M highlight and min_diffuse diffuse-only samples
     uncovered: dict[int, str]  # region → reason
     lights_by_criterion: dict[str, int]  # light count of this plan's criterion and (if compared) the other
     views_considered: list[float]
     candidates: int  # dense-grid points on S
     reachable: int  # of which the gantry reaches
     samples: SurfaceSamples  # what the counts count (points in the turntable frame)
+    optimum: PlanOptimum
     seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def diffuse(self) -> np.ndarray:
+        """(R,) total expected diffuse-only samples."""
+        return np.sum([light.diffuse for light in self.lights], axis=0) + np.zeros(len(self.coverage))
 
 
 def given_views(views_deg: Sequence[float], limits_deg: tuple[float, float]) -> list[float]:
@@ -153,6 +210,11 @@ def plan_lights(
     A vertex (``count="vertices"``) or surface sample (``"pixels"``) counts for a light when it is visible
     from the camera at that view, not at a grazing angle to camera or light, the light lies in its cone,
     and nothing shadows it from the light.
+
+    The plan is the one with the fewest lights among the greedy's with ``settings.criterion``, the greedy's
+    with the other criterion (``compare_criteria``) and the cover the integer programme finds within
+    ``optimum_budget_s`` — each without the lights it can do without — that satisfies every region the
+    first satisfies. ``PlanResult.optimum`` says how far it can be from the fewest (docs/planning.md).
     """
     clock = _Clock()
     planner = _Planner(placed, segmentation, rig, settings, caster, clock)
@@ -160,34 +222,62 @@ def plan_lights(
     planner.estimates_of(0)
     clock.lap("cones")
     capped = settings.criterion == "capped"
-    lights_by_criterion = {}
+    runs = [planner.run(settings.criterion, need, capped=capped)]
     if settings.compare_criteria:
-        other = "plain" if capped else "capped"
-        lights_by_criterion[other] = len(planner.select(need, capped=not capped).choices)
-        clock.lap("other criterion")
-    selection = planner.select(need, capped=capped)
-    lights_by_criterion[settings.criterion] = len(selection.choices)
+        other: Criterion = "plain" if capped else "capped"
+        runs.append(planner.run(other, need, capped=not capped))
+    lights_by_criterion = {run.name: len(run.selection.choices) for run in runs}
     clock.lap("greedy")
+    best, optimum = planner.fewest_lights(runs, need)
+    clock.lap("optimum")
 
-    lights = planner.lights(selection)
-    coverage = np.sum([light.expected for light in lights], axis=0) if lights else np.zeros(len(need))
-    satisfied = coverage >= settings.min_samples - 1e-9
-    uncovered = planner.reasons(satisfied, coverage, selection)
+    lights = planner.lights(best)
+    clock.lap("lights")
+    lights += planner.add_diffuse(lights)
+    clock.lap("diffuse")
+    coverage = np.sum([light.expected for light in lights], axis=0) + np.zeros(len(need))
+    diffuse = np.sum([light.diffuse for light in lights], axis=0) + np.zeros(len(need))
+    highlights_met = coverage >= settings.min_samples - 1e-9
+    diffuse_met = diffuse >= settings.min_diffuse - 1e-9
+    uncovered = planner.reasons(highlights_met, coverage, best.selection)
+    for r in np.flatnonzero(highlights_met & ~diffuse_met):
+        uncovered[int(r)] = (
+            f"only {diffuse[r]:.0f} of {settings.min_diffuse:g} diffuse-only samples (Rd): its lit side "
+            "lies within the highlight cones or is shadowed from every reachable light"
+        )
     clock.lap("report")
     return PlanResult(
         settings,
         planner.sphere,
         lights,
         coverage,
-        satisfied,
+        highlights_met & diffuse_met,
         uncovered,
         lights_by_criterion,
         planner.views,
         planner.cands.total,
         len(planner.cands.fine),
         planner.surface,
+        optimum,
         clock.laps,
     )
+
+
+@dataclass(frozen=True, eq=False)
+class _Run:
+    """One way of choosing lights: its name, the choices, and the dense point each chosen coarse candidate
+    was refined to ((view, coarse) → dense index)."""
+
+    name: str
+    selection: Selection
+    refined: dict[tuple[int, int], int]
+
+    @property
+    def n_lights(self) -> int:
+        return len(self.selection.choices)
+
+    def coverage(self, n_regions: int) -> np.ndarray:
+        return np.sum([c.counts for c in self.selection.choices], axis=0) + np.zeros(n_regions)
 
 
 class _Planner:
@@ -212,12 +302,17 @@ class _Planner:
         self.cands = _Candidates(
             self.sphere, rig, settings.spacing_deg, settings.theta_c_deg * COARSE_FRACTION_OF_THETA_C
         )
-        # exact counts use samples as fine as the count unit needs; the greedy's estimates only steer, and
-        # the vertices (weighted in the same unit) do that at a fraction of the cost on a coarse mesh
+        # exact counts use samples as fine as the count unit needs; the estimates only steer the greedy and
+        # bound the plan, and samples of ~ESTIMATE_PX pixels do that at a fraction of the cost (a coarse
+        # mesh's vertices would not: one stands for hundreds of pixels, all or none in a cone)
         self.surface = surface_samples(placed, segmentation, rig.camera, settings.count)
         self.coarse_surface = (
-            vertex_samples(placed, segmentation) if len(self.surface) > len(placed.vertices) else self.surface
+            surface_samples(placed, segmentation, rig.camera, settings.count, target_px=ESTIMATE_PX)
+            if settings.count == "pixels"
+            else self.surface
         )
+        if len(self.coarse_surface) >= len(self.surface):
+            self.coarse_surface = self.surface
         clock.lap("candidates")
         self.views = (
             given_views(settings.views_deg, rig.turntable_limits_deg)
@@ -226,6 +321,7 @@ class _Planner:
         )
         self.pool_cell = np.radians(max(settings.spacing_deg, settings.theta_c_deg / POOL_FRACTION))
         self._samples: dict[int, ViewSamples] = {}
+        self._coarse_samples: dict[int, ViewSamples] = {}
         self._estimates: dict[int, np.ndarray] = {}
         self._refined: dict[tuple[int, int], tuple[int, np.ndarray]] = {}  # (view, coarse) → (dense, counts)
 
@@ -247,14 +343,18 @@ class _Planner:
             self.settings,
         )
 
+    def coarse_view_samples(self, v: int) -> ViewSamples:
+        """The estimates' samples of view v."""
+        if self.coarse_surface is self.surface:
+            return self.view_samples(v)
+        if v not in self._coarse_samples:
+            self._coarse_samples[v] = self._samples_of(self.coarse_surface, v)
+        return self._coarse_samples[v]
+
     def estimates_of(self, v: int) -> np.ndarray:
         """(Q, R) estimated counts of view v's coarse candidates."""
         if v not in self._estimates:
-            vs = (
-                self.view_samples(v)
-                if self.coarse_surface is self.surface
-                else self._samples_of(self.coarse_surface, v)
-            )
+            vs = self.coarse_view_samples(v)
             self._estimates[v] = count_estimates(
                 vs, self.caster, self.theta_c, self.pool_cell, self.cands.coarse_tree
             )
@@ -279,15 +379,68 @@ class _Planner:
             self._refined[v, q] = (int(cell[j]), counts)
         return self._refined[v, q][1]
 
-    def select(self, need: np.ndarray, *, capped: bool) -> Selection:
-        self._refined.clear()  # a refinement chosen under one criterion's needs is not the other's
-        return select_lights(
-            self.estimates_of,
+    def run(
+        self,
+        name: str,
+        need: np.ndarray,
+        *,
+        capped: bool,
+        among: dict[int, np.ndarray] | None = None,
+        taken: Sequence[Choice] = (),
+    ) -> _Run:
+        """The greedy's lights for ``need``: among all candidates, or only ``among`` (view → (Q,) bool)."""
+        if not taken:
+            self._refined.clear()  # a refinement chosen for one run's needs is not another's
+        estimates_of = self.estimates_of
+        if among is not None:
+            mask = among
+
+            def estimates_of(v: int) -> np.ndarray:
+                return self.estimates_of(v) * mask.get(v, np.zeros(len(self.cands.coarse), bool))[:, None]
+
+        selection = select_lights(
+            estimates_of,
             len(self.views),
             lambda v, q, n: self.evaluate(v, q, n, capped),
             need,
             capped=capped,
             max_lights=self.settings.max_lights,
+            taken=taken,
+        )
+        refined = {key: self._refined[key][0] for key in ((c.view, c.candidate) for c in selection.choices)}
+        return _Run(name, selection, refined)
+
+    def fewest_lights(self, runs: list[_Run], need: np.ndarray) -> tuple[_Run, PlanOptimum]:
+        """The run with the fewest lights (pruned) that satisfies what ``runs[0]`` does, adding the integer
+        programme's cover, and what the set multicover says of it."""
+        m = self.settings.min_samples
+        runs = [replace(r, selection=prune(r.selection, m)) for r in runs]
+        reference = runs[0].coverage(self.n_regions) >= m - 1e-9
+
+        def rank(r: _Run) -> tuple[int, float]:
+            return r.n_lights, -float(np.minimum(r.coverage(self.n_regions), m).sum())
+
+        def acceptable(r: _Run) -> bool:
+            return bool(np.all(r.coverage(self.n_regions)[reference] >= m - 1e-9))
+
+        best = min((r for r in runs if acceptable(r)), key=rank)
+        counts = np.concatenate([self.estimates_of(v) for v in range(len(self.views))])  # (V·Q, R)
+        found = self._cover(counts, reference, best.n_lights)
+        if found.cover is not None:
+            q = len(self.cands.coarse)
+            among: dict[int, np.ndarray] = {}
+            for j in found.cover:
+                among.setdefault(int(j) // q, np.zeros(q, bool))[int(j) % q] = True
+            seeded = self.run(INTEGER_PROGRAMME, need, capped=True, among=among)
+            finished = self.run(INTEGER_PROGRAMME, need, capped=True, taken=seeded.selection.choices)
+            finished = replace(finished, selection=prune(finished.selection, m))
+            if acceptable(finished) and rank(finished) < rank(best):
+                best = finished
+        proven_fewest = len(found.cover) if found.cover is not None else best.n_lights
+        proven = best.n_lights <= found.lower_bound or (found.proven and best.n_lights <= proven_fewest)
+        chosen_by = best.name if best.name == INTEGER_PROGRAMME else f"greedy ({best.name})"
+        return best, PlanOptimum(
+            found.lower_bound, found.lp_value, proven, chosen_by, found.status, found.seconds
         )
 
     def counted(self, v: int, light_dir: np.ndarray) -> np.ndarray:
@@ -304,8 +457,52 @@ class _Planner:
         )[1]
         return vs.index[local]
 
-    def lights(self, selection: Selection) -> list[PlannedLight]:
+    def _cover(self, counts: np.ndarray, reference: np.ndarray, incumbent: int) -> CoverOptimum:
+        """The set multicover of the regions in ``reference`` over ``counts`` (V·Q, R), the stacked estimates
+        of every view's candidates, within the time budget. A cover the estimates promise is checked with
+        exact counts; where they fall short its lights' estimates are replaced by their exact counts and
+        the programme solved again (as the greedy does light by light). A cover that still falls short when
+        the budget ends is returned unproven: the greedy completes it from there."""
+        m, budget = self.settings.min_samples, self.settings.optimum_budget_s
+        counts, q, start = counts.copy(), len(self.cands.coarse), time.perf_counter()
+        exact = np.zeros(len(counts), bool)
+        full = np.full(self.n_regions, m)
+        found, holds, seed = None, False, None
+        while found is None or budget - (time.perf_counter() - start) > 0:
+            target = np.where(reference, np.minimum(m, np.minimum(counts, m).sum(axis=0)), 0.0)
+            left = max(budget - (time.perf_counter() - start), 0.0)
+            found = minimum_cover(counts, target, incumbent, left)
+            if found.cover is None:
+                break
+            seed = found.cover
+            for j in found.cover[~exact[found.cover]]:
+                counts[j] = self.evaluate(int(j) // q, int(j) % q, full, True)
+                exact[j] = True
+            gave = counts[found.cover].sum(axis=0)
+            holds = bool(np.all(gave[reference] >= target[reference] - 1e-6))
+            if holds:
+                break
+            # the estimates of the regions it fell short on were high: count their best candidates exactly
+            # too, or each round would correct a cover's few lights only
+            short = reference & (gave < target - 1e-6)
+            promise = np.where(exact, -np.inf, np.minimum(counts[:, short], m).sum(axis=1))
+            for j in np.argsort(-promise, kind="stable")[:EXACT_PER_ROUND]:
+                if np.isfinite(promise[j]):
+                    counts[j] = self.evaluate(int(j) // q, int(j) % q, full, True)
+                    exact[j] = True
+        assert found is not None
+        if seed is not None and not holds:  # the budget ran out checking covers; the last one still seeds
+            found = replace(
+                found,
+                cover=seed,
+                proven=False,
+                status="covers of the estimates fell short when counted exactly",
+            )
+        return replace(found, seconds=time.perf_counter() - start)
+
+    def lights(self, run: _Run) -> list[PlannedLight]:
         """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
+        selection = run.selection
         order = sorted(
             range(len(selection.choices)),
             key=lambda i: (selection.views_used.index(selection.choices[i].view), i),
@@ -313,23 +510,110 @@ class _Planner:
         lights = []
         for i in order:
             c = selection.choices[i]
-            d = self.cands.fine[self._refined[c.view, c.candidate][0]]
-            az, el = self.rig.gantry.kinematics.direction_angles(d)
-            world_from_tt = rotation_z(np.radians(self.views[c.view]))[:3, :3]
             lights.append(
-                PlannedLight(
-                    step=i,
-                    turntable_deg=float(self.views[c.view]),
-                    light_world=self.sphere.centre + self.sphere.radius * d,
-                    azimuth_deg=float(np.degrees(az)),
-                    elevation_deg=float(np.degrees(el)),
-                    light_turntable=self.view_samples(c.view).light_position(d),
-                    camera_turntable=world_from_tt.T @ self.rig.camera.centre,
-                    expected=c.counts,
-                    counted=self.counted(c.view, d),
-                )
+                self._planned(i, c.view, self.cands.fine[run.refined[c.view, c.candidate]], c.counts)
             )
         return lights
+
+    def _planned(
+        self, step: int, v: int, d: np.ndarray, counts: np.ndarray, purpose: Purpose = "highlights"
+    ) -> PlannedLight:
+        """The light in world direction ``d`` (3,) from S's centre at view v, with its exact highlight
+        ``counts`` (R,) and its diffuse-only samples."""
+        az, el = self.rig.gantry.kinematics.direction_angles(d)
+        world_from_tt = rotation_z(np.radians(self.views[v]))[:3, :3]
+        vs = self.view_samples(v)
+        light = vs.light_position(d)
+        diffuse = diffuse_counts(
+            vs,
+            self.caster,
+            light,
+            theta_c=self.theta_c,
+            max_light_angle=self.max_light_angle,
+            shadows=self.settings.shadows,
+        )
+        return PlannedLight(
+            step=step,
+            turntable_deg=float(self.views[v]),
+            light_world=self.sphere.centre + self.sphere.radius * d,
+            azimuth_deg=float(np.degrees(az)),
+            elevation_deg=float(np.degrees(el)),
+            light_turntable=light,
+            camera_turntable=world_from_tt.T @ self.rig.camera.centre,
+            expected=counts,
+            counted=self.counted(v, d),
+            diffuse=diffuse,
+            purpose=purpose,
+        )
+
+    def add_diffuse(self, lights: list[PlannedLight]) -> list[PlannedLight]:
+        """Lights added for the regions the highlight lights leave short of ``min_diffuse`` diffuse-only
+        samples: each the candidate (every DIFFUSE_SPACING_DEG, every view, the views already used first
+        on ties) whose exact diffuse samples serve the short regions best, until none is short or none
+        helps; a candidate's estimate (no shadows, the estimates' samples) picks the few counted exactly."""
+        need = (
+            self.settings.min_diffuse
+            - np.sum([lt.diffuse for lt in lights], axis=0)
+            + np.zeros(self.n_regions)
+        )
+        if not (need > 0).any():
+            return []
+        seen = np.sum([self.view_samples(v).region_weight() for v in range(len(self.views))], axis=0) > 0
+        dirs = directions_with_spacing(DIFFUSE_SPACING_DEG)
+        dirs = dirs[self.sphere.reachable(self.sphere.centre + self.sphere.radius * dirs, self.rig.camera)]
+        used = {lt.turntable_deg for lt in lights}
+        added: list[PlannedLight] = []
+        while len(lights) + len(added) < self.settings.max_lights and len(dirs):
+            short = (need > 0) & seen
+            if not short.any():
+                break
+            options = []  # (estimated gain, view already used, view, candidate)
+            for v in range(len(self.views)):
+                vs = self.coarse_view_samples(v)
+                est = diffuse_estimates(
+                    vs,
+                    vs.light_position(dirs),
+                    theta_c=self.theta_c,
+                    max_light_angle=self.max_light_angle,
+                    regions=short,
+                )
+                gain = np.minimum(est, np.maximum(need, 0))[:, short].sum(axis=1)
+                for q in np.argsort(-gain, kind="stable")[:DIFFUSE_EXACT_TRIES]:
+                    options.append((float(gain[q]), self.views[v] in used, v, int(q)))
+            options.sort(key=lambda o: (-o[0], not o[1]))
+            best, best_gain = None, MIN_GAIN - 1e-9
+            for _, _, v, q in options[:DIFFUSE_EXACT_TRIES]:
+                vs = self.view_samples(v)
+                exact = diffuse_counts(
+                    vs,
+                    self.caster,
+                    vs.light_position(dirs[q]),
+                    theta_c=self.theta_c,
+                    max_light_angle=self.max_light_angle,
+                    shadows=self.settings.shadows,
+                    regions=short,
+                )
+                gain = float(np.minimum(exact, np.maximum(need, 0))[short].sum())
+                if gain > best_gain:
+                    best, best_gain = (v, q), gain
+            if best is None:
+                break
+            v, q = best
+            vs = self.view_samples(v)
+            counts = exact_counts(
+                vs,
+                self.caster,
+                vs.light_position(dirs[q]),
+                dirs[q],
+                theta_c=self.theta_c,
+                max_light_angle=self.max_light_angle,
+                shadows=self.settings.shadows,
+            )[0]
+            light = self._planned(len(lights) + len(added), v, dirs[q], counts, "diffuse")
+            added.append(light)
+            used.add(light.turntable_deg)
+            need -= light.diffuse
+        return added
 
     def reasons(self, satisfied: np.ndarray, coverage: np.ndarray, selection: Selection) -> dict[int, str]:
         """Why each unsatisfied region is short, in the operator's words (this needs every view's evidence)."""

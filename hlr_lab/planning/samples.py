@@ -17,6 +17,9 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.segment import Segmentation
 
 TARGET_PX = 2.0
+# The planner's estimates: samples of ~16 px estimate a 5° cone's count within a few per cent on Spot
+# (measured against the exact count; 32 px already lose small regions' sharp highlights altogether).
+ESTIMATE_PX = 16.0
 MAX_LEVEL = 16
 
 
@@ -38,18 +41,21 @@ def vertex_samples(mesh: ColouredMesh, seg: Segmentation) -> SurfaceSamples:
     return SurfaceSamples(mesh.vertices, mesh.vertex_normals, seg.vertex_labels, mesh.vertex_areas)
 
 
-def surface_samples(mesh: ColouredMesh, seg: Segmentation, camera: Camera, count: str) -> SurfaceSamples:
-    """Samples for the count unit; ``camera`` (in the mesh's frame) sets the pixel scale."""
+def surface_samples(
+    mesh: ColouredMesh, seg: Segmentation, camera: Camera, count: str, *, target_px: float = TARGET_PX
+) -> SurfaceSamples:
+    """Samples for the count unit, each standing for about ``target_px`` pixels at most (``"pixels"``: the
+    vertices when they are already that fine); ``camera`` (in the mesh's frame) sets the pixel scale."""
     if count == "vertices":
         return vertex_samples(mesh, seg)
     px_per_m2 = (
         camera.matrix[0, 0] * camera.matrix[1, 1] / np.sum((camera.centre - mesh.vertices) ** 2, axis=1)
     )
-    if np.median(mesh.vertex_areas * px_per_m2) <= TARGET_PX:
+    if np.median(mesh.vertex_areas * px_per_m2) <= target_px:
         return vertex_samples(mesh, seg)
     # a face's footprint when facing the camera, from its nearest corner
     face_px = mesh.face_areas * px_per_m2[mesh.faces].max(axis=1)
-    level = np.clip(np.ceil(np.sqrt(face_px / TARGET_PX)), 1, MAX_LEVEL).astype(np.int64)
+    level = np.clip(np.ceil(np.sqrt(face_px / target_px)), 1, MAX_LEVEL).astype(np.int64)
     parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level)]
     return SurfaceSamples(
         *(np.concatenate([getattr(p, k) for p in parts]) for k in ("point", "normal", "region", "area"))

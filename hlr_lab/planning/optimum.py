@@ -1,0 +1,247 @@
+"""How far a plan is from the fewest lights: the choice of lights as a set multicover.
+
+Region r needs ``target[r]`` samples and candidate light j gives it ``counts[j, r]``; the fewest lights
+whose counts add up to every target is an integer programme:
+
+    minimise Σ_j x_j   subject to   Σ_j min(counts[j, r], target[r]) x_j ≥ target[r],   x_j ∈ {0, 1}.
+
+Capping each count at its region's target changes no cover (a light never needs to give a region more
+than it needs) and tightens the relaxation. Its LP relaxation (0 ≤ x_j ≤ 1) is solved over every
+candidate by column generation — HiGHS on a few hundred columns at a time, every other column priced by
+one matrix product — so its optimum L is a true lower bound: no cover has fewer than ⌈L⌉ lights.
+
+The integer programme itself is solved (HiGHS branch and bound, within a time budget) only on the
+columns that can be in a cover better than the incumbent: a column with LP reduced cost d is in no cover
+of fewer than L + d lights (reduced-cost fixing), so with an incumbent of U lights only columns with
+d ≤ U − 1 − L matter. That keeps the programme small and its proof valid for all the candidates.
+See docs/planning.md.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import sparse
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
+
+_EPS = 1e-6
+_SEED_PER_REGION = 64  # columns per region that start the column generation
+_ADD_PER_ROUND = 2_000  # most negative reduced costs added per round
+_PAIR_BLOCK = 4_000_000  # pairs tried at once (×R×8 bytes)
+# Beyond this many distinct columns the integer programme keeps those of least reduced cost (and proves
+# nothing): HiGHS overran a 3 s limit by 8 s on 20 000 (its root node), and finds the same covers on 1 000.
+MAX_MILP_COLUMNS = 2_000
+QUANTA = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)  # roundings of the proof, as fractions of the largest target
+
+
+@dataclass(frozen=True, eq=False)
+class CoverOptimum:
+    """What the set multicover says about a plan with ``incumbent`` lights.
+
+    ``lp_value``: the LP relaxation's optimum (fractional lights); ``lower_bound``: fewest lights any cover
+    can have (⌈lp_value⌉, raised by the integer programme when it proves more); ``cover``: indices of the
+    candidates of a cover with fewer lights than the incumbent, or None when none was found;
+    ``proven``: the fewest is known (it is ``len(cover)``, or the incumbent when ``cover`` is None);
+    ``status``: how the integer programme ended, in words; ``seconds``: the time taken.
+    """
+
+    lp_value: float
+    lower_bound: int
+    cover: np.ndarray | None
+    proven: bool
+    status: str
+    seconds: float
+
+
+def minimum_cover(counts: np.ndarray, target: np.ndarray, incumbent: int, budget_s: float) -> CoverOptimum:
+    """The LP bound of the multicover and, within ``budget_s`` seconds, a cover smaller than ``incumbent``.
+
+    Parameters
+    ----------
+    counts
+        (N, R) samples each candidate gives each region (non-negative, any unit).
+    target
+        (R,) samples each region needs; a region with 0 is not asked for. Every target must be reachable
+        (``min(counts, target).sum(0) ≥ target``): pass what the candidates can give at most.
+    incumbent
+        Lights of a known cover (the greedy's); the integer programme looks only for fewer.
+    budget_s
+        Time for the integer programmes, seconds (0: the LP bound only).
+    """
+    start = time.perf_counter()
+    target = np.asarray(target, dtype=np.float64)
+    rows = np.flatnonzero(target > _EPS)
+    if len(rows) == 0:
+        return CoverOptimum(0.0, 0, None, incumbent == 0, "nothing to cover", time.perf_counter() - start)
+    capped = np.minimum(np.asarray(counts, dtype=np.float64)[:, rows], target[rows])  # (N, R')
+    need = target[rows]
+    if np.any(capped.sum(axis=0) < need - _EPS):
+        raise ValueError("a target exceeds what all the candidates give together; pass a reachable target")
+    lp_value, reduced = _lp_relaxation(capped, need)
+    lower = math.ceil(lp_value - _EPS)
+
+    def result(lower: int, cover: np.ndarray | None, proven: bool, status: str) -> CoverOptimum:
+        return CoverOptimum(lp_value, lower, cover, proven, status, time.perf_counter() - start)
+
+    if incumbent <= lower:
+        return result(lower, None, True, "the incumbent meets the LP bound")
+    if budget_s <= 0:
+        return result(lower, None, False, "not run (no time budget)")
+    deadline = start + budget_s
+    # only columns with reduced cost d ≤ incumbent − 1 − L can be in a cover of fewer lights
+    useful = np.flatnonzero(reduced <= incumbent - 1 - lp_value + _EPS)
+    # 1. The proof, on counts rounded up to a quantum of the largest target: every cover is still one, so
+    #    the rounded programme's minimum bounds the true one from below. Rounding merges columns into few
+    #    kinds, each an integer variable bounded by how many columns it stands for.
+    rounded = _rounded_kinds(capped[useful], need.max(), deadline)
+    if rounded is not None:
+        kinds, inverse, multiplicity = rounded
+        proof = _solve(kinds, multiplicity, need, deadline)
+        if proof.status == 2:  # not even the rounded counts have a cover here: none is smaller
+            return result(incumbent, None, True, "no cover smaller than the incumbent")
+        if proof.status == 0:
+            lower = max(lower, round(proof.fun))
+        elif getattr(proof, "mip_dual_bound", None) is not None and np.isfinite(proof.mip_dual_bound):
+            lower = max(lower, min(incumbent, math.ceil(proof.mip_dual_bound - _EPS)))
+        if lower >= incumbent:
+            return result(incumbent, None, True, "no cover smaller than the incumbent")
+        if proof.x is not None:
+            cover = _members(inverse, useful, np.round(proof.x).astype(np.int64))
+            if len(cover) < incumbent and np.all(capped[cover].sum(axis=0) >= need - _EPS):
+                proven = len(cover) <= lower
+                return result(lower, cover, proven, "optimal" if proven else "time budget reached")
+    if time.perf_counter() > deadline:
+        return result(lower, None, False, "time budget reached")
+    # 2. A cover of the true counts: of two lights by trying every pair (the rounding can merge a pair
+    #    that falls just short with one that covers), else among the distinct columns of least reduced cost.
+    kinds, inverse, multiplicity = _unique_rows(capped[useful])
+    if lower <= 2 < incumbent:
+        pair = _covering_pair(kinds, multiplicity, need, deadline)
+        if pair is not None:
+            cover = _members(inverse, useful, np.bincount(pair, minlength=len(kinds)))
+            return result(lower, cover, True, "optimal")
+        if time.perf_counter() < deadline and lower == 2 and incumbent == 3:
+            return result(incumbent, None, True, "no cover smaller than the incumbent")
+    if len(kinds) > MAX_MILP_COLUMNS:  # a kind's columns share their reduced cost: keep the cheapest kinds
+        cost = np.zeros(len(kinds))
+        cost[inverse] = reduced[useful]
+        keep = np.sort(np.argsort(cost, kind="stable")[:MAX_MILP_COLUMNS])
+        mask = np.isin(inverse, keep)
+        useful, inverse = useful[mask], np.searchsorted(keep, inverse[mask])
+        kinds, multiplicity = kinds[keep], multiplicity[keep]
+    found = _solve(kinds, multiplicity, need, deadline)
+    if found.x is not None:
+        cover = _members(inverse, useful, np.round(found.x).astype(np.int64))
+        if len(cover) < incumbent:
+            proven = len(cover) <= lower
+            return result(
+                lower, cover, proven, "optimal" if proven else "a smaller cover; not proven the fewest"
+            )
+    return result(lower, None, False, "no smaller cover found within the budget")
+
+
+def _rounded_kinds(
+    columns: np.ndarray, top: float, deadline: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``columns`` (n, R) rounded up to the finest of QUANTA (× ``top``) that leaves at most
+    MAX_MILP_COLUMNS distinct rows: (kinds, each column's kind, each kind's count), or None (a binary
+    search: each try sorts all n rows)."""
+    found, lo, hi = None, 0, len(QUANTA) - 1
+    while lo <= hi and time.perf_counter() < deadline:
+        mid = (lo + hi) // 2
+        step = QUANTA[mid] * top
+        rounded = np.ceil(columns / step - _EPS) * step if step else columns
+        kinds = _unique_rows(rounded)
+        if len(kinds[0]) <= MAX_MILP_COLUMNS:
+            found, hi = kinds, mid - 1
+        else:
+            lo = mid + 1
+    return found
+
+
+def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct rows of ``a`` (n, R) float: (kinds (K, R), each row's kind (n,), each kind's count (K,)).
+    Rows are compared as bytes (5× faster than ``np.unique(axis=0)``); +0.0 makes −0.0 plain 0."""
+    a = np.ascontiguousarray(a + 0.0)
+    rows = a.view(np.dtype((np.void, a.dtype.itemsize * a.shape[1]))).ravel()
+    _, first, inverse, counts = np.unique(rows, return_index=True, return_inverse=True, return_counts=True)
+    return a[first], inverse.ravel(), counts
+
+
+def _solve(kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, deadline: float):
+    """HiGHS on: minimise Σ x_k with kinds (K, R)ᵀ x ≥ need, x_k integer in [0, multiplicity_k]."""
+    # scipy's stubs type lb and ub as float; they take arrays (one bound per row, per variable)
+    lower: Any = need - _EPS
+    upper: Any = multiplicity
+    return milp(
+        np.ones(len(kinds)),
+        constraints=LinearConstraint(sparse.csr_array(kinds.T), lb=lower),
+        integrality=np.ones(len(kinds)),
+        bounds=Bounds(0, upper),
+        options={"time_limit": max(deadline - time.perf_counter(), 0.05), "disp": False},
+    )
+
+
+def _covering_pair(
+    kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, deadline: float
+) -> np.ndarray | None:
+    """Two kinds (the same one twice if it stands for two columns) whose counts together reach ``need``,
+    or None; tried in blocks of rows so that memory stays ~_PAIR_BLOCK pairs, until ``deadline``."""
+    rows = max(1, _PAIR_BLOCK // max(len(kinds), 1))
+    for a in range(0, len(kinds), rows):
+        if time.perf_counter() > deadline:
+            return None
+        block = kinds[a : a + rows]  # (b, R)
+        ok = np.all(block[:, None, :] + kinds[None, :, :] >= need - _EPS, axis=2)  # (b, K)
+        i, j = np.nonzero(ok)
+        i = i + a
+        valid = (i != j) | (multiplicity[i] >= 2)
+        if valid.any():
+            k = int(np.flatnonzero(valid)[0])
+            return np.array([i[k], j[k]])
+    return None
+
+
+def _members(kind_of: np.ndarray, index: np.ndarray, taken: np.ndarray) -> np.ndarray:
+    """Indices (from ``index``) of ``taken[k]`` columns of each kind k (``kind_of``: each column's kind)."""
+    order = np.argsort(kind_of, kind="stable")
+    starts = np.searchsorted(kind_of[order], np.arange(len(taken)))
+    return np.concatenate(
+        [index[order[starts[k] : starts[k] + taken[k]]] for k in np.flatnonzero(taken)]
+        or [np.zeros(0, np.int64)]
+    )
+
+
+def _lp_relaxation(capped: np.ndarray, need: np.ndarray) -> tuple[float, np.ndarray]:
+    """The relaxation's optimum over all N columns of ``capped`` (N, R) and each column's reduced cost (N,).
+
+    Column generation: solve on a subset, price every column with the duals y (reduced cost 1 − a_j·y),
+    add the most negative, until none is: then the subset's optimum is the whole problem's.
+    """
+    n = len(capped)
+    subset = np.zeros(n, bool)
+    for r in range(capped.shape[1]):  # enough of each region's best columns to cover it: feasible at once
+        order = np.argsort(-capped[:, r], kind="stable")
+        enough = int(np.searchsorted(np.cumsum(capped[order, r]), need[r] - _EPS)) + 1
+        subset[order[: max(enough, _SEED_PER_REGION)]] = True
+    while True:
+        cols = np.flatnonzero(subset)
+        res = linprog(
+            np.ones(len(cols)),
+            A_ub=-sparse.csr_array(capped[cols].T),
+            b_ub=-need,
+            bounds=(0, 1),
+            method="highs",
+        )
+        if res.status != 0:
+            raise RuntimeError(f"the LP relaxation failed: {res.message}")
+        duals = -np.asarray(res.ineqlin.marginals)  # (R,) ≥ 0
+        reduced = 1.0 - capped @ duals
+        entering = np.flatnonzero(~subset & (reduced < -_EPS))
+        if len(entering) == 0:
+            return float(res.fun), reduced
+        subset[entering[np.argsort(reduced[entering], kind="stable")[:_ADD_PER_ROUND]]] = True
