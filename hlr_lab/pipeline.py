@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -36,7 +36,7 @@ from hlr_lab.object.mesh import ColouredMesh, load_mesh, texture_sha256
 from hlr_lab.object.procedural import BUILTIN_PREFIX, builtin_object
 from hlr_lab.object.segment import Segmentation, segment
 from hlr_lab.planning.geometry import placement
-from hlr_lab.planning.planner import PlanResult, PlanSettings, plan_lights
+from hlr_lab.planning.planner import PlanResult, PlanSettings, TakenLight, plan_lights
 from hlr_lab.reflectance.radiance_file import RadianceHeader, write_radiance
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
@@ -50,8 +50,11 @@ from hlr_lab.reflectance.session_fit import (
     open_session,
 )
 from hlr_lab.rig.file import Rig
+from hlr_lab.session.folder import check_session_folder
+from hlr_lab.session.journal import JOURNAL, read_journal
 from hlr_lab.session.lamp import UNWATCHED, LampWatch
 from hlr_lab.session.outputs import check_outputs, mesh_files
+from hlr_lab.session.stages import stage_lines
 
 if TYPE_CHECKING:
     from hlr_lab.report.build import ReportFigures
@@ -80,15 +83,17 @@ def plan_object(
     up: str = "z",
     scale: float = 1.0,
     to_turntable: np.ndarray | None = None,
+    taken: Sequence[TakenLight] = (),
 ) -> tuple[PlanFile, PlanResult]:
     """Plan light positions for ``mesh`` (its ``segmentation``'s regions) on ``rig``: the plan file's
     contents (to write with :func:`hlr_lab.formats.plan.write_plan`; the mesh is referred to as
     ``mesh_spec``, relative to ``plan_folder`` where the plan will be) and the planner's full result.
     ``up``, ``scale``: how the mesh stands on the plate (its up axis; mesh units → metres), centred on the
-    axis; ``to_turntable`` (4, 4) instead: where it was measured to lie (:func:`replan_placed`)."""
+    axis; ``to_turntable`` (4, 4) instead: where it was measured to lie (:func:`replan_placed`). ``taken``:
+    lights already photographed, which the plan starts with (:func:`~hlr_lab.planning.planner.plan_lights`)."""
     if to_turntable is None:
         to_turntable = placement(mesh, up=up, scale=scale)
-    result = plan_lights(mesh.transformed(to_turntable), segmentation, rig, settings)
+    result = plan_lights(mesh.transformed(to_turntable), segmentation, rig, settings, taken=taken)
     texture = None if mesh.texture_source is None else mesh_reference(mesh.texture_source, plan_folder)
     plan = build_plan(
         result,
@@ -120,6 +125,12 @@ def plan_settings(plan: PlanFile) -> PlanSettings:
         max_lights=p.max_lights or default.max_lights,
         shadows=default.shadows if p.shadows is None else p.shadows,
         criterion=p.criterion,
+        min_diffuse=default.min_diffuse if p.min_diffuse is None else p.min_diffuse,
+        region_theta_c_deg=(
+            None
+            if p.region_theta_c_deg is None
+            else tuple(p.region_theta_c_deg.get(str(r.id), p.theta_c_deg) for r in plan.object.regions)
+        ),
     )
 
 
@@ -156,18 +167,25 @@ def acquire_plan(
     progress: Callable[[Step], None] = lambda _: None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
     lamp: LampWatch = UNWATCHED,
+    stage: tuple[PlanFile, Path] | None = None,
 ) -> Outcome:
     """Run the plan at ``plan_path`` on ``rig`` into ``session`` (created, or resumed): the motions are
     checked against the rig's limits before anything moves; adaptive bracketing watches the object's
     own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.session.lamp`), and a white reference
     beside the object (the rig file's ``run_place_m``) measures it in every pose instead of a reference
     pose (:mod:`hlr_lab.acquisition.white_reference`). ``links`` replace the rig file's device addresses (the
-    simulated rig's endpoints)."""
-    plan = read_plan(plan_path)
-    targets = motion_targets(plan, rig, plan_path)
+    simulated rig's endpoints).
+
+    ``stage``: an adaptive run's pilot or re-plan (:mod:`hlr_lab.adaptive`) and the path its object's files
+    are named from, run instead of the plan's own poses (the session still records the plan at
+    ``plan_path``). Without it, a session an adaptive run started is refused: its plan is in its journal."""
+    if stage is None:
+        _refuse_adaptive_session(session)
+    plan, poses_path = stage or (read_plan(plan_path), plan_path)
+    targets = motion_targets(plan, rig, poses_path)
     if rig.file.lamp is None:
         raise InputError("acquisition switches the lamp: add a [lamp] section", path=rig.source, field="lamp")
-    vertices = load_planned_mesh(plan, plan_path).transformed(mesh_to_turntable(plan)).vertices
+    vertices = load_planned_mesh(plan, poses_path).transformed(mesh_to_turntable(plan)).vertices
     # where the object may appear at each turntable angle, computed once per angle
     windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
     reference = reference_meter(rig, vertices, windows)
@@ -181,6 +199,18 @@ def acquire_plan(
     return acquire_session(plan, plan_path, targets, rig, session, links=links, bracket=bracket, force=force,
                            progress=progress, object_window=windows, on_start=on_start, lamp=lamp,
                            reference=reference)  # fmt: skip
+
+
+def _refuse_adaptive_session(session: Path) -> None:
+    """An adaptive run's session runs the plan its journal names, not the one given: refused by name."""
+    check_session_folder(session)
+    journal = session / JOURNAL
+    if journal.is_file() and stage_lines(read_journal(journal)):
+        raise InputError(
+            "this session was started by an adaptive run (its pilot and re-plan are in its journal): continue "
+            "it with acquire --adaptive, or give a new --out",
+            path=session,
+        )
 
 
 def fit_into(

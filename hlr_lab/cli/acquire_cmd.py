@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import contextlib
+import functools
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypedDict
 
 import click
 from rich.markup import escape
 
-from hlr_lab.acquisition.poses import Bracketing
+from hlr_lab.acquisition.poses import Bracketing, Step
+from hlr_lab.adaptive.pilot import pilot_poses
+from hlr_lab.adaptive.run import AdaptiveOutcome, acquire_adaptive
 from hlr_lab.cli.common import (
     FILE,
     FOLDER,
@@ -19,10 +24,12 @@ from hlr_lab.cli.common import (
     warm_up_options,
 )
 from hlr_lab.cli.console import console
+from hlr_lab.cli.plan_cmd import EXIT_UNCOVERED
 from hlr_lab.cli.register_cmd import show_registered
 from hlr_lab.display.acquire import motion_table, pose_progress, run_table
+from hlr_lab.display.adaptive import adaptive_lines, cones_table
 from hlr_lab.errors import InputError
-from hlr_lab.formats.plan import read_plan
+from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.formats.planned_object import load_planned_mesh, placement_line
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
@@ -80,11 +87,18 @@ from hlr_lab.session.lamp import LampWatch
     help="First measure where the object lies (hlr-lab register: photographs in SESSION-registration, the "
     "plan made again for it in SESSION-placed.json), then run that plan. A resumed session keeps its plan.",
 )
+@click.option(
+    "--adaptive",
+    is_flag=True,
+    help="Photograph a pilot first (the plan's poses that put a highlight on every region once), measure each "
+    "region's θc from its lobe, plan the rest again with those θc and take what the re-plan adds "
+    "(docs/planning.md). Exit status 3 when the re-plan leaves a region short.",
+)
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
 def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every,
-                warm_up_min, warm_up_within, register_first, dry_run, force, speed_factor):  # fmt: skip
+                warm_up_min, warm_up_within, register_first, adaptive, dry_run, force, speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
@@ -104,6 +118,7 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
       hlr-lab acquire --plan plan.json --sim --object-offset 2,-1.5,3   # the object not where planned
       hlr-lab acquire --plan plan.json --rig rig.toml --warm-up 30 --lamp-every 5   # overnight
       hlr-lab acquire --plan plan.json --rig rig.toml --register --out sessions/bunny-2   # placed by hand
+      hlr-lab acquire --plan plan.json --rig rig.toml --adaptive   # θc measured on a pilot, then re-planned
     """
     for given, option in ((scene_path, "--scene"), (object_offset, "--object-offset")):
         if given is not None and not sim:
@@ -138,29 +153,68 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
             console.print(
                 f"{len(targets)} poses, {frames} frames: within limits; about {duration:.0f} s on this rig"
             )
+            if adaptive:
+                console.print(
+                    f"adaptive: the pilot takes {', '.join(pilot_poses(plan))}; the rest is planned again"
+                )
             return
-        with pose_progress(console, len(targets)) as show:
-            outcome = acquire_plan(
-                plan_path,
-                rig,
-                session,
-                links=links,
-                bracket=Bracketing(dark_frames=dark_frames),
-                force=force,
-                progress=show,
-                lamp=LampWatch(
-                    every=lamp_every,
-                    warm_up_s=60 * warm_up_min,
-                    stable_per_min=warm_up_within / 100,
-                ),
-                on_start=lambda resumed: console.print(
-                    f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
-                ),
-            )
+        lamp = LampWatch(every=lamp_every, warm_up_s=60 * warm_up_min, stable_per_min=warm_up_within / 100)
+        options = _RunOptions(
+            links=links,
+            bracket=Bracketing(dark_frames=dark_frames),
+            force=force,
+            lamp=lamp,
+            on_start=lambda resumed: console.print(
+                f"{'resuming' if resumed else 'starting'} session {escape(str(session))}"
+            ),
+        )
+        short = {}
+        if adaptive:
+            done = _adaptive(functools.partial(acquire_adaptive, plan_path, rig, session, **options), plan)
+            outcome, short = done.run, done.replanned.short
+        else:
+            with pose_progress(console, len(targets)) as show:
+                outcome = acquire_plan(plan_path, rig, session, progress=show, **options)
     console.print(run_table(outcome, session))
     # the last line: what the devices confirmed (a run that stops says it in its error)
     if outcome.safe is not None:
         console.print(f"the rig is safe: {escape(outcome.safe.sentence())}", soft_wrap=True)
+    if short:  # as plan says of a plan that leaves regions short
+        raise SystemExit(EXIT_UNCOVERED)
+
+
+class _RunOptions(TypedDict):
+    """What a run is given besides its plan, rig and session, the same with or without --adaptive."""
+
+    links: Links
+    bracket: Bracketing
+    force: bool
+    lamp: LampWatch
+    on_start: Callable[[bool], None]
+
+
+def _adaptive(run: Callable[..., AdaptiveOutcome], plan: PlanFile) -> AdaptiveOutcome:
+    """``--adaptive``: the run, a progress bar per stage, and what it measured and decided."""
+    with contextlib.ExitStack() as bars:
+        stages: list[Callable[[Step], None]] = []
+
+        def stage(what: str) -> None:
+            bars.close()
+            console.print(escape(what), soft_wrap=True)
+            stages.clear()
+
+        def progress(step: Step) -> None:
+            if not stages:
+                stages.append(bars.enter_context(pose_progress(console, step.poses)))
+            stages[0](step)
+
+        done = run(progress=progress, on_stage=stage)
+    prior = plan.parameters.region_theta_c_deg or {}
+    console.print(cones_table(done, {r.id: prior.get(str(r.id), plan.parameters.theta_c_deg)
+                                     for r in plan.object.regions}))  # fmt: skip
+    for line in adaptive_lines(done):
+        console.print(line, soft_wrap=True)
+    return done
 
 
 def _registered(plan_path: Path, rig: Rig, session: Path, links: Links) -> Path:

@@ -103,6 +103,9 @@ class PlanParameters(OpenModel):
     count: Literal["pixels", "vertices"]
     criterion: Literal["capped", "plain"] = "capped"
     min_diffuse: float | None = Field(default=None, ge=0)  # diffuse-only samples each region needs
+    # each region's own θc where it was measured (an adaptive run's re-plan), by region id; the others
+    # theta_c_deg
+    region_theta_c_deg: dict[str, Annotated[float, Field(gt=0, lt=90)]] | None = None
     sphere_source: SphereSource = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
     # what hlr-lab's planner was run with, for the record (another tool's plan may leave them out)
     sphere_centre_m: Vec3 | None = None
@@ -141,7 +144,9 @@ class PlanPose(OpenModel):
     expected: dict[str, float]
     greedy_step: int | None = None  # the order hlr-lab's greedy chose the light in
     expected_diffuse: dict[str, float] | None = None  # diffuse-only samples per region (Rd)
-    purpose: Literal["highlights", "diffuse"] | None = None  # "diffuse": added for diffuse-only samples
+    # "diffuse": added for diffuse-only samples; "taken": photographed before the plan was made (an adaptive
+    # run's pilot), counted, not chosen
+    purpose: Literal["highlights", "diffuse", "taken"] | None = None
 
 
 class RegionCoverage(OpenModel):
@@ -291,6 +296,11 @@ def build_plan(
             count=s.count,
             criterion=s.criterion,
             min_diffuse=s.min_diffuse,
+            region_theta_c_deg=(
+                None
+                if s.region_theta_c_deg is None
+                else {str(r): round(t, 3) for r, t in enumerate(s.region_theta_c_deg)}
+            ),
             sphere_centre_m=_r(result.sphere.centre),
             sphere_source=result.sphere.source,
             cone="half-angle theta_c about the mirror direction",

@@ -84,9 +84,10 @@ class ViewSamples:
         seen = self.visible(np.arange(len(self.region)))
         return np.bincount(self.region[seen], weights=self.weight[seen], minlength=self.n_regions)
 
-    def footprint_radius(self, theta_c: float) -> np.ndarray:
-        """(K,) chord radius on the unit sphere that contains each sample's cone footprint on S."""
-        return self._footprint_scale * np.tan(theta_c)
+    def footprint_radius(self, theta_c: np.ndarray) -> np.ndarray:
+        """(K,) chord radius on the unit sphere that contains each sample's cone footprint on S, for
+        ``theta_c`` (R,) each region's cone half-angle (radians)."""
+        return self._footprint_scale * np.tan(theta_c[self.region])
 
     @cached_property
     def _footprint_scale(self) -> np.ndarray:
@@ -104,11 +105,12 @@ class ViewSamples:
 
 
 def count_estimates(
-    view: ViewSamples, caster: RayCaster, theta_c: float, cell: float, tree: KDTree | None = None
+    view: ViewSamples, caster: RayCaster, theta_c: np.ndarray, cell: float, tree: KDTree | None = None
 ) -> np.ndarray:
     """(Q, R) estimated highlight count of each candidate per region.
 
-    ``cell`` (chord on the unit sphere) is the pooling grid; ``tree`` a KD-tree of candidate_dirs.
+    ``theta_c`` (R,): each region's cone half-angle (radians); ``cell`` (chord on the unit sphere) is the
+    pooling grid; ``tree`` a KD-tree of candidate_dirs.
     """
     h, q = view.highlights, len(view.candidates)
     estimates = np.zeros(q * view.n_regions)
@@ -123,7 +125,7 @@ def count_estimates(
     pools = _pool(view, keep, view.footprint_radius(theta_c), cell)
     order = np.argsort(pools.radius)
     density = q / (4 * np.pi)  # candidates per steradian
-    cos_c = np.cos(theta_c)
+    cos_c = np.cos(theta_c)  # (R,)
     start = 0
     while start < len(order):
         r_max = pools.radius[order[start]] * _RADIUS_CLASS
@@ -136,7 +138,9 @@ def count_estimates(
         )
         g, cand = batch[pairs["i"]], pairs["j"]
         to_light = view.candidates[cand] - pools.point[g]
-        inside = np.einsum("ij,ij->i", to_light, pools.mirror[g]) >= cos_c * np.linalg.norm(to_light, axis=1)
+        inside = np.einsum("ij,ij->i", to_light, pools.mirror[g]) >= cos_c[pools.region[g]] * np.linalg.norm(
+            to_light, axis=1
+        )
         estimates += np.bincount(
             cand[inside] * view.n_regions + pools.region[g[inside]],
             weights=pools.weight[g[inside]],
@@ -187,10 +191,11 @@ def _pool(view: ViewSamples, keep: np.ndarray, radius: np.ndarray, cell: float) 
 
 
 def _in_cones(
-    view: ViewSamples, lights: np.ndarray, light_dirs: np.ndarray, theta_c: float, max_light_angle: float
+    view: ViewSamples, lights: np.ndarray, light_dirs: np.ndarray, theta_c: np.ndarray, max_light_angle: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Samples whose cone holds each of m lights (m, 3) (view frame; ``light_dirs`` their world directions
-    from S's centre) and which those lights reach at less than ``max_light_angle`` from the normal.
+    """Samples whose cone (half-angle ``theta_c`` (R,) of its region) holds each of m lights (m, 3) (view
+    frame; ``light_dirs`` their world directions from S's centre) and which those lights reach at less
+    than ``max_light_angle`` from the normal.
 
     Returns ``near`` (n,) sample indices and ``inside`` (n, m) bool. A KD-tree over the mirror points
     finds the candidates; the test itself is exact.
@@ -210,7 +215,8 @@ def _in_cones(
     dist = np.linalg.norm(to_light, axis=2)
     cos_cone = np.einsum("nmd,nd->nm", to_light, h.mirror[near]) / dist
     cos_light = np.einsum("nmd,nd->nm", to_light, h.normal[near]) / dist
-    return near, (cos_cone >= np.cos(theta_c)) & (cos_light >= np.cos(max_light_angle))
+    cos_c = np.cos(theta_c)[view.region[near], None]
+    return near, (cos_cone >= cos_c) & (cos_light >= np.cos(max_light_angle))
 
 
 def exact_counts(
@@ -219,12 +225,13 @@ def exact_counts(
     light: np.ndarray,
     light_dir: np.ndarray,
     *,
-    theta_c: float,
+    theta_c: np.ndarray,
     max_light_angle: float,
     shadows: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact highlight counts per region (R,) for one light position (3,) (view frame; ``light_dir`` its
-    world direction from S's centre), and the indices of the counted samples.
+    world direction from S's centre), and the indices of the counted samples; ``theta_c`` (R,) each
+    region's cone half-angle (radians).
 
     A sample counts when the light is inside its cone, lights it at less than ``max_light_angle`` from
     the normal, and (with ``shadows``) reaches it unobstructed.
@@ -245,7 +252,7 @@ def best_light(
     light_dirs: np.ndarray,
     rank: Callable[[np.ndarray], np.ndarray],
     *,
-    theta_c: float,
+    theta_c: np.ndarray,
     max_light_angle: float,
     shadows: bool,
 ) -> tuple[int, np.ndarray]:

@@ -17,16 +17,17 @@ _CANDIDATES_PER_BATCH = 8  # lights × samples × 3 floats at a time: ~20 MB on 
 
 
 def _lit_outside_cone(
-    view: ViewSamples, which: np.ndarray, lights: np.ndarray, theta_c: float, max_light_angle: float
+    view: ViewSamples, which: np.ndarray, lights: np.ndarray, theta_c: np.ndarray, max_light_angle: float
 ) -> np.ndarray:
     """(m, len(which)) bool: each of m lights (view frame, (m, 3)) lights the samples ``which`` within the
-    grazing limit and lies outside their highlight cone (no occlusion or shadow tested)."""
+    grazing limit and lies outside their highlight cone (half-angle ``theta_c`` (R,) of their region,
+    radians; no occlusion or shadow tested)."""
     h = view.highlights
     to_light = lights[:, None, :] - h.point[which][None]  # (m, n, 3)
     dist = np.linalg.norm(to_light, axis=2)
     cos_light = np.einsum("mnd,nd->mn", to_light, h.normal[which]) / dist
     cos_cone = np.einsum("mnd,nd->mn", to_light, h.mirror[which]) / dist
-    return (cos_light >= np.cos(max_light_angle)) & (cos_cone < np.cos(theta_c))
+    return (cos_light >= np.cos(max_light_angle)) & (cos_cone < np.cos(theta_c)[view.region[which]])
 
 
 def diffuse_counts(
@@ -34,7 +35,7 @@ def diffuse_counts(
     caster: RayCaster,
     light: np.ndarray,
     *,
-    theta_c: float,
+    theta_c: np.ndarray,
     max_light_angle: float,
     shadows: bool,
     regions: np.ndarray | None = None,
@@ -53,7 +54,7 @@ def diffuse_counts(
 
 
 def diffuse_estimates(
-    view: ViewSamples, lights: np.ndarray, *, theta_c: float, max_light_angle: float, regions: np.ndarray
+    view: ViewSamples, lights: np.ndarray, *, theta_c: np.ndarray, max_light_angle: float, regions: np.ndarray
 ) -> np.ndarray:
     """(m, R) diffuse-only samples per region each of m lights (m, 3) (view frame) would give, without
     shadows (an upper bound of :func:`diffuse_counts`), for the regions in ``regions`` (R,) bool only."""

@@ -117,18 +117,22 @@ def select_lights(
     )
 
 
-def prune(selection: Selection, min_samples: float) -> Selection:
+def prune(selection: Selection, min_samples: float | np.ndarray) -> Selection:
     """``selection`` without the lights it can do without: a light goes when every region it served that has
-    its ``min_samples`` keeps them without it and it gives no short region anything (reverse delete, the
-    light with the least capped gain first). A greedy's early lights often become redundant later.
+    its ``min_samples`` (a float, or (R,) each region's) keeps them without it and it gives no short region
+    anything (reverse delete, the light with the least capped gain first). A greedy's early lights often
+    become redundant later.
     """
-    counts = np.array([c.counts for c in selection.choices]).reshape(len(selection.choices), -1)
+    if not selection.choices:
+        return selection
+    counts = np.array([c.counts for c in selection.choices])
     total = counts.sum(axis=0)
-    satisfied = total >= min_samples - 1e-9
+    need = np.broadcast_to(np.asarray(min_samples, dtype=np.float64), total.shape)
+    satisfied = total >= need - 1e-9
     keep = np.ones(len(counts), bool)
-    for i in np.argsort(np.minimum(counts, min_samples).sum(axis=1), kind="stable"):
+    for i in np.argsort(np.minimum(counts, need).sum(axis=1), kind="stable"):
         rest = total - counts[i]
-        if np.all(rest[satisfied] >= min_samples - 1e-9) and np.all(counts[i][~satisfied] <= 0):
+        if np.all(rest[satisfied] >= need[satisfied] - 1e-9) and np.all(counts[i][~satisfied] <= 0):
             keep[i], total = False, rest
     choices = [c for c, k in zip(selection.choices, keep, strict=True) if k]
     views_used = sorted({c.view for c in choices}, key=[c.view for c in choices].index)

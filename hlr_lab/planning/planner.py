@@ -37,7 +37,7 @@ from hlr_lab.rig.file import Rig
 
 CountUnit = Literal["pixels", "vertices"]
 Criterion = Literal["capped", "plain"]
-Purpose = Literal["highlights", "diffuse"]
+Purpose = Literal["highlights", "diffuse", "taken"]
 # estimate grid spacing θc/3: three points across a cone's radius. θc/5 counted 2.8× the candidate pairs
 # for no better plan: on θc/3 the bound was proven on every bench case (bunny 8/12/16 patches, Spot,
 # pebble), with the same or fewer lights (docs/planning.md)
@@ -72,6 +72,9 @@ class PlanSettings:
     min_diffuse: float = 100.0  # diffuse-only samples each region needs for Rd (0: not planned)
     compare_criteria: bool = True  # also plan with the other criterion, and keep the one with fewer lights
     optimum_budget_s: float = 3.0  # time for the integer programme (0: the LP bound only)
+    # each region's θc (degrees, in the segmentation's order) where it is known (an adaptive run measures
+    # it: docs/planning.md); None: theta_c_deg for every region
+    region_theta_c_deg: tuple[float, ...] | None = None
 
     def __post_init__(self):
         if not (math.isfinite(self.min_diffuse) and self.min_diffuse >= 0):
@@ -84,6 +87,19 @@ class PlanSettings:
                 f"the integer programme's budget must be 0 … {MAX_OPTIMUM_BUDGET_S:g} s, got {self.optimum_budget_s}",
                 field="--optimum-budget",
             )
+        for theta in (self.theta_c_deg, *(self.region_theta_c_deg or ())):
+            if not (math.isfinite(theta) and 0 < theta < 90):
+                raise InputError(f"θc must lie in (0, 90) degrees, got {theta}", field="--theta-c")
+
+    def theta_c_rad(self, n_regions: int) -> np.ndarray:
+        """(R,) each region's θc in radians."""
+        theta = self.region_theta_c_deg or (self.theta_c_deg,) * n_regions
+        if len(theta) != n_regions:
+            raise InputError(
+                f"{len(theta)} regions' θc given for {n_regions} regions: give one per region",
+                field="region_theta_c_deg",
+            )
+        return np.radians(np.asarray(theta, dtype=np.float64))
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,7 +116,18 @@ class PlannedLight:
     expected: np.ndarray  # (R,) samples per region, in the count unit
     counted: np.ndarray  # indices into PlanResult.samples of the samples this light counts
     diffuse: np.ndarray  # (R,) diffuse-only samples per region, in the count unit
-    purpose: Purpose = "highlights"  # or "diffuse": added for regions short of diffuse-only samples
+    # "diffuse": added for regions short of diffuse-only samples; "taken": photographed before the plan was
+    # made (given to plan_lights), counted, not chosen
+    purpose: Purpose = "highlights"
+
+
+@dataclass(frozen=True)
+class TakenLight:
+    """A light already photographed (an adaptive run's pilot): the turntable angle (degrees) and where the
+    light stood (3,) (world frame, metres). A plan counts what it gives and plans only what is still needed."""
+
+    turntable_deg: float
+    light_world: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -204,6 +231,7 @@ def plan_lights(
     settings: PlanSettings = PlanSettings(),
     *,
     caster: RayCaster | None = None,
+    taken: Sequence[TakenLight] = (),
 ) -> PlanResult:
     """Plan on ``placed``, the mesh already in the turntable frame (see ``geometry.placement``).
 
@@ -215,10 +243,15 @@ def plan_lights(
     with the other criterion (``compare_criteria``) and the cover the integer programme finds within
     ``optimum_budget_s`` — each without the lights it can do without — that satisfies every region the
     first satisfies. ``PlanResult.optimum`` says how far it can be from the fewest (docs/planning.md).
+
+    ``taken``: lights already photographed; the plan starts with them (purpose "taken", their exact counts)
+    and adds lights only for what they leave short (the optimum's figures are of the added lights).
     """
     clock = _Clock()
-    planner = _Planner(placed, segmentation, rig, settings, caster, clock)
-    need = np.full(segmentation.n_regions, float(settings.min_samples))
+    planner = _Planner(placed, segmentation, rig, settings, caster, clock, taken)
+    given = [planner.taken_light(i, t) for i, t in enumerate(taken)]
+    had = np.sum([light.expected for light in given], axis=0) + np.zeros(segmentation.n_regions)
+    need = np.maximum(float(settings.min_samples) - had, 0.0)
     planner.estimates_of(0)
     clock.lap("cones")
     capped = settings.criterion == "capped"
@@ -231,7 +264,7 @@ def plan_lights(
     best, optimum = planner.fewest_lights(runs, need)
     clock.lap("optimum")
 
-    lights = planner.lights(best)
+    lights = given + planner.lights(best, first_step=len(given))
     clock.lap("lights")
     lights += planner.add_diffuse(lights)
     clock.lap("diffuse")
@@ -239,7 +272,7 @@ def plan_lights(
     diffuse = np.sum([light.diffuse for light in lights], axis=0) + np.zeros(len(need))
     highlights_met = coverage >= settings.min_samples - 1e-9
     diffuse_met = diffuse >= settings.min_diffuse - 1e-9
-    uncovered = planner.reasons(highlights_met, coverage, best.selection)
+    uncovered = planner.reasons(highlights_met, coverage, best.selection, had)
     for r in np.flatnonzero(highlights_met & ~diffuse_met):
         uncovered[int(r)] = (
             f"only {diffuse[r]:.0f} of {settings.min_diffuse:g} diffuse-only samples (Rd): its lit side "
@@ -291,16 +324,19 @@ class _Planner:
         settings: PlanSettings,
         caster: RayCaster | None,
         clock: _Clock,
+        taken: Sequence[TakenLight] = (),
     ):
         self.rig, self.settings = rig, settings
         self.n_regions = segmentation.n_regions
-        self.theta_c = np.radians(settings.theta_c_deg)
+        self.theta_c = settings.theta_c_rad(self.n_regions)  # (R,)
+        # the grid and the pools follow the narrowest cone: coarser ones would step over its highlights
+        narrowest_deg = float(np.degrees(self.theta_c.min(initial=np.radians(settings.theta_c_deg))))
         self.max_light_angle = np.radians(settings.max_view_angle_deg)
         self.sphere = light_sphere(rig.gantry, placed.vertices, settings.sphere_scale)
         self.caster = caster or RayCaster(placed)
         clock.lap("ray engine")
         self.cands = _Candidates(
-            self.sphere, rig, settings.spacing_deg, settings.theta_c_deg * COARSE_FRACTION_OF_THETA_C
+            self.sphere, rig, settings.spacing_deg, narrowest_deg * COARSE_FRACTION_OF_THETA_C
         )
         # exact counts use samples as fine as the count unit needs; the estimates only steer the greedy and
         # bound the plan, and samples of ~ESTIMATE_PX pixels do that at a fraction of the cost (a coarse
@@ -319,7 +355,10 @@ class _Planner:
             if settings.views_deg is not None
             else auto_views(rig.turntable_limits_deg, settings.view_step_deg)
         )
-        self.pool_cell = np.radians(max(settings.spacing_deg, settings.theta_c_deg / POOL_FRACTION))
+        for t in taken:  # a light already photographed counts from the view it was taken in
+            if not any(abs(t.turntable_deg - v) < 1e-6 for v in self.views):
+                self.views.append(float(t.turntable_deg))
+        self.pool_cell = np.radians(max(settings.spacing_deg, narrowest_deg / POOL_FRACTION))
         self._samples: dict[int, ViewSamples] = {}
         self._coarse_samples: dict[int, ViewSamples] = {}
         self._estimates: dict[int, np.ndarray] = {}
@@ -413,19 +452,21 @@ class _Planner:
     def fewest_lights(self, runs: list[_Run], need: np.ndarray) -> tuple[_Run, PlanOptimum]:
         """The run with the fewest lights (pruned) that satisfies what ``runs[0]`` does, adding the integer
         programme's cover, and what the set multicover says of it."""
-        m = self.settings.min_samples
+        m = need
         runs = [replace(r, selection=prune(r.selection, m)) for r in runs]
+        if not (need > 0).any():  # the lights already taken give every region what it needs
+            return runs[0], PlanOptimum(0, 0.0, True, f"greedy ({runs[0].name})", "nothing to add", 0.0)
         reference = runs[0].coverage(self.n_regions) >= m - 1e-9
 
         def rank(r: _Run) -> tuple[int, float]:
             return r.n_lights, -float(np.minimum(r.coverage(self.n_regions), m).sum())
 
         def acceptable(r: _Run) -> bool:
-            return bool(np.all(r.coverage(self.n_regions)[reference] >= m - 1e-9))
+            return bool(np.all(r.coverage(self.n_regions)[reference] >= m[reference] - 1e-9))
 
         best = min((r for r in runs if acceptable(r)), key=rank)
         counts = np.concatenate([self.estimates_of(v) for v in range(len(self.views))])  # (V·Q, R)
-        found = self._cover(counts, reference, best.n_lights)
+        found = self._cover(counts, reference, best.n_lights, need)
         if found.cover is not None:
             q = len(self.cands.coarse)
             among: dict[int, np.ndarray] = {}
@@ -457,16 +498,18 @@ class _Planner:
         )[1]
         return vs.index[local]
 
-    def _cover(self, counts: np.ndarray, reference: np.ndarray, incumbent: int) -> CoverOptimum:
+    def _cover(
+        self, counts: np.ndarray, reference: np.ndarray, incumbent: int, need: np.ndarray
+    ) -> CoverOptimum:
         """The set multicover of the regions in ``reference`` over ``counts`` (V·Q, R), the stacked estimates
         of every view's candidates, within the time budget. A cover the estimates promise is checked with
         exact counts; where they fall short its lights' estimates are replaced by their exact counts and
         the programme solved again (as the greedy does light by light). A cover that still falls short when
         the budget ends is returned unproven: the greedy completes it from there."""
-        m, budget = self.settings.min_samples, self.settings.optimum_budget_s
+        m, budget = need, self.settings.optimum_budget_s
         counts, q, start = counts.copy(), len(self.cands.coarse), time.perf_counter()
         exact = np.zeros(len(counts), bool)
-        full = np.full(self.n_regions, m)
+        full = need
         found, holds, seed = None, False, None
         while found is None or budget - (time.perf_counter() - start) > 0:
             target = np.where(reference, np.minimum(m, np.minimum(counts, m).sum(axis=0)), 0.0)
@@ -485,7 +528,7 @@ class _Planner:
             # the estimates of the regions it fell short on were high: count their best candidates exactly
             # too, or each round would correct a cover's few lights only
             short = reference & (gave < target - 1e-6)
-            promise = np.where(exact, -np.inf, np.minimum(counts[:, short], m).sum(axis=1))
+            promise = np.where(exact, -np.inf, np.minimum(counts[:, short], m[short]).sum(axis=1))
             for j in np.argsort(-promise, kind="stable")[:EXACT_PER_ROUND]:
                 if np.isfinite(promise[j]):
                     counts[j] = self.evaluate(int(j) // q, int(j) % q, full, True)
@@ -500,8 +543,9 @@ class _Planner:
             )
         return replace(found, seconds=time.perf_counter() - start)
 
-    def lights(self, run: _Run) -> list[PlannedLight]:
-        """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view."""
+    def lights(self, run: _Run, first_step: int = 0) -> list[PlannedLight]:
+        """The chosen lights, grouped by turntable view (fewer table moves), in greedy order within a view
+        (their steps numbered from ``first_step``)."""
         selection = run.selection
         order = sorted(
             range(len(selection.choices)),
@@ -511,7 +555,9 @@ class _Planner:
         for i in order:
             c = selection.choices[i]
             lights.append(
-                self._planned(i, c.view, self.cands.fine[run.refined[c.view, c.candidate]], c.counts)
+                self._planned(
+                    first_step + i, c.view, self.cands.fine[run.refined[c.view, c.candidate]], c.counts
+                )
             )
         return lights
 
@@ -545,6 +591,23 @@ class _Planner:
             diffuse=diffuse,
             purpose=purpose,
         )
+
+    def taken_light(self, step: int, taken: TakenLight) -> PlannedLight:
+        """A light already photographed, with its exact counts (its position put on S, as a plan's are)."""
+        v = next(i for i, a in enumerate(self.views) if abs(a - taken.turntable_deg) < 1e-6)
+        d = np.asarray(taken.light_world, dtype=np.float64) - self.sphere.centre
+        d /= np.linalg.norm(d)
+        vs = self.view_samples(v)
+        counts = exact_counts(
+            vs,
+            self.caster,
+            vs.light_position(d),
+            d,
+            theta_c=self.theta_c,
+            max_light_angle=self.max_light_angle,
+            shadows=self.settings.shadows,
+        )[0]
+        return self._planned(step, v, d, counts, "taken")
 
     def add_diffuse(self, lights: list[PlannedLight]) -> list[PlannedLight]:
         """Lights added for the regions the highlight lights leave short of ``min_diffuse`` diffuse-only
@@ -615,14 +678,17 @@ class _Planner:
             need -= light.diffuse
         return added
 
-    def reasons(self, satisfied: np.ndarray, coverage: np.ndarray, selection: Selection) -> dict[int, str]:
-        """Why each unsatisfied region is short, in the operator's words (this needs every view's evidence)."""
+    def reasons(
+        self, satisfied: np.ndarray, coverage: np.ndarray, selection: Selection, had: np.ndarray
+    ) -> dict[int, str]:
+        """Why each unsatisfied region is short, in the operator's words (this needs every view's evidence;
+        ``had`` (R,): what the lights already taken give)."""
         short = np.flatnonzero(~satisfied)
         if len(short) == 0:
             return {}
         views = range(len(self.views))
         seen = np.sum([self.view_samples(v).region_weight() for v in views], axis=0)
-        reach = np.sum([self.estimates_of(v).max(axis=0) for v in views], axis=0)
+        reach = np.sum([self.estimates_of(v).max(axis=0) for v in views], axis=0) + had
         m, reasons = self.settings.min_samples, {}
         for r in short:
             if seen[r] <= 0:

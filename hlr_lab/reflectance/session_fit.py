@@ -63,6 +63,7 @@ from hlr_lab.session.frames import checked_sidecar, load_frame
 from hlr_lab.session.journal import JOURNAL, load_journal
 from hlr_lab.session.lamp import WHITE_REFERENCE, lamp_at
 from hlr_lab.session.metadata import SESSION, read_record, session_plan
+from hlr_lab.session.stages import current_plan
 
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 # fit --radiance: each pose's merged radiance as POSE.exr, in this folder beside materials.json
@@ -241,9 +242,9 @@ def open_session(path: Path, *, allow_incomplete: bool = False, correct_lamp: bo
     why) unless ``allow_incomplete``, and then :attr:`Session.gaps` says what is missing. The lamp's
     measured output (when the run watched it) scales each view's light unless not ``correct_lamp``."""
     record = read_record(path)
-    plan, plan_path = session_plan(path, record)
-    rig = rig_of_snapshot(record["rig"]["snapshot"], f"{path / SESSION} (rig snapshot)")
     journal = load_journal(path / JOURNAL)
+    plan, plan_path = current_plan(path, session_plan(path, record), journal.events)
+    rig = rig_of_snapshot(record["rig"]["snapshot"], f"{path / SESSION} (rig snapshot)")
     views, rejected = _views(path, journal.events, {p.id for p in plan.poses})
     have = {(v.pose, e["exposure_index"]) for v in views for e in v.frames}
     missing = [

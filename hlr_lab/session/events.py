@@ -179,6 +179,46 @@ class WarmUpLine(TypedDict):
     per_minute: float  # the lamp's trend at the end, a fraction
 
 
+class StagePlan(TypedDict):
+    """The plan an adaptive run's stage wrote into the session: its file (relative to the session) and
+    sha256."""
+
+    file: str
+    sha256: str
+
+
+class PilotLine(TypedDict):
+    """An adaptive run's pilot: the poses of the plan it photographs first (one highlight per region), and
+    its plan (the plan's poses cut to those)."""
+
+    event: Literal["pilot"]
+    at: float
+    poses: list[str]
+    plan: StagePlan
+
+
+class RegionThetaC(TypedDict):
+    """A region's θc for the re-plan: measured on the pilot's photographs (with the fitted n), or the
+    prior (the plan's θc) with why it was not measured."""
+
+    theta_c_deg: float
+    source: Literal["measured", "prior"]
+    n: NotRequired[float]
+    reason: NotRequired[str]
+
+
+class ReplanLine(TypedDict):
+    """An adaptive run's re-plan: each region's θc, the poses it adds after the pilot's, the regions it
+    leaves short (id → why), and its plan (the pilot's poses first)."""
+
+    event: Literal["replan"]
+    at: float
+    regions: dict[str, RegionThetaC]
+    added: list[str]
+    short: dict[str, str]
+    plan: StagePlan
+
+
 SessionEvent = (
     RunStartLine
     | PoseLine
@@ -189,4 +229,6 @@ SessionEvent = (
     | SafeStateLine
     | LampLine
     | WarmUpLine
+    | PilotLine
+    | ReplanLine
 )

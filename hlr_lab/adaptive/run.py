@@ -1,0 +1,207 @@
+"""The adaptive run as one function (see the package's docstring): pilot, fit, re-plan, the rest.
+
+Stages, each journaled before the next begins, so that a stopped run resumes where it stopped:
+
+1. the pilot: the plan cut to :func:`~hlr_lab.adaptive.pilot.pilot_poses`, kept in the session as
+   ``object/plan-pilot.json`` and named by a ``pilot`` line, then photographed as any plan is;
+2. the pilot's photographs fitted (``theta_c_deg="auto"``, in memory: the session's materials.json is the
+   whole run's), each region's θc taken from its fit (:func:`~hlr_lab.adaptive.theta_c.region_cones`);
+3. the re-plan: the plan's settings with those θc, the pilot's lights counted as taken, kept as
+   ``object/plan-replan.json`` and named by a ``replan`` line (the θc per region, the poses added, the
+   regions left short);
+4. the re-plan photographed: the pilot's poses are in the session already, only the added ones move (and
+   when it adds none, the rig is not opened again).
+
+The rig is opened for the pilot and again for the rest: while the pilot is fitted and the object planned
+again (seconds to a minute), the lamp is off and the axes are left safe, as after any run.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
+from hlr_lab.acquisition.run import PLANNED_ONLY
+from hlr_lab.adaptive.pilot import cut_to, pilot_poses
+from hlr_lab.adaptive.theta_c import RegionCone, region_cones
+from hlr_lab.errors import InputError
+from hlr_lab.formats.plan import PlanFile, PlanPose, read_plan
+from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable, planned_segmentation
+from hlr_lab.instrument.control import NO_OVERRIDES
+from hlr_lab.instrument.devices import Links
+from hlr_lab.object.procedural import BUILTIN_PREFIX
+from hlr_lab.pipeline import acquire_plan, plan_object, plan_settings
+from hlr_lab.planning.planner import TakenLight
+from hlr_lab.reflectance.session_fit import fit_session, open_session
+from hlr_lab.rig.file import Rig
+from hlr_lab.session.events import JournalLine, PilotLine, ReplanLine
+from hlr_lab.session.folder import check_session_folder
+from hlr_lab.session.journal import JOURNAL, Journal, read_journal
+from hlr_lab.session.lamp import UNWATCHED, LampWatch
+from hlr_lab.session.metadata import read_record, session_plan
+from hlr_lab.session.stages import keep_stage_plan, stage_file, stage_lines, stage_plan
+
+
+@dataclass(frozen=True)
+class Replanned:
+    """What the re-plan made of the pilot: each region's θc, the plan it runs (the pilot's poses first),
+    the poses it added, and the regions it leaves short (id → why)."""
+
+    cones: list[RegionCone]
+    plan: PlanFile
+    added: list[str]
+    short: dict[int, str]
+
+
+@dataclass
+class AdaptiveOutcome:
+    """An adaptive run: the pilot's poses, its run (None when a resumed run found it done), the re-plan,
+    the re-plan's run (the pilot's, when the re-plan added nothing), and how many poses the plan it
+    started from had."""
+
+    pilot: list[str]
+    pilot_run: Outcome | None
+    replanned: Replanned
+    run: Outcome
+    planned_poses: int
+
+    @property
+    def photographed_poses(self) -> int:
+        """The poses the session holds: the pilot's and those the re-plan added."""
+        return len(self.replanned.plan.poses)
+
+
+def acquire_adaptive(
+    plan_path: Path,
+    rig: Rig,
+    session: Path,
+    *,
+    links: Links = NO_OVERRIDES,
+    bracket: Bracketing = PLANNED_ONLY,
+    force: bool = False,
+    progress: Callable[[Step], None] = lambda _: None,
+    on_start: Callable[[bool], None] = lambda _resumed: None,
+    lamp: LampWatch = UNWATCHED,
+    on_stage: Callable[[str], None] = lambda _: None,
+) -> AdaptiveOutcome:
+    """Run the plan at ``plan_path`` adaptively into ``session`` (created, or resumed at its stage); see
+    the module's docstring. ``on_stage`` hears each stage begin, in a sentence; the other arguments are
+    :func:`hlr_lab.pipeline.acquire_plan`'s."""
+    original = read_plan(plan_path)
+    lines = _stage_lines(session)
+    run = functools.partial(acquire_plan, plan_path, rig, session, links=links, bracket=bracket, force=force,
+                            progress=progress, lamp=lamp)  # fmt: skip
+    pilot_run, announced = None, False
+    pilot = list(lines["pilot"]["poses"]) if "pilot" in lines else pilot_poses(original)
+    if "replan" not in lines:
+        stage = (
+            stage_plan(session, lines["pilot"]) if "pilot" in lines else (cut_to(original, pilot), plan_path)
+        )
+
+        def started(resumed: bool) -> None:
+            on_start(resumed)
+            if "pilot" not in lines:
+                _journal_pilot(session, pilot)
+
+        on_stage(
+            f"pilot: {len(pilot)} of the plan's {len(original.poses)} poses, a highlight on every region"
+        )
+        pilot_run, announced = run(on_start=started, stage=stage), True
+        on_stage("fitting the pilot's photographs for each region's lobe")
+        _replan(session, rig, pilot, on_stage)
+    replanned = _replanned(session)
+    on_stage(f"the re-plan: {len(replanned.added)} pose(s) added to the pilot's {len(pilot)}")
+    if pilot_run is not None and not replanned.added:  # the pilot's photographs are the whole run
+        return AdaptiveOutcome(pilot, pilot_run, replanned, pilot_run, len(original.poses))
+    stage = (replanned.plan, session / stage_file("replan"))
+    rest = run(on_start=(lambda _resumed: None) if announced else on_start, stage=stage)
+    return AdaptiveOutcome(pilot, pilot_run, replanned, rest, len(original.poses))
+
+
+def _stage_lines(session: Path) -> dict[str, JournalLine]:
+    """The session's pilot and re-plan lines; a session with frames but no pilot line was not started by an
+    adaptive run and is refused."""
+    if not session.is_dir():
+        return {}
+    check_session_folder(session)
+    journal = session / JOURNAL
+    events = read_journal(journal) if journal.is_file() else []
+    lines = stage_lines(events)
+    if not lines and any(e.get("event") == "frame" for e in events):
+        raise InputError(
+            "this session was started without --adaptive: continue it without --adaptive, or give a new --out",
+            path=session,
+        )
+    return lines
+
+
+def _journal_pilot(session: Path, pilot: list[str]) -> None:
+    """Keep the pilot's plan in the session (its object's files named as the kept plan names them) and
+    journal it, before its first frame."""
+    kept, _ = session_plan(session, read_record(session))
+    stage = keep_stage_plan(session, "pilot", cut_to(kept, pilot))
+    with Journal(session / JOURNAL) as journal:
+        journal.append(PilotLine(event="pilot", at=time.time(), poses=pilot, plan=stage))
+
+
+def _replan(session: Path, rig: Rig, pilot: list[str], on_stage: Callable[[str], None]) -> None:
+    """Fit the pilot, plan the rest with each region's θc, keep the re-plan and journal it."""
+    fitted = fit_session(open_session(session), systematic=False).materials
+    kept, kept_path = session_plan(session, read_record(session))
+    cones = region_cones(kept, fitted)
+    on_stage(
+        "re-planning with each region's θc: " + ", ".join(f"{c.region} {c.theta_c_deg:.1f}°" for c in cones)
+    )
+    mesh = load_planned_mesh(kept, kept_path)
+    by_id = {c.region: c.theta_c_deg for c in cones}
+    settings = replace(
+        plan_settings(kept), region_theta_c_deg=tuple(by_id[r.id] for r in kept.object.regions)
+    )
+    poses = {p.id: p for p in kept.poses}
+    taken = [TakenLight(poses[i].turntable_deg, np.array(poses[i].light.position_m)) for i in pilot]
+    ref = kept.object.mesh
+    spec = ref if ref.startswith(BUILTIN_PREFIX) else str(kept_path.parent / ref)
+    planned, _ = plan_object(mesh, planned_segmentation(kept, mesh), rig, settings, mesh_spec=spec,
+                             plan_folder=kept_path.parent, up=kept.object.up, scale=kept.object.scale,
+                             to_turntable=mesh_to_turntable(kept), taken=taken)  # fmt: skip
+    planned = _named(planned, kept, pilot)
+    stage = keep_stage_plan(session, "replan", planned)
+    added = [p.id for p in planned.poses[len(pilot) :]]
+    short = {str(u.region): u.reason for u in planned.uncovered}
+    with Journal(session / JOURNAL) as journal:
+        journal.append(ReplanLine(event="replan", at=time.time(), regions={str(c.region): c.as_line() for c in cones},
+                                  added=added, short=short, plan=stage))  # fmt: skip
+
+
+def _named(planned: PlanFile, kept: PlanFile, pilot: list[str]) -> PlanFile:
+    """The re-plan with the pilot's poses under their own ids and exposures (their frames are in the
+    session), the added ones under ids the plan does not use, and the object as the kept plan has it (its
+    placement record too)."""
+    used = {p.id for p in kept.poses}
+    fresh = (f"p{k:03d}" for k in range(len(kept.poses), 10**6) if f"p{k:03d}" not in used)
+    poses: list[PlanPose] = []
+    originals = {p.id: p for p in kept.poses}
+    for i, pose in enumerate(planned.poses):
+        if i < len(pilot):
+            was = originals[pilot[i]]
+            poses.append(pose.model_copy(update={"id": was.id, "exposures_s": was.exposures_s}))
+        else:
+            poses.append(pose.model_copy(update={"id": next(fresh)}))
+    return planned.model_copy(update={"poses": poses, "object": kept.object})
+
+
+def _replanned(session: Path) -> Replanned:
+    """The re-plan as the journal and the session's files record it."""
+    line = _stage_lines(session)["replan"]
+    plan, _ = stage_plan(session, line)
+    cones = [
+        RegionCone(int(rid), float(c["theta_c_deg"]), c["source"], n=c.get("n"), reason=c.get("reason"))
+        for rid, c in line["regions"].items()
+    ]
+    return Replanned(cones, plan, list(line["added"]), {int(k): v for k, v in line["short"].items()})

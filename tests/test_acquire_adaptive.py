@@ -1,0 +1,174 @@
+"""``hlr-lab acquire --adaptive`` on the simulated rig: a pebble whose four regions have lobes the plan's
+θc (5°) does not fit — no specular at all, n 40, n 1500 (dim), n 400 — photographed with a pilot, each
+region's θc measured, the rest planned again, stopped during the re-plan's poses and resumed."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import trimesh
+
+from hlr_lab.adaptive.run import acquire_adaptive
+from hlr_lab.cli.main import main
+from hlr_lab.formats.materials import read_materials
+from hlr_lab.formats.plan import read_plan
+from hlr_lab.instrument.control import RunStopped
+from hlr_lab.object.procedural import pebble
+from hlr_lab.rig.file import sim_rig
+from sim.rig import SimRig
+from tests.renderer_guard import require_renderer
+from worlds.plan_world import sim_scene, world_geometry, world_links
+
+require_renderer(module_level=True)
+pytestmark = pytest.mark.renderer
+
+
+@dataclass(frozen=True)
+class Lobe:
+    n: float
+    rs: float
+
+
+# by the pebble's region order: no highlight, a wide lobe, a narrow dim one (θc ~3°), a sharp one
+LOBES = (Lobe(8.0, 0.0), Lobe(40.0, 0.25), Lobe(1500.0, 0.05), Lobe(400.0, 0.25))
+
+
+@pytest.fixture(scope="module")
+def stopped_then_resumed(tmp_path_factory):
+    """The plan (M 400; the greedy alone, so that it is the same on any machine), the adaptive run stopped
+    at the re-plan's first added pose, then resumed from the command line: (folder, the plan, the stop, the
+    resumed run's exit status, the stages the first run announced)."""
+    folder = tmp_path_factory.mktemp("adaptive")
+    m = pebble().mesh
+    ply = folder / "pebble.ply"
+    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(ply)
+    assert (
+        main(
+            [
+                "plan",
+                "--mesh",
+                str(ply),
+                "--sim",
+                "--min-samples",
+                "400",
+                "--optimum-budget",
+                "0",
+                "-o",
+                str(folder / "plan.json"),
+            ]
+        )
+        == 0
+    )
+    plan = read_plan(folder / "plan.json")
+    scene = ["[object]", f'mesh = "{ply}"', "", "[light]", 'type = "point"', "power = 1.0"]
+    for region, lobe in zip(plan.object.regions, LOBES, strict=True):
+        scene += ["", "[[region]]", f"color = {list(region.color)}", "rd = [0.3, 0.2, 0.1]",
+                  f"rs = [{lobe.rs}, {lobe.rs}, {lobe.rs}]", f"n = {lobe.n}"]  # fmt: skip
+    (folder / "scene.toml").write_text("\n".join(scene) + "\n")
+    rig, session = sim_rig(), folder / "session"
+    world = sim_scene(plan, folder / "plan.json", folder / "scene.toml")
+    stages: list[str] = []
+
+    def stop_at_an_added_pose(step) -> None:
+        if stages and stages[-1].startswith("the re-plan") and step.pose not in plan_pilot(session):
+            raise KeyboardInterrupt
+
+    geometry = world_geometry(rig, None)
+    with (
+        SimRig(scene=world, speed_factor=1000.0, seed=5, **geometry) as sim,
+        pytest.raises(RunStopped) as stopped,
+    ):
+        acquire_adaptive(folder / "plan.json", rig, session, links=world_links(sim), on_stage=stages.append,
+                         progress=stop_at_an_added_pose)  # fmt: skip
+    command = ["acquire", "--plan", str(folder / "plan.json"), "--sim", "--scene", str(folder / "scene.toml"),
+               "--adaptive", "--out", str(session)]  # fmt: skip
+    return folder, plan, stopped.value, main(command), stages
+
+
+def plan_pilot(session: Path) -> list[str]:
+    return next(e["poses"] for e in journal(session) if e["event"] == "pilot")
+
+
+def journal(session: Path) -> list[dict]:
+    return [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)  # measured 45 s on two quiet cores
+def test_an_adaptive_run_measures_each_regions_theta_c_and_plans_the_rest_for_it(stopped_then_resumed):
+    """The journal holds one pilot (a subset of the plan's poses, in its order) and one re-plan: the
+    region without a highlight re-planned from the prior 5° and saying why, the wide lobe's θc above 5°,
+    the narrow dim one's below it — which is where the re-plan adds poses. The stop came during the added
+    poses; the resumed run took the rest and retook nothing: every frame of the re-plan once."""
+    folder, plan, _, status, stages = stopped_then_resumed
+    assert status == 0
+    assert stages[0].startswith("pilot: ")
+    session = folder / "session"
+    lines = journal(session)
+    pilots = [e for e in lines if e["event"] == "pilot"]
+    replans = [e for e in lines if e["event"] == "replan"]
+    assert len(pilots) == 1
+    assert len(replans) == 1
+    ids = [p.id for p in plan.poses]
+    pilot = pilots[0]["poses"]
+    assert pilot == [i for i in ids if i in pilot]
+    assert len(pilot) < len(ids)
+    regions = replans[0]["regions"]
+    assert regions["0"]["source"] == "prior"
+    assert regions["0"]["theta_c_deg"] == 5.0
+    assert "not measured" in regions["0"]["reason"]
+    assert regions["1"]["source"] == "measured"
+    assert regions["1"]["theta_c_deg"] > 10
+    assert regions["2"]["theta_c_deg"] < 5
+    assert regions["2"]["n"] == pytest.approx(1500, rel=0.1)
+    assert replans[0]["added"]
+    assert not set(replans[0]["added"]) & set(ids)  # new poses, new ids
+    assert any(e["event"] == "stopped" for e in lines)
+    replan = read_plan(session / "object" / "plan-replan.json")
+    assert [p.id for p in replan.poses[: len(pilot)]] == pilot
+    assert {p.purpose for p in replan.poses[: len(pilot)]} == {"taken"}
+    assert replan.parameters.region_theta_c_deg is not None
+    assert replan.parameters.region_theta_c_deg["2"] < 5
+    frames = Counter((e["pose"], e["exposure_index"]) for e in lines if e["event"] == "frame")
+    wanted = {(p.id, k) for p in replan.poses for k in range(len(p.exposures_s))}
+    assert set(frames) == wanted
+    assert set(frames.values()) == {1}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_the_adaptive_session_is_fitted_from_its_re_plan_and_kept_to_it(
+    stopped_then_resumed, capsys, tmp_path
+):
+    """``fit`` reads the re-plan the journal names (every region fitted; the narrow lobe's n within 5 %);
+    a plain ``acquire`` on the session is refused, naming --adaptive; a re-plan changed on disk is refused by
+    name; ``--adaptive`` on a session started without it is refused too."""
+    folder, _, _, _, _ = stopped_then_resumed
+    session = folder / "session"
+    assert main(["fit", str(session), "-o", str(tmp_path / "materials.json")]) == 0, capsys.readouterr().err
+    materials = {e.id: e for e in read_materials(tmp_path / "materials.json").regions}
+    assert set(materials) == {0, 1, 2, 3}
+    assert materials[2].n == pytest.approx(1500, rel=0.05)
+    assert materials[3].n == pytest.approx(400, rel=0.05)
+    capsys.readouterr()
+    assert main(["acquire", "--plan", str(folder / "plan.json"), "--sim", "--out", str(session)]) == 1
+    assert "continue it with acquire --adaptive" in capsys.readouterr().err
+    replan = session / "object" / "plan-replan.json"
+    replan.write_text(replan.read_text().replace('"taken"', '"highlights"', 1))
+    assert main(["fit", str(session), "-o", str(tmp_path / "again.json")]) == 1
+    assert "plan-replan.json) has changed since the run wrote it" in capsys.readouterr().err
+    plain = tmp_path / "plain"
+    (plain / "frames").mkdir(parents=True)
+    frame = {"event": "frame", "pose": "p000", "exposure_index": 0, "exposure_s": 0.01, "adaptive": True,
+             "dark": False, "clipped_pixels": 0, "file": "frames/p000-0.png", "sha256": "0" * 64,
+             "sidecar": "frames/p000-0.json", "sidecar_sha256": "0" * 64}  # fmt: skip
+    (plain / "journal.jsonl").write_text(json.dumps(frame) + "\n")
+    assert (
+        main(["acquire", "--plan", str(folder / "plan.json"), "--sim", "--adaptive", "--out", str(plain)])
+        == 1
+    )
+    assert "started without --adaptive" in capsys.readouterr().err

@@ -1,0 +1,118 @@
+"""What an adaptive run plans with (no rig, no renderer): a θc per region, lights already taken counted,
+and the pilot — the fewest of the plan's poses that show every region's highlight."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from hlr_lab.adaptive.pilot import PILOT_SAMPLES, cut_to, pilot_poses
+from hlr_lab.errors import InputError
+from hlr_lab.formats.plan import read_plan, write_plan
+from hlr_lab.object.procedural import pebble
+from hlr_lab.object.segment import segment
+from hlr_lab.pipeline import plan_object, plan_settings
+from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.planner import PlanSettings, TakenLight, plan_lights
+from hlr_lab.rig.file import sim_rig
+
+# vertices as the count unit, a coarse pebble and a coarse grid: each plan here takes about a second
+FAST = PlanSettings(count="vertices", min_samples=8, min_diffuse=0, spacing_deg=1.0, views_deg=(0.0, 90.0))
+
+
+@pytest.fixture(scope="module")
+def placed():
+    mesh = pebble(subdivisions=3).mesh
+    return mesh.transformed(placement(mesh)), segment(mesh)
+
+
+def test_each_region_counts_its_own_cone(placed):
+    """A plan made with a θc per region counts each region's samples in that region's cone: each of its
+    lights, counted again as a taken light under one θc for every region, gives the regions of that θc
+    exactly what the plan said (the per-region counts are the uniform ones, region by region)."""
+    mesh, seg = placed
+    rig = sim_rig()
+    thetas = (12.0, 3.0, 12.0, 3.0)
+    result = plan_lights(mesh, seg, rig, replace(FAST, region_theta_c_deg=thetas))
+    assert result.lights
+    for theta in set(thetas):
+        regions = [r for r, t in enumerate(thetas) if t == theta]
+        for light in result.lights:
+            again = plan_lights(mesh, seg, rig, replace(FAST, theta_c_deg=theta, max_lights=1),
+                                taken=[TakenLight(light.turntable_deg, light.light_world)])  # fmt: skip
+            recount = again.lights[0]
+            assert recount.purpose == "taken"
+            np.testing.assert_allclose(recount.expected[regions], light.expected[regions])
+    wide = plan_lights(mesh, seg, rig, replace(FAST, theta_c_deg=12.0))
+    narrow = plan_lights(mesh, seg, rig, replace(FAST, theta_c_deg=3.0))
+    assert len(wide.lights) < len(result.lights) < len(narrow.lights)  # narrow cones need more lights
+
+
+def test_lights_already_taken_are_counted_and_only_the_rest_is_planned(placed):
+    """Given a plan's first light as taken, the plan starts with it (its counts exact, as before) and adds
+    only what the regions still need; given all of them, it adds nothing and says so."""
+    mesh, seg = placed
+    rig = sim_rig()
+    first = plan_lights(mesh, seg, rig, FAST)
+    assert len(first.lights) >= 2
+    taken = [TakenLight(lt.turntable_deg, lt.light_world) for lt in first.lights]
+    again = plan_lights(mesh, seg, rig, FAST, taken=taken[:1])
+    assert again.lights[0].purpose == "taken"
+    np.testing.assert_allclose(again.lights[0].expected, first.lights[0].expected)
+    assert all(lt.purpose != "taken" for lt in again.lights[1:])
+    assert again.satisfied.all()
+    still = np.maximum(FAST.min_samples - first.lights[0].expected, 0)
+    added = np.sum([lt.expected for lt in again.lights[1:]], axis=0)
+    assert np.all(added[still > 0] > 0)  # every region still short was served
+    done = plan_lights(mesh, seg, rig, FAST, taken=taken)
+    assert [lt.purpose for lt in done.lights] == ["taken"] * len(taken)
+    assert done.optimum.status == "nothing to add"
+    assert done.satisfied.all()
+
+
+def test_a_theta_c_per_region_is_refused_unless_one_per_region_and_within_0_to_90(placed):
+    mesh, seg = placed
+    with pytest.raises(InputError, match="θc must lie in"):
+        PlanSettings(region_theta_c_deg=(5.0, 95.0))
+    with pytest.raises(InputError, match="2 regions' θc given for 4 regions"):
+        plan_lights(mesh, seg, sim_rig(), replace(FAST, region_theta_c_deg=(5.0, 6.0)))
+
+
+def test_the_plan_file_keeps_each_regions_theta_c_and_the_taken_poses(tmp_path):
+    mesh = pebble(subdivisions=3).mesh
+    settings = replace(FAST, region_theta_c_deg=(4.0, 9.0, 4.0, 9.0))
+    plan, result = plan_object(mesh, segment(mesh), sim_rig(), settings, mesh_spec="builtin:pebble",
+                               plan_folder=tmp_path)  # fmt: skip
+    write_plan(tmp_path / "plan.json", plan)
+    back = read_plan(tmp_path / "plan.json")
+    assert back.parameters.region_theta_c_deg == {"0": 4.0, "1": 9.0, "2": 4.0, "3": 9.0}
+    assert plan_settings(back).region_theta_c_deg == (4.0, 9.0, 4.0, 9.0)
+    assert plan_settings(back).min_diffuse == 0  # the plan's own, not the default
+    taken = [TakenLight(lt.turntable_deg, lt.light_world) for lt in result.lights[:1]]
+    again, _ = plan_object(mesh, segment(mesh), sim_rig(), settings, mesh_spec="builtin:pebble",
+                           plan_folder=tmp_path, taken=taken)  # fmt: skip
+    assert again.poses[0].purpose == "taken"
+
+
+def test_the_pilot_is_the_fewest_poses_showing_every_regions_highlight(tmp_path):
+    """Poses crafted on a real plan: a pose shows a region at min(50, M) samples, or at the most any pose
+    gives a region no pose gives that many; ties go to the plan's order; the pilot keeps the plan's order
+    and its coverage is what its poses give."""
+    mesh = pebble(subdivisions=3).mesh
+    plan, _ = plan_object(mesh, segment(mesh), sim_rig(), replace(FAST, max_lights=4, min_samples=400),
+                          mesh_spec="builtin:pebble", plan_folder=tmp_path)  # fmt: skip
+    assert len(plan.poses) == 4
+    assert PILOT_SAMPLES == 50
+    crafted = [{"0": 60.0, "1": 10.0}, {"1": 55.0}, {"0": 70.0, "1": 20.0, "2": 3.0}, {"2": 1.0, "3": 80.0}]
+    poses = [p.model_copy(update={"expected": e}) for p, e in zip(plan.poses, crafted, strict=True)]
+    plan = plan.model_copy(update={"poses": poses})
+    # region 2's best is pose 2's 3 samples; 0 and 2 from pose 2, 1 from pose 1, 3 from pose 3
+    assert pilot_poses(plan) == [poses[1].id, poses[2].id, poses[3].id]
+    cut = cut_to(plan, pilot_poses(plan))
+    assert [p.id for p in cut.poses] == [poses[1].id, poses[2].id, poses[3].id]
+    assert cut.coverage["1"].samples == 75.0
+    small_m = plan.model_copy(update={"parameters": plan.parameters.model_copy(update={"min_samples": 15.0})})
+    assert pilot_poses(small_m) == [poses[2].id, poses[3].id]  # M 15: pose 2's 20 samples show region 1 too
+    assert pilot_poses(plan.model_copy(update={"poses": []})) == []
