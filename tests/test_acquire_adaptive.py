@@ -5,6 +5,7 @@ region's θc measured, the rest planned again, stopped during the re-plan's pose
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,30 +40,17 @@ LOBES = (Lobe(8.0, 0.0), Lobe(40.0, 0.25), Lobe(1500.0, 0.05), Lobe(400.0, 0.25)
 
 @pytest.fixture(scope="module")
 def stopped_then_resumed(tmp_path_factory):
-    """The plan (M 400; the greedy alone, so that it is the same on any machine), the adaptive run stopped
+    """The plan (M 400, at most 6 lights — all it needs at 5°, too few for the narrow lobe's 3°; the greedy
+    alone, so that it is the same on any machine), the adaptive run stopped
     at the re-plan's first added pose, then resumed from the command line: (folder, the plan, the stop, the
     resumed run's exit status, the stages the first run announced)."""
     folder = tmp_path_factory.mktemp("adaptive")
     m = pebble().mesh
     ply = folder / "pebble.ply"
     trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(ply)
-    assert (
-        main(
-            [
-                "plan",
-                "--mesh",
-                str(ply),
-                "--sim",
-                "--min-samples",
-                "400",
-                "--optimum-budget",
-                "0",
-                "-o",
-                str(folder / "plan.json"),
-            ]
-        )
-        == 0
-    )
+    command = ["plan", "--mesh", str(ply), "--sim", "--min-samples", "400", "--optimum-budget", "0",
+               "--max-lights", "6", "-o", str(folder / "plan.json")]  # fmt: skip
+    assert main(command) == 0
     plan = read_plan(folder / "plan.json")
     scene = ["[object]", f'mesh = "{ply}"', "", "[light]", 'type = "point"', "power = 1.0"]
     for region, lobe in zip(plan.object.regions, LOBES, strict=True):
@@ -102,10 +90,11 @@ def journal(session: Path) -> list[dict]:
 def test_an_adaptive_run_measures_each_regions_theta_c_and_plans_the_rest_for_it(stopped_then_resumed):
     """The journal holds one pilot (a subset of the plan's poses, in its order) and one re-plan: the
     region without a highlight re-planned from the prior 5° and saying why, the wide lobe's θc above 5°,
-    the narrow dim one's below it — which is where the re-plan adds poses. The stop came during the added
-    poses; the resumed run took the rest and retook nothing: every frame of the re-plan once."""
+    the narrow dim one's below it — which is where the re-plan adds poses, up to the plan's 6 lights, and
+    names the narrow region short of them (exit status 3, as plan's). The stop came during the added poses;
+    the resumed run took the rest and retook nothing: every frame of the re-plan once."""
     folder, plan, _, status, stages = stopped_then_resumed
-    assert status == 0
+    assert status == 3
     assert stages[0].startswith("pilot: ")
     session = folder / "session"
     lines = journal(session)
@@ -126,6 +115,9 @@ def test_an_adaptive_run_measures_each_regions_theta_c_and_plans_the_rest_for_it
     assert regions["2"]["theta_c_deg"] < 5
     assert regions["2"]["n"] == pytest.approx(1500, rel=0.1)
     assert replans[0]["added"]
+    assert len(pilot) + len(replans[0]["added"]) == 6
+    assert "2" in replans[0]["short"]
+    assert "--max-lights 6" in replans[0]["short"]["2"]
     assert not set(replans[0]["added"]) & set(ids)  # new poses, new ids
     assert any(e["event"] == "stopped" for e in lines)
     replan = read_plan(session / "object" / "plan-replan.json")
@@ -145,8 +137,10 @@ def test_the_adaptive_session_is_fitted_from_its_re_plan_and_kept_to_it(
     stopped_then_resumed, capsys, tmp_path
 ):
     """``fit`` reads the re-plan the journal names (every region fitted; the narrow lobe's n within 5 %);
-    a plain ``acquire`` on the session is refused, naming --adaptive; a re-plan changed on disk is refused by
-    name; ``--adaptive`` on a session started without it is refused too."""
+    ``acquire --adaptive`` again on the finished session takes nothing and prints each region's θc, the
+    poses and the short region (exit status 3); a plain ``acquire`` on the session is refused, naming
+    --adaptive; a re-plan changed on disk is refused by name; ``--adaptive`` on a session started without
+    it is refused too."""
     folder, _, _, _, _ = stopped_then_resumed
     session = folder / "session"
     assert main(["fit", str(session), "-o", str(tmp_path / "materials.json")]) == 0, capsys.readouterr().err
@@ -155,6 +149,15 @@ def test_the_adaptive_session_is_fitted_from_its_re_plan_and_kept_to_it(
     assert materials[2].n == pytest.approx(1500, rel=0.05)
     assert materials[3].n == pytest.approx(400, rel=0.05)
     capsys.readouterr()
+    again = ["acquire", "--plan", str(folder / "plan.json"), "--sim", "--scene", str(folder / "scene.toml"),
+             "--adaptive", "--out", str(session)]  # fmt: skip
+    assert main(again) == 3  # done already: nothing taken, the same table and the same short region
+    printed = capsys.readouterr().err
+    assert "θc measured on the pilot" in printed
+    assert re.search(
+        r"photographed 6 poses: the pilot's \d and \d the re-plan added \(the plan as made: 6\)", printed
+    )
+    assert re.search(r"region 2: only \d+ of 400 samples within --max-lights 6", printed)
     assert main(["acquire", "--plan", str(folder / "plan.json"), "--sim", "--out", str(session)]) == 1
     assert "continue it with acquire --adaptive" in capsys.readouterr().err
     replan = session / "object" / "plan-replan.json"

@@ -31,10 +31,10 @@ SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.to
 @pytest.fixture(scope="module")
 def night_bench(tmp_path_factory) -> tuple[Path, str]:
     """``hlr-lab bench calibration`` with the camera's default 24 views (16 leave the principal point
-    1.25 px off, past its 1 px target), 12 lamp poses and 4-pose runs on builtin:bench-night, once for the
-    module: its folder (what ``calibrate all`` leaves, then the runs)
-    and what it printed. Its first part is ``calibrate all --board-along-zero`` with a 30-minute warm-up,
-    through the same library function as the command."""
+    1.25 px off, past its 1 px target), 12 lamp poses and the plan's own 2-pose runs on builtin:bench-night,
+    once for the module: its folder (what ``calibrate all`` leaves, then the runs) and what it printed. Its
+    first part is ``calibrate all --board-along-zero`` with a 30-minute warm-up, through the same library
+    function as the command."""
     folder = tmp_path_factory.mktemp("bench") / "b"
     printed = io.StringIO()
     command = [
@@ -45,7 +45,7 @@ def night_bench(tmp_path_factory) -> tuple[Path, str]:
         "--poses",
         "12",
         "--run-poses",
-        "4",
+        "2",
         "--out",
         str(folder),
     ]

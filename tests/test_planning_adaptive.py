@@ -52,7 +52,8 @@ def test_each_region_counts_its_own_cone(placed):
 
 def test_lights_already_taken_are_counted_and_only_the_rest_is_planned(placed):
     """Given a plan's first light as taken, the plan starts with it (its counts exact, as before) and adds
-    only what the regions still need; given all of them, it adds nothing and says so."""
+    only what the regions still need, within --max-lights counting the taken one; given all of them, it
+    adds nothing and says so."""
     mesh, seg = placed
     rig = sim_rig()
     first = plan_lights(mesh, seg, rig, FAST)
@@ -66,6 +67,10 @@ def test_lights_already_taken_are_counted_and_only_the_rest_is_planned(placed):
     still = np.maximum(FAST.min_samples - first.lights[0].expected, 0)
     added = np.sum([lt.expected for lt in again.lights[1:]], axis=0)
     assert np.all(added[still > 0] > 0)  # every region still short was served
+    limited = plan_lights(mesh, seg, rig, replace(FAST, max_lights=1), taken=taken[:1])
+    assert [lt.purpose for lt in limited.lights] == ["taken"]  # --max-lights counts the taken ones too
+    assert limited.uncovered
+    assert all("--max-lights 1" in why for why in limited.uncovered.values())
     done = plan_lights(mesh, seg, rig, FAST, taken=taken)
     assert [lt.purpose for lt in done.lights] == ["taken"] * len(taken)
     assert done.optimum.status == "nothing to add"

@@ -157,7 +157,7 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
                 console.print(
                     f"adaptive: the pilot takes {', '.join(pilot_poses(plan))}; the rest is planned again"
                 )
-            return
+            return 0
         lamp = LampWatch(every=lamp_every, warm_up_s=60 * warm_up_min, stable_per_min=warm_up_within / 100)
         options = _RunOptions(
             links=links,
@@ -179,8 +179,7 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
     # the last line: what the devices confirmed (a run that stops says it in its error)
     if outcome.safe is not None:
         console.print(f"the rig is safe: {escape(outcome.safe.sentence())}", soft_wrap=True)
-    if short:  # as plan says of a plan that leaves regions short
-        raise SystemExit(EXIT_UNCOVERED)
+    return EXIT_UNCOVERED if short else 0  # as plan's, for a re-plan that leaves regions short
 
 
 class _RunOptions(TypedDict):

@@ -24,6 +24,7 @@ from hlr_lab.cli.calibrate_cmd import count_option
 from hlr_lab.cli.common import FILE, FOLDER, Finite, placement_options, speed_factor_option, true_rig_option
 from hlr_lab.cli.console import console, out
 from hlr_lab.errors import InputError
+from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.rig.file import load_rig, sim_rig
 
 
@@ -243,6 +244,46 @@ def bench_materials(scenes, objects, assets, rig_path, true_rig, seed, out_dir) 
         if out_dir is not None:
             save_results(folder / "materials-bench.json", results)
     _print(coverage_lines(results))
+
+
+@bench.command("adaptive")
+@click.option("--cases", default="n 8,n 40,n 400,n 8/40/400,narrow", show_default=True,
+              help="Comma-separated: the lobes the regions take in turn (benchmarks/adaptive.py CASES).")  # fmt: skip
+@click.option("--objects", default="pebble", show_default=True,
+              help="Comma-separated, from pebble, bunny, spot (bunny and spot need --assets).")  # fmt: skip
+@click.option("--assets", "assets", type=FOLDER,
+              help="A folder with stanford-bunny.obj and spot/ (spot_triangulated.obj, spot_texture.png).")  # fmt: skip
+@click.option("--min-samples", type=Finite(1, 1e7), default=PlanSettings().min_samples, show_default=True,
+              help="M of the plan each case starts from.")  # fmt: skip
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--out", "out_dir", type=FOLDER,
+              help="Keep every case's plan, truth and both sessions here (a new folder).")  # fmt: skip
+def bench_adaptive(cases, objects, assets, min_samples, seed, out_dir) -> None:
+    """The closed loop against the plan as made: each case's object planned with the default θc, then
+    photographed on the simulated rig twice in the same world — the plan as it is, and adaptively (a
+    pilot, each region's θc measured, the rest planned again) — and both fitted. Prints per case the poses
+    each photographed and the worst region's Rd, Rs and n errors against the truth.
+
+    \b
+    Examples:
+      hlr-lab bench adaptive
+      hlr-lab bench adaptive --min-samples 400 --objects pebble,bunny --assets ../shared/assets
+    """
+    from benchmarks.adaptive import CASES, adaptive_bench, case_line, header
+    from benchmarks.calibration import bench_folder  # the simulator: CLI only
+
+    chosen = tuple(c.strip() for c in cases.split(",") if c.strip())
+    unknown = sorted(set(chosen) - set(CASES))
+    if unknown or not chosen:
+        raise InputError(
+            f"unknown case(s) {', '.join(unknown) or '(none)'}; use {', '.join(CASES)}", field="--cases"
+        )
+    settings = PlanSettings(min_samples=min_samples)
+    with bench_folder(out_dir) as folder, console.status("") as status:
+        _print(header())
+        adaptive_bench(folder, sim_rig(), cases=chosen, objects=_bench_objects(objects), assets=assets,
+                       settings=settings, seed=seed, progress=status.update,
+                       done=lambda f: _print([case_line(f)]))  # fmt: skip
 
 
 @bench.command("register")

@@ -328,6 +328,7 @@ class _Planner:
     ):
         self.rig, self.settings = rig, settings
         self.n_regions = segmentation.n_regions
+        self.n_taken = len(taken)
         self.theta_c = settings.theta_c_rad(self.n_regions)  # (R,)
         # the grid and the pools follow the narrowest cone: coarser ones would step over its highlights
         narrowest_deg = float(np.degrees(self.theta_c.min(initial=np.radians(settings.theta_c_deg))))
@@ -443,7 +444,7 @@ class _Planner:
             lambda v, q, n: self.evaluate(v, q, n, capped),
             need,
             capped=capped,
-            max_lights=self.settings.max_lights,
+            max_lights=self.settings.max_lights - self.n_taken,  # the plan's lights, taken ones included
             taken=taken,
         )
         refined = {key: self._refined[key][0] for key in ((c.view, c.candidate) for c in selection.choices)}
@@ -452,7 +453,7 @@ class _Planner:
     def fewest_lights(self, runs: list[_Run], need: np.ndarray) -> tuple[_Run, PlanOptimum]:
         """The run with the fewest lights (pruned) that satisfies what ``runs[0]`` does, adding the integer
         programme's cover, and what the set multicover says of it."""
-        m = need
+        m = need  # (R,) each region's M, less what the lights already taken give it
         runs = [replace(r, selection=prune(r.selection, m)) for r in runs]
         if not (need > 0).any():  # the lights already taken give every region what it needs
             return runs[0], PlanOptimum(0, 0.0, True, f"greedy ({runs[0].name})", "nothing to add", 0.0)
@@ -506,7 +507,7 @@ class _Planner:
         exact counts; where they fall short its lights' estimates are replaced by their exact counts and
         the programme solved again (as the greedy does light by light). A cover that still falls short when
         the budget ends is returned unproven: the greedy completes it from there."""
-        m, budget = need, self.settings.optimum_budget_s
+        m, budget = need, self.settings.optimum_budget_s  # m (R,): each region's target
         counts, q, start = counts.copy(), len(self.cands.coarse), time.perf_counter()
         exact = np.zeros(len(counts), bool)
         full = need
