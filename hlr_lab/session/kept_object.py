@@ -61,19 +61,24 @@ def kept_plan(session: Path, copy: object) -> tuple[PlanFile, Path]:
             "backup of the session",
             path=session / "session.json",
         )
-    path = session / PLAN_COPY
+    path = checked_file(session, PLAN_COPY, copy["sha256"], "copy of its plan", "the session started")
+    return read_plan(path), path
+
+
+def checked_file(session: Path, name: str, sha256: str, what: str, since: str) -> Path:
+    """``session``/``name``, refused (:class:`InputError` saying ``what`` it is) when it is missing or its
+    sha256 is no longer the one recorded when ``since``."""
+    path = session / name
     if not path.is_file():
         raise InputError(
-            f"the session's copy of its plan ({copy['file']}) is missing; restore the session folder whole",
-            path=session,
+            f"the session's {what} ({name}) is missing; restore the session folder whole", path=session
         )
-    if file_sha256(path) != copy["sha256"]:
+    if file_sha256(path) != sha256:
         raise InputError(
-            f"the session's copy of its plan ({copy['file']}) has changed since the session started; restore "
-            "it from a backup of the session",
+            f"the session's {what} ({name}) has changed since {since}; restore it from a backup of the session",
             path=session,
         )
-    return read_plan(path), path
+    return path
 
 
 def companions(mesh: Path) -> list[str]:

@@ -16,9 +16,10 @@ from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan, write_plan
 from hlr_lab.object.mesh import file_sha256
 from hlr_lab.session.events import JournalLine, StagePlan
-from hlr_lab.session.kept_object import OBJECT
+from hlr_lab.session.kept_object import OBJECT, checked_file
 
 STAGES = ("pilot", "replan")  # the journal lines that name a plan, in the order a run writes them
+_NAMES = {"pilot": "pilot's plan", "replan": "re-plan"}
 
 
 def stage_file(stage: str) -> str:
@@ -66,16 +67,5 @@ def stage_plan(session: Path, line: JournalLine) -> tuple[PlanFile, Path]:
             "from a backup of the session",
             path=session / "journal.jsonl",
         )
-    path = session / named["file"]
-    if not path.is_file():
-        raise InputError(
-            f"the session's {line['event']} plan ({named['file']}) is missing; restore the session folder whole",
-            path=session,
-        )
-    if file_sha256(path) != named["sha256"]:
-        raise InputError(
-            f"the session's {line['event']} plan ({named['file']}) has changed since the run wrote it; restore "
-            "it from a backup of the session",
-            path=session,
-        )
+    path = checked_file(session, named["file"], named["sha256"], _NAMES[line["event"]], "the run wrote it")
     return read_plan(path), path

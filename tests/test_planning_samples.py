@@ -1,0 +1,47 @@
+"""The surface samples of a scanned mesh: millions of vertices, each far under a pixel, merged into
+samples of a few pixels (what planning counts them by), without mixing regions or the two sides of a
+thin part."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.segment import segment
+from hlr_lab.planning.samples import merged_vertices
+
+
+def thin_plate() -> ColouredMesh:
+    """A 10 × 10 cm plate 1 mm thick, finely subdivided, its left half red and its right half blue."""
+    box = trimesh.creation.box(extents=(0.1, 0.1, 0.001))
+    v, f = box.vertices, box.faces
+    for _ in range(6):
+        v, f = trimesh.remesh.subdivide(v, f)[:2]
+    colours = np.where(v[:, :1] < 0, [[200, 40, 40]], [[40, 60, 200]]).astype(np.uint8)
+    return ColouredMesh(np.asarray(v, np.float64), np.asarray(f, np.int64), colours)
+
+
+def test_merged_vertices_keep_each_regions_area_and_never_mix_sides_or_regions():
+    """Cells of 5 mm hold the plate's top and bottom (1 mm apart) and its two colours: the merged samples
+    are far fewer, each region keeps its whole area, every sample's normal is one face's (±z or a side:
+    an average of top and bottom would lie in between), and each sample lies on its region's half."""
+    mesh = thin_plate()
+    seg = segment(mesh)
+    assert seg.n_regions == 2
+    merged = merged_vertices(mesh, seg, 0.005)
+    assert len(merged) < len(mesh.vertices) / 10
+    np.testing.assert_allclose(
+        np.bincount(merged.region, weights=merged.area),
+        np.bincount(seg.vertex_labels, weights=mesh.vertex_areas),
+    )
+    np.testing.assert_allclose(np.linalg.norm(merged.normal, axis=1), 1.0)
+    along = np.abs(merged.normal).max(axis=1)
+    assert along.min() > 0.7  # a face's normal, or a corner's between two faces: never top and bottom
+    top = merged.normal[:, 2] > 0.9
+    bottom = merged.normal[:, 2] < -0.9
+    assert np.all(merged.point[top, 2] > 0)
+    assert np.all(merged.point[bottom, 2] < 0)
+    left = seg.vertex_labels[np.argmin(mesh.vertices[:, 0])]
+    face = top | bottom
+    assert np.all((merged.point[face, 0] < 0) == (merged.region[face] == left))
