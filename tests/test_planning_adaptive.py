@@ -121,3 +121,17 @@ def test_the_pilot_is_the_fewest_poses_showing_every_regions_highlight(tmp_path)
     small_m = plan.model_copy(update={"parameters": plan.parameters.model_copy(update={"min_samples": 15.0})})
     assert pilot_poses(small_m) == [poses[2].id, poses[3].id]  # M 15: pose 2's 20 samples show region 1 too
     assert pilot_poses(plan.model_copy(update={"poses": []})) == []
+
+
+def test_a_plan_without_a_highlight_has_no_pilot_and_is_refused_before_anything_opens(tmp_path):
+    from hlr_lab.adaptive.run import acquire_adaptive
+
+    mesh = pebble(subdivisions=3).mesh
+    plan, _ = plan_object(
+        mesh, segment(mesh), sim_rig(), FAST, mesh_spec="builtin:pebble", plan_folder=tmp_path
+    )
+    dark = plan.model_copy(update={"poses": [p.model_copy(update={"expected": {}}) for p in plan.poses]})
+    write_plan(tmp_path / "plan.json", dark)
+    with pytest.raises(InputError, match="no pose of the plan puts a highlight on any region"):
+        acquire_adaptive(tmp_path / "plan.json", sim_rig(), tmp_path / "session")
+    assert not (tmp_path / "session").exists()

@@ -99,6 +99,12 @@ def acquire_adaptive(
                             progress=progress, lamp=lamp)  # fmt: skip
     pilot_run, announced = None, False
     pilot = list(lines["pilot"]["poses"]) if "pilot" in lines else pilot_poses(original)
+    if not pilot:
+        raise InputError(
+            "no pose of the plan puts a highlight on any region, so there is no pilot to measure θc from; plan "
+            "again (hlr-lab plan says which regions it cannot reach and why)",
+            path=plan_path,
+        )
     if "replan" not in lines:
         stage = (
             stage_plan(session, lines["pilot"]) if "pilot" in lines else (cut_to(original, pilot), plan_path)
