@@ -46,9 +46,10 @@ def cut_to(plan: PlanFile, poses: list[str]) -> PlanFile:
         samples = sum(p.expected.get(rid, 0.0) for p in kept)
         diffuse = sum((p.expected_diffuse or {}).get(rid, 0.0) for p in kept)
         needed = old.needed if old.needed is not None else plan.parameters.min_samples
+        diffuse_needed = old.diffuse_needed or 0.0
         coverage[rid] = RegionCoverage(
             samples=round(samples, 1),
-            satisfied=samples >= needed,
+            satisfied=samples >= needed and diffuse >= diffuse_needed,  # both, as a plan's coverage says
             needed=old.needed,
             diffuse_samples=round(diffuse, 1),
             diffuse_needed=old.diffuse_needed,

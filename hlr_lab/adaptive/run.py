@@ -139,6 +139,13 @@ def _stage_lines(session: Path) -> dict[str, JournalLine]:
     journal = session / JOURNAL
     events = read_journal(journal) if journal.is_file() else []
     lines = stage_lines(events)
+    poses = lines["pilot"].get("poses") if "pilot" in lines else []
+    if not (isinstance(poses, list) and all(isinstance(p, str) for p in poses)):
+        raise InputError(
+            f"the journal's pilot line does not list its poses ({poses!r}); restore the journal from a backup "
+            "of the session",
+            path=journal,
+        )
     if not lines and any(e.get("event") == "frame" for e in events):
         raise InputError(
             "this session was started without --adaptive: continue it without --adaptive, or give a new --out",

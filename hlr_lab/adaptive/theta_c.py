@@ -19,15 +19,14 @@ PLANNING_THETA_C_DEG = (1.0, 30.0)
 
 @dataclass(frozen=True)
 class RegionCone:
-    """A region's θc for the re-plan (degrees): ``measured`` on the pilot (``n`` the fitted exponent,
-    ``fitted_deg`` the fit's θc before it was held within PLANNING_THETA_C_DEG) or the ``prior`` (the plan's),
-    with ``reason`` saying why."""
+    """A region's θc for the re-plan (degrees): ``measured`` on the pilot (``n`` the fitted exponent) or the
+    ``prior`` (the plan's), with ``reason`` saying why (or, measured, that the fit's θc was held within
+    PLANNING_THETA_C_DEG)."""
 
     region: int
     theta_c_deg: float
     source: Literal["measured", "prior"]
     n: float | None = None
-    fitted_deg: float | None = None
     reason: str | None = None
 
     def as_line(self) -> RegionThetaC:
@@ -60,5 +59,5 @@ def region_cones(plan: PlanFile, pilot: MaterialsFile) -> list[RegionCone]:
             reason = (
                 f"the fit's {e.theta_c_deg:.1f}° held at {held:g}° (the planner's cones: {low:g}–{high:g}°)"
             )
-        cones.append(RegionCone(region.id, held, "measured", n=e.n, fitted_deg=e.theta_c_deg, reason=reason))
+        cones.append(RegionCone(region.id, held, "measured", n=e.n, reason=reason))
     return cones
