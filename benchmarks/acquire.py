@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmarks.numerical import SessionFitFigures, run_session_fit_case
-from drivers.protocols import Camera, Positioner, RawFrame
+from drivers.protocols import Camera, Positioner, RawFrame, StreamCounters
 from hlr_lab.acquisition.poses import Step, acquire
+from hlr_lab.display.acquire import stream_line
 from hlr_lab.formats.plan import PlanFile, write_plan
 from hlr_lab.instrument.control import open_rig
 from hlr_lab.instrument.instruments import Instruments
@@ -95,6 +96,9 @@ class TimedCamera:
     def close(self) -> None:
         self.inner.close()
 
+    def statistics(self) -> dict[str, int]:
+        return self.inner.statistics() if isinstance(self.inner, StreamCounters) else {}
+
 
 @dataclass
 class PoseFigures:
@@ -116,6 +120,9 @@ class AcquireFigures:
     total_s: float = 0.0
     drain_s: float = 0.0  # after the last pose: storing the frames still queued
     peak_rss_mb: float = 0.0
+    packet_loss: float = 0.0  # the simulated camera's stream packets lost on their first sending
+    camera_stream: dict[str, int] = field(default_factory=dict)  # its counters over the run (Aravis's)
+    retries: int = 0  # device exchanges retried (a frame incomplete beyond its resends among them)
 
     def median(self, attribute: str) -> float:
         return statistics.median(getattr(p, attribute) for p in self.poses)
@@ -136,14 +143,17 @@ def repeated_poses(plan: PlanFile, n: int) -> PlanFile:
     return plan.model_copy(update={"poses": poses})
 
 
-def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None) -> AcquireFigures:
+def acquire_figures(
+    *, poses: int, speed_factor: float, keep: Path | None = None, packet_loss: float = 0.0
+) -> AcquireFigures:
     """Acquire ``poses`` poses of builtin:pebble's plan (cycled) on the simulated rig into a scratch
-    session, or into ``keep``/session (a whole session: its plan.json beside it, for ``fit``)."""
+    session, or into ``keep``/session (a whole session: its plan.json beside it, for ``fit``), the
+    simulated GigE Vision camera losing ``packet_loss`` of its stream packets on their first sending."""
     rig = sim_rig()
     plan = repeated_poses(builtin_plan(rig), poses)
     targets = motion_targets(plan, rig)
     waiting, capturing = Stopwatch(), Stopwatch()
-    figures = AcquireFigures()
+    figures = AcquireFigures(packet_loss=packet_loss)
     scene = sim_scene(plan, Path.cwd(), None)  # a built-in object: no file is read
     with (
         SimRig(scene=scene, speed_factor=speed_factor, **world_geometry(rig)) as world,
@@ -154,6 +164,8 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
             plan_path = keep / "plan.json"
             write_plan(plan_path, plan)
             start_or_resume(session, plan_path, file_sha256(plan_path), rig, force=False)
+        assert world.gige is not None  # the simulated rig's camera is a GigE Vision device
+        world.gige.faults.drop_ratio = packet_loss
         with open_rig(rig, world_links(world)) as opened:
             marks = [_mark(world, waiting, capturing)]
 
@@ -177,7 +189,8 @@ def acquire_figures(*, poses: int, speed_factor: float, keep: Path | None = None
                 progress=on_step,
             )
             figures.total_s = time.perf_counter() - started
-    figures.frames = outcome.taken
+    figures.frames, figures.retries = outcome.taken, outcome.retries
+    figures.camera_stream = outcome.camera_stream or {}
     figures.drain_s = figures.total_s - (marks[-1][0] - started)
     figures.poses = [
         PoseFigures(*(b - a for a, b in zip(m0, m1, strict=True))) for m0, m1 in itertools.pairwise(marks)
@@ -210,6 +223,8 @@ def report(f: AcquireFigures, speed_factor: float) -> list[str]:
         f"transactions per pose, median: servo {f.median('servo_transactions'):.0f}, "
         f"Modbus {f.median('modbus_transactions'):.0f}",
         f"storing the frames still queued after the last pose: {f.drain_s * 1e3:.0f} ms",
+        f"camera packets over the run (GigE Vision, {f.packet_loss:.0%} lost on first sending): received / "
+        f"resent / missing {stream_line(f.camera_stream)}; device retries {f.retries}",
         f"peak RSS {f.peak_rss_mb:.0f} MB",
     ]
 

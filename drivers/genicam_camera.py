@@ -28,6 +28,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,28 @@ STREAM_STATISTICS = ("n_completed_buffers", "n_failures", "n_timeouts", "n_missi
                      "n_received_packets", "n_missing_packets", "n_resend_requests", "n_resent_packets",
                      "n_size_mismatch_errors", "n_underruns", "n_ignored_packets", "n_duplicated_packets",
                      "n_error_packets")  # fmt: skip
+
+
+RMEM_MAX = Path("/proc/sys/net/core/rmem_max")  # Linux: the largest receive buffer a socket may ask for
+
+
+def receive_buffer_cap() -> int | None:
+    """The largest receive buffer (bytes) the kernel grants a UDP socket, ``net.core.rmem_max`` (read from
+    :data:`RMEM_MAX`); None where it cannot be read (not Linux)."""
+    try:
+        return int(RMEM_MAX.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def short_buffer_advice(cap: int, frame_bytes: int) -> str:
+    """What to do when a GigE Vision stream's socket cannot hold a whole frame: the packets that arrive
+    while the receiving thread waits for a core, beyond ``cap`` bytes, are dropped and must be resent
+    (measured in docs/camera.md: up to 320 of a frame's 826 packets at a 4 MiB cap, none at 16 MiB)."""
+    room = 1 << max(frame_bytes - 1, 1).bit_length()  # the next power of two above a frame
+    return (f"the kernel caps a socket's receive buffer at {cap:,} bytes (net.core.rmem_max), less than a "
+            f"frame's {frame_bytes:,}: on a busy computer the rest of a frame is dropped and must be resent; "
+            f"raise it: sudo sysctl -w net.core.rmem_max={room}")  # fmt: skip
 
 
 class AravisMissing(DeviceError):
@@ -187,6 +210,8 @@ class GenICamCamera:
             # packets — and resends that may bring back all that was dropped (Aravis's default: a quarter)
             self._stream.set_property("socket-buffer", self._arv.GvStreamSocketBuffer.AUTO)
             self._stream.set_property("packet-request-ratio", 1.0)
+            if (cap := receive_buffer_cap()) is not None and cap < self._payload:
+                log.warning("%s: %s", self.name, short_buffer_advice(cap, self._payload))
         for _ in range(N_BUFFERS):
             self._stream.push_buffer(self._arv.Buffer.new_allocate(self._payload))
         self._call(self._camera.start_acquisition)
@@ -346,6 +371,9 @@ class GenICamCamera:
         )
         about["pixel_format"] = self.pixel_format
         about["exposure_s"] = self.exposure_s
+        about["frame_bytes"] = self._payload
+        if self._camera.is_gv_device() and (cap := receive_buffer_cap()) is not None:
+            about["receive_buffer_cap_bytes"] = cap
         return about
 
     def close(self) -> None:

@@ -59,6 +59,17 @@ class Thermometer(Protocol):
 
 
 @runtime_checkable
+class StreamCounters(Protocol):
+    """A camera whose transport counts its packets (GigE Vision and USB3 Vision through Aravis): what a
+    run journals of its link, beside the frames (docs/sessions.md, "The journal")."""
+
+    def statistics(self) -> dict[str, int]:
+        """The stream's counters since the camera was opened, by Aravis's names (``n_received_packets``,
+        ``n_resent_packets``, ``n_missing_packets``, …); {} before it streams."""
+        ...
+
+
+@runtime_checkable
 class Clock(Protocol):
     """The rig's time: seconds from any origin, and a wait in them. The wall clock on a real rig; a
     simulated world's own (faster, and still while it renders) on a simulated one."""

@@ -124,6 +124,11 @@ def test_acquire_then_resume(sim_world, rig, plan_file, tmp_path):
     assert latest["file"].endswith("_e1_a2.png")
     assert [e["event"] for e in events].count("run_start") == 3
     assert events[-1]["event"] == "run_end"
+    # the GigE Vision camera's link over the run (its own counters, since it was opened): the frame's
+    # packets arrived, none went missing
+    stream = events[-1]["camera_stream"]
+    assert stream["n_received_packets"] >= 640 * 480 * 3 * 2 // 9000
+    assert stream["n_missing_packets"] == 0
 
 
 def test_no_goal_outside_the_limits_ever_reaches_the_devices(sim_world, rig, plan_file, tmp_path):
@@ -163,6 +168,7 @@ def test_cli_acquire_dry_run_resume_and_changed_plan(builtin_plan, tmp_path, cap
     summary = capsys.readouterr().err
     assert re.search(rf"frames taken\s+│\s+{frames} ", summary)
     assert re.search(rf"poses moved to\s+│\s+{len(plan.poses)} ", summary)
+    assert re.search(r"camera packets \(received / resent / missing\)\s+│\s+[\d,]+ / [\d,]+ / 0 ", summary)
     # the last line: what the devices confirmed, as the journal's safe_state line has it
     last = summary.strip().splitlines()[-1]
     assert last.startswith("the rig is safe: "), last

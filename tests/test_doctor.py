@@ -232,3 +232,29 @@ def test_the_example_rig_file_on_a_bench_with_nothing_plugged_in(tmp_path, capfd
     assert found["calibration: radiometric"].message == "never calibrated: run hlr-lab calibrate radiometric"
     assert "cannot open the port" in found["gantry"].message
     assert "cannot open; check the device path" in found["camera"].message
+
+
+def test_a_socket_buffer_smaller_than_a_frame_is_a_warning_with_the_command(tmp_path, monkeypatch, capsys):
+    """A kernel that caps a socket's receive buffer below a frame (net.core.rmem_max): a loaded computer drops
+    the rest of each frame and the camera must resend it (docs/camera.md). The doctor says so with the
+    command that fixes it; with room for a frame it says nothing. (The kernel's file is replaced by one of
+    known content: the test must not depend on this machine's setting.)"""
+    import drivers.genicam_camera as genicam
+
+    cap = tmp_path / "rmem_max"
+    monkeypatch.setattr(genicam, "RMEM_MAX", cap)
+    cap.write_text("4194304\n")
+    assert main(["doctor", "--sim"]) == 0  # a warning: the run works, with resends
+    flat = re.sub(r"[│\s]+", " ", capsys.readouterr().err)
+    # the simulated camera's RGB12 frame: 1280 × 960 × 3 × 2 bytes, and its chunks
+    assert (
+        "caps a socket's receive buffer at 4,194,304 bytes (net.core.rmem_max), less than a frame's 7,374,896"
+        in flat
+    )
+    assert "sudo sysctl -w net.core.rmem_max=8388608" in flat
+    cap.write_text("16777216\n")
+    assert main(["doctor", "--sim"]) == 0
+    assert "rmem_max" not in capsys.readouterr().err
+    cap.unlink()  # not Linux: nothing to say
+    assert main(["doctor", "--sim"]) == 0
+    assert "rmem_max" not in capsys.readouterr().err

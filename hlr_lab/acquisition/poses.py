@@ -23,7 +23,7 @@ from typing import Protocol
 import numpy as np
 
 from drivers.errors import RETRY, ChecksumError, DeviceError, DeviceTimeout
-from drivers.protocols import Camera, RawFrame
+from drivers.protocols import Camera, RawFrame, StreamCounters
 from drivers.retrying import retried
 from hlr_lab.acquisition.white_reference import Reading
 from hlr_lab.errors import InputError
@@ -77,6 +77,7 @@ class Outcome:
     reference_poses: int | None = None
     reference_measured: int = 0
     safe: SafeState | None = None  # what the devices confirmed when the run ended (set by the run's owner)
+    camera_stream: dict[str, int] | None = None  # the camera's packet counters, where it counts them
 
     def summary(self) -> RunSummary:
         """The figures of the journal's ``run_end`` / ``stopped`` line."""
@@ -92,6 +93,8 @@ class Outcome:
             summary["lamp_on_reference"] = OnReference(
                 poses=self.reference_poses, measured=self.reference_measured
             )
+        if self.camera_stream:
+            summary["camera_stream"] = self.camera_stream
         return summary
 
 
@@ -203,13 +206,13 @@ def acquire(
                 if watch and lamp.every and since_reference:
                     watch.shoot(partial(_report, progress, len(targets) - 1, len(targets), "lamp"))
         except BaseException as exc:  # an interrupt too: the journal says why the run ended
-            _finish(outcome, started, retries.count, writer.stored)
+            _finish(outcome, started, retries.count, writer.stored, instruments.camera)
             reason = str(exc) or type(exc).__name__
             journal.append_last(
                 RunEndLine(event="stopped", at=time.time(), reason=reason, **outcome.summary())
             )
             raise
-        _finish(outcome, started, retries.count, writer.stored)
+        _finish(outcome, started, retries.count, writer.stored, instruments.camera)
         if outcome.reference_poses and not outcome.reference_measured:
             log.warning(
                 "the white reference beside the object was not seen lit in any of the %d poses taken: check "
@@ -235,9 +238,15 @@ def _report(progress: Callable[[Step], None], index: int, poses: int, pose: str,
     progress(Step(index, poses, pose, action))
 
 
-def _finish(outcome: Outcome, started: float, retries: int, stored: int) -> None:
-    """Close the account: only frames whose journal line is on disk count as taken."""
+def _finish(outcome: Outcome, started: float, retries: int, stored: int, camera: Camera) -> None:
+    """Close the account: only frames whose journal line is on disk count as taken; the camera's packet
+    counters, where it keeps them."""
     outcome.duration_s, outcome.retries, outcome.taken = time.monotonic() - started, retries, stored
+    if isinstance(camera, StreamCounters):
+        try:
+            outcome.camera_stream = camera.statistics()
+        except Exception:  # a camera that failed may not answer even this: the run's last line comes first
+            log.warning("the camera's stream counters could not be read", exc_info=True)
 
 
 class _RetryJournal(logging.Handler):

@@ -141,21 +141,25 @@ def bench_sim(transactions, frames) -> None:
 @bench.command("acquire")
 @click.option("--poses", type=click.IntRange(2, 10_000), default=20)
 @speed_factor_option("Simulated", default=1000.0)  # fast: waiting for motion must hide nothing
-def bench_acquire(poses, speed_factor) -> None:
+@click.option("--packet-loss", type=click.FloatRange(0.0, 0.5), default=0.0, show_default=True,
+              help="Fraction of the simulated camera's stream packets lost on their first sending.")  # fmt: skip
+def bench_acquire(poses, speed_factor, packet_loss) -> None:
     """Acquisition on the simulated rig with the real drivers: software overhead per pose (wall time not
-    spent waiting for the axes or the camera) and servo / Modbus transactions per pose.
+    spent waiting for the axes or the camera), servo / Modbus transactions per pose, and the camera's
+    GigE Vision packets over the run (received, resent, missing).
 
     The plan is builtin:pebble's, its poses cycled to the count asked for; frames are 1280×960, 16-bit,
     stored in a scratch directory that is removed afterwards.
 
     \b
-    Example:
+    Examples:
       hlr-lab bench acquire --poses 50
+      hlr-lab bench acquire --poses 20 --packet-loss 0.05   # a lossy link: every packet resent
     """
     from benchmarks.acquire import acquire_figures, report  # builds the simulated rig: CLI only
 
     with console.status(f"acquiring {poses} poses on the simulated rig…"):
-        f = acquire_figures(poses=poses, speed_factor=speed_factor)
+        f = acquire_figures(poses=poses, speed_factor=speed_factor, packet_loss=packet_loss)
     _print(report(f, speed_factor))
 
 

@@ -36,7 +36,7 @@ def motion_table(plan: PlanFile, targets: list[PoseTarget]) -> Table:
 
 def run_table(outcome: Outcome, session: Path) -> Table:
     """What the run did: frames taken, kept, retaken; poses; retries; its duration; the lamp's readings
-    on a white reference beside the object."""
+    on a white reference beside the object; the camera's packets, where it counts them."""
     t = Table(title=f"session {escape(str(session))}", title_justify="left", show_header=False)
     t.add_column(justify="left")
     t.add_column(justify="right")
@@ -52,7 +52,16 @@ def run_table(outcome: Outcome, session: Path) -> Table:
     if outcome.reference_poses is not None:  # the lamp watched on the white reference beside the object
         measured = f"{outcome.reference_measured} of {outcome.reference_poses} poses"
         t.add_row("lamp measured on the white reference", measured)
+    if stream := outcome.camera_stream:  # a GigE Vision camera's link over the run
+        t.add_row("camera packets (received / resent / missing)", stream_line(stream))
     return t
+
+
+def stream_line(counters: dict[str, int]) -> str:
+    """A camera stream's packets as "received / resent / missing" (Aravis's counters; 0 where absent)."""
+    return " / ".join(
+        f"{counters.get(k, 0):,}" for k in ("n_received_packets", "n_resent_packets", "n_missing_packets")
+    )
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@ from typing import Literal
 
 from drivers.dynamixel import DynamixelGantry, ServoReport
 from drivers.errors import DeviceTimeout, HlrLabError
+from drivers.genicam_camera import short_buffer_advice
 from drivers.modbus_stage import DriveReport, ModbusRelay, ModbusStage, StageConfig
 from hlr_lab.instrument.devices import Links, gantry_config, open_camera, rig_device_links, stage_config
 from hlr_lab.instrument.locks import Busy, hold_devices
@@ -259,7 +260,11 @@ def _examine_camera(rig: Rig, endpoint: str | None) -> list[Finding]:
     said.append(f"exposure {1e3 * about['exposure_s']:g} ms")
     if "temperature_c" in about:
         said.append(f"{about['temperature_c']:.1f} °C")
-    return [Finding("camera", "ok", "opens and takes the frame format: " + "; ".join(said))]
+    found = [Finding("camera", "ok", "opens and takes the frame format: " + "; ".join(said))]
+    cap = about.get("receive_buffer_cap_bytes")
+    if cap is not None and cap < about["frame_bytes"]:  # GigE Vision: a frame's packets outrun the socket
+        found.append(Finding("camera", "warning", short_buffer_advice(cap, about["frame_bytes"])))
+    return found
 
 
 def _ask(device: str, question: Callable[[], list[Finding]], silent: str | None = None) -> list[Finding]:

@@ -131,6 +131,8 @@ class RunSummary(TypedDict):
     retries: int
     duration_s: float
     lamp_on_reference: NotRequired[OnReference]
+    # a camera that counts its stream's packets (GigE Vision): Aravis's counters over the run
+    camera_stream: NotRequired[dict[str, int]]
 
 
 class RunEndLine(RunSummary):
