@@ -207,7 +207,7 @@ def test_sim_benchmark_prints_figures(capsys):
 
 def test_acquire_benchmark_prints_figures(capsys):
     """The figures printed, and the camera's link over the whole run: with 5 % of its stream packets lost
-    on their first sending, each is resent (≥ 5 % of those received) and none is missing; every frame is
+    on their first sending, each is resent (about 5 % of those received) and none is missing; every frame is
     stored whole."""
     require_renderer()
     code, out, err = run(capsys, "bench", "acquire", "--poses", "3", "--packet-loss", "0.05")
