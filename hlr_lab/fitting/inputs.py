@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 
 from hlr_lab.errors import HlrLabError, InputError
 
@@ -19,6 +18,9 @@ MIN_BETA_SPAN_DEG = 1.0  # n is the lobe's fall-off: the highlight pixels must s
 def normal_mad(x: np.ndarray, axis: int = 0, center: Callable[..., object] = np.median) -> np.ndarray:
     """The median absolute deviation scaled to a normal σ (÷ Φ⁻¹(¾) ≈ 0.6745): a scale 50 % of outliers
     cannot move. ``x`` (N, …) → the shape of ``x`` without ``axis``."""
+    # imported here: scipy.stats costs ~0.3 s at import, which every command would pay (plan, acquire, doctor)
+    from scipy.stats import median_abs_deviation
+
     # scipy takes scale="normal"; its type stubs allow only a float there
     return np.asarray(median_abs_deviation(x, axis=axis, center=center, scale="normal"))  # pyright: ignore[reportArgumentType]
 
