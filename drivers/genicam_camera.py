@@ -210,8 +210,8 @@ class GenICamCamera:
             # packets — and resends that may bring back all that was dropped (Aravis's default: a quarter)
             self._stream.set_property("socket-buffer", self._arv.GvStreamSocketBuffer.AUTO)
             self._stream.set_property("packet-request-ratio", 1.0)
-            if (cap := receive_buffer_cap()) is not None and cap < self._payload:
-                log.warning("%s: %s", self.name, short_buffer_advice(cap, self._payload))
+            if advice := self._short_buffer():
+                log.warning("%s: %s", self.name, advice)
         for _ in range(N_BUFFERS):
             self._stream.push_buffer(self._arv.Buffer.new_allocate(self._payload))
         self._call(self._camera.start_acquisition)
@@ -359,7 +359,8 @@ class GenICamCamera:
 
     def describe(self) -> dict[str, Any]:
         """What the camera says it is (for ``hlr-lab doctor``): vendor, model, serial, firmware, pixel
-        formats, exposure (s), temperature (°C, if it has ``DeviceTemperature``)."""
+        formats, exposure (s), temperature (°C, if it has ``DeviceTemperature``); and what to do when the
+        kernel's socket buffer cannot hold its frame (``receive_buffer_advice``)."""
         about: dict[str, Any] = {}
         for key, feature in (("vendor", "DeviceVendorName"), ("model", "DeviceModelName"),
                              ("serial", "DeviceSerialNumber"), ("firmware", "DeviceFirmwareVersion"),
@@ -371,10 +372,17 @@ class GenICamCamera:
         )
         about["pixel_format"] = self.pixel_format
         about["exposure_s"] = self.exposure_s
-        about["frame_bytes"] = self._payload
-        if self._camera.is_gv_device() and (cap := receive_buffer_cap()) is not None:
-            about["receive_buffer_cap_bytes"] = cap
+        if advice := self._short_buffer():
+            about["receive_buffer_advice"] = advice
         return about
+
+    def _short_buffer(self) -> str | None:
+        """What to do when this GigE Vision camera's frame does not fit in the socket buffer the kernel
+        allows (:func:`short_buffer_advice`); None when it fits, or the camera is not GigE Vision."""
+        cap = receive_buffer_cap()
+        if not self._camera.is_gv_device() or cap is None or cap >= self._payload:
+            return None
+        return short_buffer_advice(cap, self._payload)
 
     def close(self) -> None:
         """Stop acquiring, log the stream's statistics, release the camera (idempotent).

@@ -16,7 +16,6 @@ from typing import Literal
 
 from drivers.dynamixel import DynamixelGantry, ServoReport
 from drivers.errors import DeviceTimeout, HlrLabError
-from drivers.genicam_camera import short_buffer_advice
 from drivers.modbus_stage import DriveReport, ModbusRelay, ModbusStage, StageConfig
 from hlr_lab.instrument.devices import Links, gantry_config, open_camera, rig_device_links, stage_config
 from hlr_lab.instrument.locks import Busy, hold_devices
@@ -261,9 +260,8 @@ def _examine_camera(rig: Rig, endpoint: str | None) -> list[Finding]:
     if "temperature_c" in about:
         said.append(f"{about['temperature_c']:.1f} °C")
     found = [Finding("camera", "ok", "opens and takes the frame format: " + "; ".join(said))]
-    cap = about.get("receive_buffer_cap_bytes")
-    if cap is not None and cap < about["frame_bytes"]:  # GigE Vision: a frame's packets outrun the socket
-        found.append(Finding("camera", "warning", short_buffer_advice(cap, about["frame_bytes"])))
+    if advice := about.get("receive_buffer_advice"):  # GigE Vision: a frame's packets outrun the socket
+        found.append(Finding("camera", "warning", advice))
     return found
 
 
