@@ -57,7 +57,7 @@ def night_bench(tmp_path_factory) -> tuple[Path, str]:
 @pytest.mark.slow
 @pytest.mark.timeout(
     1200
-)  # the bench, when this test is the first to ask for it: 194 s on two cores, one kept busy, three workers
+)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
 def test_calibrate_all_writes_one_file_with_all_three_records(night_bench):
     """Camera, gantry, then radiometry on the simulated bench whose sensor and lamp are off too
     (builtin:bench-night), short runs: one rig file carrying all three calibrations, the intermediate
@@ -93,7 +93,7 @@ def test_calibrate_all_writes_one_file_with_all_three_records(night_bench):
 @pytest.mark.slow
 @pytest.mark.timeout(
     1200
-)  # the bench, when this test is the first to ask for it: 194 s on two cores, one kept busy, three workers
+)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
 def test_bench_calibration_prints_what_calibration_is_worth(night_bench):
     """Every figure printed; the recovery within the issue's targets that a short run still reaches; the
     end-to-end error far smaller with the calibrated file than with the drawing (measured here: worst Rd
@@ -128,7 +128,7 @@ def test_bench_calibration_prints_what_calibration_is_worth(night_bench):
 @pytest.mark.slow
 @pytest.mark.timeout(
     1200
-)  # the bench, when this test is the first to ask for it: 194 s on two cores, one kept busy, three workers
+)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
 def test_the_truth_lies_within_the_combined_uncertainty_on_the_calibrated_bench(night_bench):
     """The issue's test of the systematic part: the run fitted with the calibrated file (its records now
     carry the camera's and gantry's covariances and the radiometry's standard errors): every parameter of
@@ -176,7 +176,7 @@ def test_the_truth_lies_within_the_combined_uncertainty_on_the_calibrated_bench(
 @pytest.mark.slow
 @pytest.mark.timeout(
     1200
-)  # the bench, when this test is the first to ask for it: 194 s on two cores, one kept busy, three workers
+)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
 def test_calibrate_gantry_on_the_camera_calibrated_rig(night_bench, tmp_path, capsys):
     """`calibrate gantry` on the rig file `calibrate camera` wrote, solved again with --from from the
     photographs the bench's `calibrate all` took of the mirror ball (12 lamp poses, in builtin:bench-night:
