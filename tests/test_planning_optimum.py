@@ -33,9 +33,11 @@ def fewest_by_brute_force(counts: np.ndarray, target: np.ndarray) -> int:
 
 
 def multicover(seed: int, n: int = 13, r: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """Sparse random counts (most candidates light few regions, as highlights do) and a reachable target."""
+    """Sparse random counts (most candidates light few regions, as highlights do) and a reachable target;
+    with more regions (r > 4), sparser and more skewed."""
     rng = np.random.default_rng(seed)
-    counts = rng.gamma(0.6, 20.0, size=(n, r)) * (rng.random((n, r)) < 0.5)
+    shape, scale, lit = (0.6, 20.0, 0.5) if r <= 4 else (0.5, 15.0, 0.3)
+    counts = rng.gamma(shape, scale, size=(n, r)) * (rng.random((n, r)) < lit)
     target = np.minimum(50.0, np.minimum(counts, 50.0).sum(axis=0))
     return counts, target
 
@@ -55,6 +57,38 @@ def test_the_bound_never_exceeds_the_fewest_and_the_programme_finds_it(seed):
     if found.cover is not None:  # a real cover of the true counts
         assert np.all(np.minimum(counts[found.cover], target).sum(axis=0) >= target - 1e-6)
         assert len(set(found.cover.tolist())) == len(found.cover)
+
+
+def hard_multicover() -> tuple[np.ndarray, np.ndarray, int]:
+    """250 candidates, 14 regions: counts, target and the greedy's lights (12) — a cover HiGHS does not
+    settle within a few nodes."""
+    counts, target = multicover(5, n=250, r=14)
+    need, lights = target.copy(), 0
+    while (need > 1e-9).any():
+        j = int(np.argmax(np.minimum(counts, need).sum(axis=1)))
+        need, lights = np.maximum(need - counts[j], 0.0), lights + 1
+    return counts, target, lights
+
+
+def test_the_search_ends_on_its_work_limit_not_on_the_clock(monkeypatch):
+    """A plan must not depend on the machine's speed: the integer programme stops at its node limit (here
+    5, to end quickly) with the same outcome whatever the time budget beyond what it needs; only when the
+    clock ends it first does the status say so."""
+    import hlr_lab.planning.optimum as optimum
+
+    monkeypatch.setattr(optimum, "MILP_NODE_LIMIT", 5)
+    counts, target, greedy = hard_multicover()
+    a = minimum_cover(counts, target, greedy, budget_s=60.0)
+    b = minimum_cover(counts, target, greedy, budget_s=600.0)
+    assert not a.proven
+    assert "node limit" in a.status
+    assert (a.lower_bound, a.status, a.proven) == (b.lower_bound, b.status, b.proven)
+    assert (a.cover is None) == (b.cover is None)
+    if a.cover is not None and b.cover is not None:
+        assert sorted(a.cover.tolist()) == sorted(b.cover.tolist())
+    guarded = minimum_cover(counts, target, greedy, budget_s=1e-3)
+    assert guarded.status == optimum.TIME_GUARD
+    assert not guarded.proven
 
 
 def test_an_incumbent_at_the_bound_is_proven_without_the_programme():

@@ -73,7 +73,9 @@ def bench_plan(mesh_path, up, scale, min_vertices, assets, fewest) -> None:
             _print(plan_report(run_plan_case(*case)))
     if not fewest:
         return
-    out.print("fewest lights (integer programme budget 3 s; the bound is on the planner's estimated counts):")
+    out.print(
+        "fewest lights (the integer programme within its work limits; the bound is on the planner's estimated counts):"
+    )
     for name, placed, settings in optimum_objects(mesh_path, up, scale, assets):
         with console.status(f"planning {name}…"):
             _print([optimum_report(optimum_figures(name, placed, settings))])

@@ -121,7 +121,8 @@ def parse_views(text: str) -> list[float] | None:
     "--optimum-budget",
     "optimum_budget_s",
     Finite(0, MAX_OPTIMUM_BUDGET_S),
-    "Seconds for the integer programme that looks for fewer lights than the greedy (0: the LP bound only).",
+    "A guard, in seconds, on the integer programme that looks for fewer lights than the greedy: its own work "
+    "limits end it first, so that a plan is the same on any machine (0: the LP bound only).",
 )
 @placement_options
 @output_option("plan.json")

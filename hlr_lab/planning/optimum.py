@@ -10,11 +10,15 @@ than it needs) and tightens the relaxation. Its LP relaxation (0 ≤ x_j ≤ 1) 
 candidate by column generation — HiGHS on a few hundred columns at a time, every other column priced by
 one matrix product — so its optimum L is a true lower bound: no cover has fewer than ⌈L⌉ lights.
 
-The integer programme itself is solved (HiGHS branch and bound, within a time budget) only on the
-columns that can be in a cover better than the incumbent: a column with LP reduced cost d is in no cover
-of fewer than L + d lights (reduced-cost fixing), so with an incumbent of U lights only columns with
-d ≤ U − 1 − L matter. That keeps the programme small and its proof valid for all the candidates.
-See docs/planning.md.
+The integer programme itself is solved (HiGHS branch and bound) only on the columns that can be in a
+cover better than the incumbent: a column with LP reduced cost d is in no cover of fewer than L + d
+lights (reduced-cost fixing), so with an incumbent of U lights only columns with d ≤ U − 1 − L matter.
+That keeps the programme small and its proof valid for all the candidates.
+
+The search is bounded by work, not by time — HiGHS's branch-and-bound nodes (MILP_NODE_LIMIT), the pairs
+tried (MAX_PAIR_KINDS) — so that the same inputs give the same plan on a fast machine and a loaded one.
+The time budget is only a guard against an instance whose nodes are slow; when it ends the search, the
+status says so (and that plan can differ on another machine). See docs/planning.md.
 """
 
 from __future__ import annotations
@@ -35,6 +39,12 @@ _PAIR_BLOCK = 4_000_000  # pairs tried at once (×R×8 bytes)
 # Beyond this many distinct columns the integer programme keeps those of least reduced cost (and proves
 # nothing): HiGHS overran a 3 s limit by 8 s on 20 000 (its root node), and finds the same covers on 1 000.
 MAX_MILP_COLUMNS = 2_000
+# Work limits that make the search repeatable: HiGHS's nodes per programme (bench plan's cases are solved
+# at the root node; random 400-candidate, 14-region covers proven within 2 000), and the distinct columns
+# whose every pair is tried (K² pairs: 4 000 is 16 M, ~0.3 s with 14 regions)
+MILP_NODE_LIMIT = 2_000
+MAX_PAIR_KINDS = 4_000
+TIME_GUARD = "time budget reached"  # the status when the wall-clock guard, not the work limits, ended it
 QUANTA = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)  # roundings of the proof, as fractions of the largest target
 
 
@@ -70,7 +80,8 @@ def minimum_cover(counts: np.ndarray, target: np.ndarray, incumbent: int, budget
     incumbent
         Lights of a known cover (the greedy's); the integer programme looks only for fewer.
     budget_s
-        Time for the integer programmes, seconds (0: the LP bound only).
+        Wall-clock guard on the integer programmes, seconds (0: the LP bound only). The work limits end
+        the search first on the instances measured; a search the guard ends has status TIME_GUARD.
     """
     start = time.perf_counter()
     target = np.asarray(target, dtype=np.float64)
@@ -84,20 +95,24 @@ def minimum_cover(counts: np.ndarray, target: np.ndarray, incumbent: int, budget
     lp_value, reduced = _lp_relaxation(capped, need)
     lower = math.ceil(lp_value - _EPS)
 
+    deadline = start + budget_s
+
     def result(lower: int, cover: np.ndarray | None, proven: bool, status: str) -> CoverOptimum:
-        return CoverOptimum(lp_value, lower, cover, proven, status, time.perf_counter() - start)
+        """The outcome; one not proven when the guard has passed may owe its end to the clock: said so."""
+        now = time.perf_counter()
+        guarded = not proven and now > deadline and budget_s > 0
+        return CoverOptimum(lp_value, lower, cover, proven, TIME_GUARD if guarded else status, now - start)
 
     if incumbent <= lower:
         return result(lower, None, True, "the incumbent meets the LP bound")
     if budget_s <= 0:
         return result(lower, None, False, "not run (no time budget)")
-    deadline = start + budget_s
     # only columns with reduced cost d ≤ incumbent − 1 − L can be in a cover of fewer lights
     useful = np.flatnonzero(reduced <= incumbent - 1 - lp_value + _EPS)
     # 1. The proof, on counts rounded up to a quantum of the largest target: every cover is still one, so
     #    the rounded programme's minimum bounds the true one from below. Rounding merges columns into few
     #    kinds, each an integer variable bounded by how many columns it stands for.
-    rounded = _rounded_kinds(capped[useful], need.max(), deadline)
+    rounded = _rounded_kinds(capped[useful], need.max())
     if rounded is not None:
         kinds, inverse, multiplicity = rounded
         proof = _solve(kinds, multiplicity, need, deadline)
@@ -113,23 +128,23 @@ def minimum_cover(counts: np.ndarray, target: np.ndarray, incumbent: int, budget
             cover = _members(inverse, useful, np.round(proof.x).astype(np.int64))
             if len(cover) < incumbent and np.all(capped[cover].sum(axis=0) >= need - _EPS):
                 proven = len(cover) <= lower
-                return result(lower, cover, proven, "optimal" if proven else "time budget reached")
+                return result(lower, cover, proven, "optimal" if proven else "node limit reached")
     if time.perf_counter() > deadline:
-        return result(lower, None, False, "time budget reached")
+        return result(lower, None, False, TIME_GUARD)
     # 2. A cover of the true counts: of two lights by trying every pair (the rounding can merge a pair
     #    that falls just short with one that covers), else among the distinct columns of least reduced cost.
     kinds, inverse, multiplicity = _unique_rows(capped[useful])
     if lower <= 2 < incumbent:
-        pair = _covering_pair(kinds, multiplicity, need, deadline)
+        tried = _cheapest(kinds, inverse, reduced[useful], MAX_PAIR_KINDS)
+        pair = _covering_pair(kinds[tried], multiplicity[tried], need, deadline)
         if pair is not None:
-            cover = _members(inverse, useful, np.bincount(pair, minlength=len(kinds)))
+            cover = _members(inverse, useful, np.bincount(tried[pair], minlength=len(kinds)))
             return result(lower, cover, True, "optimal")
-        if time.perf_counter() < deadline and lower == 2 and incumbent == 3:
+        every_pair = len(tried) == len(kinds) and time.perf_counter() < deadline
+        if every_pair and lower == 2 and incumbent == 3:
             return result(incumbent, None, True, "no cover smaller than the incumbent")
-    if len(kinds) > MAX_MILP_COLUMNS:  # a kind's columns share their reduced cost: keep the cheapest kinds
-        cost = np.zeros(len(kinds))
-        cost[inverse] = reduced[useful]
-        keep = np.sort(np.argsort(cost, kind="stable")[:MAX_MILP_COLUMNS])
+    if len(kinds) > MAX_MILP_COLUMNS:
+        keep = _cheapest(kinds, inverse, reduced[useful], MAX_MILP_COLUMNS)
         mask = np.isin(inverse, keep)
         useful, inverse = useful[mask], np.searchsorted(keep, inverse[mask])
         kinds, multiplicity = kinds[keep], multiplicity[keep]
@@ -141,17 +156,25 @@ def minimum_cover(counts: np.ndarray, target: np.ndarray, incumbent: int, budget
             return result(
                 lower, cover, proven, "optimal" if proven else "a smaller cover; not proven the fewest"
             )
-    return result(lower, None, False, "no smaller cover found within the budget")
+    return result(lower, None, False, "no smaller cover found within the node limit")
 
 
-def _rounded_kinds(
-    columns: np.ndarray, top: float, deadline: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _cheapest(kinds: np.ndarray, inverse: np.ndarray, reduced: np.ndarray, most: int) -> np.ndarray:
+    """Indices (ascending) of at most ``most`` of ``kinds`` (K, R) of least LP reduced cost — a kind's
+    columns (``inverse`` (n,): each column's kind) share theirs, ``reduced`` (n,) — ties by index."""
+    if len(kinds) <= most:
+        return np.arange(len(kinds))
+    cost = np.zeros(len(kinds))
+    cost[inverse] = reduced
+    return np.sort(np.argsort(cost, kind="stable")[:most])
+
+
+def _rounded_kinds(columns: np.ndarray, top: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """``columns`` (n, R) rounded up to the finest of QUANTA (× ``top``) that leaves at most
     MAX_MILP_COLUMNS distinct rows: (kinds, each column's kind, each kind's count), or None (a binary
-    search: each try sorts all n rows)."""
+    search: three tries, each sorting all n rows)."""
     found, lo, hi = None, 0, len(QUANTA) - 1
-    while lo <= hi and time.perf_counter() < deadline:
+    while lo <= hi:
         mid = (lo + hi) // 2
         step = QUANTA[mid] * top
         rounded = np.ceil(columns / step - _EPS) * step if step else columns
@@ -173,7 +196,8 @@ def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _solve(kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, deadline: float):
-    """HiGHS on: minimise Σ x_k with kinds (K, R)ᵀ x ≥ need, x_k integer in [0, multiplicity_k]."""
+    """HiGHS on: minimise Σ x_k with kinds (K, R)ᵀ x ≥ need, x_k integer in [0, multiplicity_k], within
+    MILP_NODE_LIMIT nodes (and, as a guard, until ``deadline``)."""
     # scipy's stubs type lb and ub as float; they take arrays (one bound per row, per variable)
     lower: Any = need - _EPS
     upper: Any = multiplicity
@@ -182,7 +206,11 @@ def _solve(kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, deadli
         constraints=LinearConstraint(sparse.csr_array(kinds.T), lb=lower),
         integrality=np.ones(len(kinds)),
         bounds=Bounds(0, upper),
-        options={"time_limit": max(deadline - time.perf_counter(), 0.05), "disp": False},
+        options={
+            "node_limit": MILP_NODE_LIMIT,
+            "time_limit": max(deadline - time.perf_counter(), 0.05),
+            "disp": False,
+        },
     )
 
 
