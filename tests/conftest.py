@@ -184,6 +184,18 @@ def builtin_plan(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def quarter_rig(tmp_path_factory) -> Path:
+    """The simulated rig's drawing with its camera at 640×480 (tests.films): ``--rig`` it with ``--sim`` and
+    the world is that rig too — a quarter of the pixels to render and fit, where the image is not the
+    subject."""
+    from tests.films import DRAWING, half_film
+
+    path = tmp_path_factory.mktemp("quarter-rig") / "rig.toml"
+    path.write_text(half_film(DRAWING.read_text()))
+    return path
+
+
+@pytest.fixture(scope="session")
 def finished_session(builtin_plan, tmp_path_factory) -> Path:
     """A complete session of the built-in plan on the simulated rig (tests copy it before changing it)."""
     from hlr_lab.cli.main import main

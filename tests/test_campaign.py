@@ -19,10 +19,16 @@ from tests.renderer_guard import require_renderer
 require_renderer(module_level=True)
 
 
-def campaign_file(tmp_path: Path, plan: Path, jobs: int = 3, extra: str = "") -> Path:
+def campaign_file(
+    tmp_path: Path, plan: Path, jobs: int = 3, extra: str = "", rig: Path | None = None
+) -> Path:
+    """A night of ``jobs`` runs of ``plan`` on the simulated rig (``rig``: on that rig file, the world too)."""
     text = f'[campaign]\nname = "test night"\n{extra}\n'
+    on = "" if rig is None else f'rig = "{rig}"\n'
     for i in range(jobs):
-        text += f'\n[[job]]\nname = "j{i}"\nplan = "{plan}"\nout = "s{i}"\nsim = true\nspeed_factor = 40\n'
+        text += (
+            f'\n[[job]]\nname = "j{i}"\nplan = "{plan}"\n{on}out = "s{i}"\nsim = true\nspeed_factor = 40\n'
+        )
     path = tmp_path / "night.toml"
     path.write_text(text)
     return path
@@ -57,12 +63,13 @@ def no_calibration(job):
 
 
 @pytest.mark.slow
-def test_a_fault_in_the_second_job_is_retried_and_the_night_goes_on(tmp_path, builtin_plan):
+def test_a_fault_in_the_second_job_is_retried_and_the_night_goes_on(tmp_path, builtin_plan, quarter_rig):
     """The second job's turntable answers one request with a device failure: that run stops safely, the
     job runs again on a new connection and completes (attempts 2, a job_retry line); all three are
     fitted and reported; the hook heard every job's end and the campaign's; status and index say so."""
     heard = tmp_path / "heard.jsonl"
-    path = campaign_file(tmp_path, builtin_plan, extra=f"notify = \"sh -c 'cat; echo' >> {heard}\"")
+    hook = f"notify = \"sh -c 'cat; echo' >> {heard}\""
+    path = campaign_file(tmp_path, builtin_plan, extra=hook, rig=quarter_rig)
     night = load_campaign(path)
 
     def one_failure(world):
@@ -89,13 +96,13 @@ def test_a_fault_in_the_second_job_is_retried_and_the_night_goes_on(tmp_path, bu
 
 @pytest.mark.slow
 def test_a_job_that_keeps_failing_is_skipped_and_a_rig_not_confirmed_safe_stops_everything(
-    tmp_path, builtin_plan
+    tmp_path, builtin_plan, quarter_rig
 ):
     """The second job's camera loses a packet of every frame for good: the run stops safely (lamp, turntable and gantry
     confirmed), is run once more, stops again, and is skipped; the third job still runs. Then a night
     whose second job's turntable refuses every request, the stop included: the rig is not confirmed
     safe, the campaign stops (exit status 1) and the third job never starts."""
-    night = load_campaign(campaign_file(tmp_path, builtin_plan))
+    night = load_campaign(campaign_file(tmp_path, builtin_plan, rig=quarter_rig))
 
     def camera_broken(world):
         world.gige.faults.drop_for_good = 10**6
@@ -111,7 +118,7 @@ def test_a_job_that_keeps_failing_is_skipped_and_a_rig_not_confirmed_safe_stops_
 
     other = tmp_path / "other"
     other.mkdir()
-    night = load_campaign(campaign_file(other, builtin_plan))
+    night = load_campaign(campaign_file(other, builtin_plan, rig=quarter_rig))
 
     def turntable_broken(world):
         world.turntable.faults.exception = 10**6
@@ -181,7 +188,9 @@ def test_a_notify_hook_that_fails_or_hangs_does_not_stop_the_night(monkeypatch, 
 
 
 @pytest.mark.slow
-def test_campaign_run_and_status_from_the_command_line_with_a_calibration_job(tmp_path, builtin_plan, capsys):
+def test_campaign_run_and_status_from_the_command_line_with_a_calibration_job(
+    tmp_path, builtin_plan, quarter_rig, capsys
+):
     """`hlr-lab campaign run`: a radiometric calibration, then a run on the rig file it writes (which
     does not exist when the night starts); `status` afterwards."""
     from hlr_lab.cli.main import main
@@ -193,6 +202,7 @@ def test_campaign_run_and_status_from_the_command_line_with_a_calibration_job(tm
 kind = "calibrate"
 name = "radiometry"
 procedure = "radiometric"
+rig = "{quarter_rig}"
 sim = true
 speed_factor = 40
 output = "rig-radiometric.toml"

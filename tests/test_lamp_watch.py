@@ -14,6 +14,7 @@ import pytest
 
 from hlr_lab.reflectance.session_fit import LampRecord
 from hlr_lab.session.lamp import LampWatch, compared_pixels, lamp_at, relative_output, warm_up
+from tests.films import DRAWING, half_film
 
 
 class FakeClock:
@@ -115,26 +116,6 @@ black_level_dn = 0.0
 read_noise_dn = 1.5
 
 """  # the drawing's sensor and lamp, the lamp drifting
-
-
-DRAWING = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
-FULL_FILM = (
-    "width = 1280\nheight = 960\n",
-    "matrix = [[2400.0, 0.0, 643.5], [0.0, 2400.0, 476.0], [0.0, 0.0, 1.0]]",
-)
-HALF_FILM = (
-    "width = 640\nheight = 480\n",
-    "matrix = [[1200.0, 0.0, 321.75], [0.0, 1200.0, 238.0], [0.0, 0.0, 1.0]]",
-)
-
-
-def half_film(text: str) -> str:
-    """A rig file's text with the simulated rig's camera at 640×480 (the same lens: K halved), a quarter
-    of the pixels to render, sense and fit."""
-    for full, half in zip(FULL_FILM, HALF_FILM, strict=True):
-        assert full in text
-        text = text.replace(full, half)
-    return text
 
 
 def drifting_world(tmp_path: Path, radiometry: str = DRIFTING, drawing: str | None = None) -> Path:

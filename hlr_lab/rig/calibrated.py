@@ -14,6 +14,7 @@ from pathlib import Path
 import tomlkit
 
 from hlr_lab import __version__
+from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_text
 from hlr_lab.rig.file import Rig, load_rig
 
@@ -46,6 +47,14 @@ def write_calibrated_rig(
     try:
         atomic_write_text(scratch, text)
         load_rig(scratch)  # a calibrated file that hlr-lab could not read is not written
+    except InputError as exc:  # named by the file the operator asked for, not the scratch copy
+        said = str(exc).removeprefix(f"{scratch}: ").removeprefix(f"{exc.field}: ")
+        raise InputError(
+            f"the {procedure} calibration's result would be a rig file hlr-lab refuses ({said}); nothing "
+            "written: look at the calibration's photographs and summary, then calibrate again",
+            path=output,
+            field=exc.field,
+        ) from None
     finally:
         scratch.unlink(missing_ok=True)
     atomic_write_text(output, text)
