@@ -20,6 +20,7 @@ from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings, plan_lights
 from hlr_lab.rig.file import Rig, sim_rig
+from tests.films import resume_command
 from tests.renderer_guard import require_aravis, require_renderer
 
 # generated broken files (tests/test_readers_property.py): a CI-sized run, or the nightly one
@@ -196,11 +197,12 @@ def quarter_rig(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def finished_session(builtin_plan, tmp_path_factory) -> Path:
-    """A complete session of the built-in plan on the simulated rig (tests copy it before changing it)."""
+def finished_session(builtin_plan, quarter_rig, tmp_path_factory) -> Path:
+    """A complete session of the built-in plan on the simulated rig at a quarter of its pixels (tests copy
+    it before changing it; a resume names the same rig: ``resume_command``)."""
     from hlr_lab.cli.main import main
 
     session = tmp_path_factory.mktemp("finished") / "session"
-    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session), "--speed-factor", "40"]
+    command = resume_command(builtin_plan, quarter_rig, session)
     assert main(command) == 0
     return session

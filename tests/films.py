@@ -24,3 +24,10 @@ def half_film(text: str) -> str:
         assert full in text
         text = text.replace(full, half)
     return text
+
+
+def resume_command(plan: Path, rig: Path, session: Path, speed_factor: float = 40) -> list[str]:
+    """``hlr-lab acquire`` of ``plan`` into ``session`` on the simulated rig described by ``rig``: how
+    ``finished_session`` was taken, and how a test resumes a copy of it."""
+    return ["acquire", "--plan", str(plan), "--rig", str(rig), "--sim", "--out", str(session),
+            "--speed-factor", f"{speed_factor:g}"]  # fmt: skip

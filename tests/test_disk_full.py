@@ -16,6 +16,7 @@ from hlr_lab.cli.main import main
 from hlr_lab.errors import DiskFull
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.session.journal import JOURNAL, read_journal
+from tests.films import resume_command
 from tests.test_acquisition import run, world_of
 
 
@@ -80,7 +81,7 @@ def test_fit_on_a_full_disk_is_one_line_and_leaves_nothing_half_written(finished
 
 
 def test_a_resumed_run_removes_the_temporaries_of_a_killed_one(
-    finished_session, builtin_plan, tmp_path, capsys
+    finished_session, builtin_plan, quarter_rig, tmp_path, capsys
 ):
     session = tmp_path / "session"
     shutil.copytree(finished_session, session)
@@ -88,8 +89,7 @@ def test_a_resumed_run_removes_the_temporaries_of_a_killed_one(
     for p in leftovers:
         p.write_bytes(b"\0" * 1000)
     before = [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"]
-    command = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session), "--speed-factor", "40"]
-    assert main(command) == 0
+    assert main(resume_command(builtin_plan, quarter_rig, session)) == 0
     assert not any(p.exists() for p in leftovers)
     assert [e for e in read_journal(session / JOURNAL) if e["event"] == "frame"] == before
     capsys.readouterr()

@@ -16,14 +16,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hlr_lab.cli.main import main
+from tests.films import resume_command
 
 pytestmark = pytest.mark.renderer  # a resumed run starts the simulated rig before it is refused
 
 VICTIM = b"the user's own file: not hlr-lab's\n"
-
-
-def _resume(plan: Path, session: Path) -> list[str]:
-    return ["acquire", "--plan", str(plan), "--sim", "--out", str(session), "--speed-factor", "200"]
 
 
 def _victim(tmp_path: Path) -> Path:
@@ -38,7 +35,7 @@ def _victim(tmp_path: Path) -> Path:
     ["journal.reserve", "acquire.lock", "acquire.log", "journal.damaged", "journal.jsonl", "session.json"],
 )
 def test_a_link_in_place_of_a_session_file_is_refused_and_its_target_untouched(
-    name, finished_session, builtin_plan, tmp_path, capsys
+    name, finished_session, builtin_plan, quarter_rig, tmp_path, capsys
 ):
     session = tmp_path / "session"
     shutil.copytree(finished_session, session)
@@ -48,7 +45,7 @@ def test_a_link_in_place_of_a_session_file_is_refused_and_its_target_untouched(
             f.write("}}not json\n")
     (session / name).unlink(missing_ok=True)
     (session / name).symlink_to(victim)
-    assert main(_resume(builtin_plan, session)) == 1
+    assert main(resume_command(builtin_plan, quarter_rig, session, speed_factor=200)) == 1
     err = capsys.readouterr().err
     assert f"{session / name}: is a symbolic link" in " ".join(err.split())
     assert "internal error" not in err
@@ -58,7 +55,7 @@ def test_a_link_in_place_of_a_session_file_is_refused_and_its_target_untouched(
 
 @pytest.mark.parametrize("folder", ["frames", "object"])
 def test_a_session_folder_that_is_a_link_is_refused_and_nothing_outside_is_written_or_deleted(
-    folder, finished_session, builtin_plan, tmp_path, capsys
+    folder, finished_session, builtin_plan, quarter_rig, tmp_path, capsys
 ):
     session = tmp_path / "session"
     shutil.copytree(finished_session, session)
@@ -67,7 +64,11 @@ def test_a_session_folder_that_is_a_link_is_refused_and_nothing_outside_is_writt
     (elsewhere / ".p000_e0.png.abcd.tmp").write_bytes(VICTIM)  # a run's temporaries there would be removed
     before = {p.name: p.read_bytes() for p in elsewhere.iterdir() if p.is_file()}
     (session / folder).symlink_to(elsewhere, target_is_directory=True)
-    for command in (_resume(builtin_plan, session), ["fit", str(session)], ["report", str(session)]):
+    for command in (
+        resume_command(builtin_plan, quarter_rig, session, speed_factor=200),
+        ["fit", str(session)],
+        ["report", str(session)],
+    ):
         assert main(command) == 1
         err = " ".join(capsys.readouterr().err.split())
         assert f"{session / folder}: is a symbolic link" in err, err
@@ -76,13 +77,13 @@ def test_a_session_folder_that_is_a_link_is_refused_and_nothing_outside_is_writt
 
 
 def test_a_new_session_with_a_linked_frames_folder_is_refused_before_anything_is_written(
-    builtin_plan, tmp_path, capsys
+    builtin_plan, quarter_rig, tmp_path, capsys
 ):
     session, elsewhere = tmp_path / "new", tmp_path / "elsewhere"
     session.mkdir()
     elsewhere.mkdir()
     (session / "frames").symlink_to(elsewhere, target_is_directory=True)
-    assert main(_resume(builtin_plan, session)) == 1
+    assert main(resume_command(builtin_plan, quarter_rig, session, speed_factor=200)) == 1
     assert f"{session / 'frames'}: is a symbolic link" in " ".join(capsys.readouterr().err.split())
     assert list(elsewhere.iterdir()) == []
     assert sorted(p.name for p in session.iterdir()) == ["frames"]  # not even a lock or a journal

@@ -16,6 +16,7 @@ import pytest
 from hlr_lab.cli.main import main
 from hlr_lab.formats.plan import read_plan
 from hlr_lab.session.journal import DAMAGED, JOURNAL, read_journal
+from tests.films import resume_command
 
 pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
@@ -86,7 +87,9 @@ DAMAGES = {  # damage → (what fit says, the number of frames a resumed run tak
 
 @pytest.mark.slow
 @pytest.mark.parametrize("damage", DAMAGES)
-def test_each_damage_is_named_and_a_resume_mends_it(damage, finished, builtin_plan, tmp_path, capsys):
+def test_each_damage_is_named_and_a_resume_mends_it(
+    damage, finished, builtin_plan, quarter_rig, tmp_path, capsys
+):
     make, said, retaken = DAMAGES[damage]
     session = tmp_path / "session"
     shutil.copytree(finished, session)
@@ -103,7 +106,7 @@ def test_each_damage_is_named_and_a_resume_mends_it(damage, finished, builtin_pl
         assert "internal error" not in err
         assert not (tmp_path / "m.json").exists()
 
-    resume = ["acquire", "--plan", str(builtin_plan), "--sim", "--out", str(session), "--speed-factor", "40"]
+    resume = resume_command(builtin_plan, quarter_rig, session)
     assert main(resume) == 0
     assert re.search(rf"frames taken\s+│\s+{retaken} ", capsys.readouterr().err)
     events = read_journal(session / JOURNAL)
