@@ -35,7 +35,8 @@ from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 _EPS = 1e-6
 _SEED_PER_REGION = 64  # columns per region that start the column generation
 _ADD_PER_ROUND = 2_000  # most negative reduced costs added per round
-_PAIR_BLOCK = 4_000_000  # pairs tried at once (×R×8 bytes)
+_PAIR_BLOCK = 4_000_000  # pairs tried at once at most (×R×8 bytes)
+_FIRST_PAIR_BLOCK = 65_536  # pairs tried in the first block (each next one twice as many)
 # Beyond this many distinct columns the integer programme keeps those of least reduced cost (and proves
 # nothing): HiGHS overran a 3 s limit by 8 s on 20 000 (its root node), and finds the same covers on 1 000.
 MAX_MILP_COLUMNS = 2_000
@@ -217,20 +218,31 @@ def _solve(kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, deadli
 def _covering_pair(
     kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, deadline: float
 ) -> np.ndarray | None:
-    """Two kinds (the same one twice if it stands for two columns) whose counts together reach ``need``,
-    or None; tried in blocks of rows so that memory stays ~_PAIR_BLOCK pairs, until ``deadline``."""
-    rows = max(1, _PAIR_BLOCK // max(len(kinds), 1))
-    for a in range(0, len(kinds), rows):
+    """Two kinds (the same one twice if it stands for two columns) whose counts (capped at ``need``)
+    together reach ``need``, or None; until ``deadline``.
+
+    Only pairs whose totals can reach need's are compared: with the kinds in order of falling total, kind
+    i's partner is among the first p_i (total ≥ Σ need − total_i), and p_i falls as i grows, so the search
+    ends where p_i ≤ i. Blocks of rows, growing from _FIRST_PAIR_BLOCK pairs to _PAIR_BLOCK, find an
+    early pair early and keep memory bounded."""
+    order = np.argsort(-kinds.sum(axis=1), kind="stable")
+    sorted_kinds, totals = kinds[order], kinds[order].sum(axis=1)  # (K, R), (K,) falling
+    partners = np.searchsorted(-totals, -(need.sum() - totals) + len(need) * _EPS, side="right")  # (K,) p_i
+    a, pairs = 0, _FIRST_PAIR_BLOCK
+    while a < len(kinds) and partners[a] > a:
         if time.perf_counter() > deadline:
             return None
-        block = kinds[a : a + rows]  # (b, R)
-        ok = np.all(block[:, None, :] + kinds[None, :, :] >= need - _EPS, axis=2)  # (b, K)
+        b = min(a + max(1, pairs // int(partners[a] - a)), len(kinds))
+        pairs = min(2 * pairs, _PAIR_BLOCK)  # a pair is often among the first: small blocks first
+        block = sorted_kinds[a:b]  # (b − a, R); partners among sorted_kinds[a : partners[a]]
+        ok = np.all(block[:, None, :] + sorted_kinds[None, a : partners[a], :] >= need - _EPS, axis=2)
         i, j = np.nonzero(ok)
-        i = i + a
-        valid = (i != j) | (multiplicity[i] >= 2)
+        i, j = i + a, j + a
+        valid = (j >= i) & (j < partners[i]) & ((i != j) | (multiplicity[order[i]] >= 2))
         if valid.any():
             k = int(np.flatnonzero(valid)[0])
-            return np.array([i[k], j[k]])
+            return order[[i[k], j[k]]]
+        a = b
     return None
 
 
