@@ -225,8 +225,9 @@ def _covering_pair(
     i's partner is among the first p_i (total ≥ Σ need − total_i), and p_i falls as i grows, so the search
     ends where p_i ≤ i. Blocks of rows, growing from _FIRST_PAIR_BLOCK pairs to _PAIR_BLOCK, find an
     early pair early and keep memory bounded."""
-    order = np.argsort(-kinds.sum(axis=1), kind="stable")
-    sorted_kinds, totals = kinds[order], kinds[order].sum(axis=1)  # (K, R), (K,) falling
+    totals = kinds.sum(axis=1)  # (K,)
+    order = np.argsort(-totals, kind="stable")
+    sorted_kinds, totals = kinds[order], totals[order]  # (K, R), (K,) falling
     partners = np.searchsorted(-totals, -(need.sum() - totals) + len(need) * _EPS, side="right")  # (K,) p_i
     a, pairs = 0, _FIRST_PAIR_BLOCK
     while a < len(kinds) and partners[a] > a:
