@@ -256,7 +256,7 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
 NIGHT = """[light]
 type = "point"
 power = 0.88
-drift = { warm_up = 0.04, warm_up_s = 400.0, per_hour = -0.01, flicker = 0.001 }
+drift = { warm_up = 0.04, warm_up_s = 400.0, per_hour = -0.02, flicker = 0.001 }
 
 [sensor]
 sensitivity = 3600.0
@@ -264,19 +264,21 @@ black_level_dn = 64.0
 read_noise_dn = 2.2
 conversion_gain_dn_per_e = 0.31
 
-"""  # builtin:bench-night's sensor and lamp
+"""  # builtin:bench-night's sensor and lamp, the lamp fading twice as fast (−2 % per hour)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1200)  # calibration, 40-pose night, two fits: 84 s on 2 cores, one kept busy, 3 workers
+@pytest.mark.timeout(
+    1200
+)  # calibration, 20-pose night, two fits: 48 s quiet (was 128 s at 40 poses in CI, loaded)
 def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, capsys):
     """The issue's figure, on the drawing's geometry with builtin:bench-night's sensor and lamp (S·Φ
-    22.6 % below the nominal, the lamp cold at the start of each command, then −1 % per hour, flickering):
-    `calibrate radiometric --warm-up 30`, then a 40-pose run of builtin:pebble's plan with `--warm-up 30
+    22.6 % below the nominal, the lamp cold at the start of each command, then fading, flickering — here
+    −2 % per hour, twice bench-night's, so that 20 poses see the 0.5 % of drift 40 did):
+    `calibrate radiometric --warm-up 30`, then a 20-pose run of builtin:pebble's plan with `--warm-up 30
     --lamp-every 5` (at 640×480), then `fit`: every region's Rd within 1 % of the truth in absolute terms
-    (measured 0.28–0.32 %; 0.07–0.42 % at the full film, 0.67–0.78 % when the radiometry too was
-    calibrated at 640×480); `fit --no-lamp-correction` differs from it by the lamp's measured output over the run,
-    and the report says by how much."""
+    (measured 0.37 %; 0.28–0.32 % at 40 poses, 0.07–0.42 % at the full film); `fit --no-lamp-correction`
+    differs from it by the lamp's measured output over the run, and the report says by how much."""
     from benchmarks.acquire import repeated_poses
     from hlr_lab.cli.main import main
     from hlr_lab.formats.materials import read_materials
@@ -303,7 +305,7 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     warmed = [json.loads(line) for line in (tmp_path / "rad" / "journal.jsonl").read_text().splitlines()]
     assert [e["stable"] for e in warmed if e["event"] == "warm_up"] == [True]
     plan = tmp_path / "plan.json"
-    write_plan(plan, repeated_poses(read_plan(tmp_path / "p.json"), 40))
+    write_plan(plan, repeated_poses(read_plan(tmp_path / "p.json"), 20))
     session = tmp_path / "s"
     assert main(["acquire", "--plan", str(plan), "--rig", str(calibrated), *fast, "--warm-up", "30",
                  "--lamp-every", "5", "--out", str(session)]) == 0, capsys.readouterr().err  # fmt: skip
@@ -319,7 +321,7 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     assert max(float(np.max(np.abs(corrected[i] / truth[i].rd - 1))) for i in corrected) < 0.01
     # The correction divides each pose's light by the lamp's measured output, so without it every Rd is
     # off by a weighted mean of those outputs: within their range (± 0.05 % for the fit's own noise).
-    # Not "further from the truth": with ~0.4 % of the lamp's drift in the run against the fit's ~0.3 %
+    # Not "further from the truth": with ~0.5 % of the lamp's drift in the run against the fit's ~0.3 %
     # floor, the two can cancel by chance (and did, on a loaded machine).
     events = [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines()]
     outputs = [e["output"] for e in events if e["event"] == "lamp"]
