@@ -100,6 +100,36 @@ def test_an_incumbent_at_the_bound_is_proven_without_the_programme():
     assert found.lower_bound == 2
 
 
+def test_a_bound_of_two_met_by_a_pair_is_proven_without_an_integer_programme(monkeypatch):
+    """With an LP bound of 2 (bench plan's paper set-up, pebble and Spot) a pair that covers is the fewest
+    outright: it is found by the pair search (milliseconds), never by HiGHS's branch and bound (~90 ms a
+    programme on the paper's bunny). Where no pair covers, the proof's programme still runs."""
+    import hlr_lab.planning.optimum as optimum
+
+    solved = []
+    real_solve = optimum._solve
+
+    def counting_solve(*args):
+        solved.append(args)
+        return real_solve(*args)
+
+    monkeypatch.setattr(optimum, "_solve", counting_solve)
+    # four regions; lights 2 and 3 each fill two of them, 0 and 1 give three of them 30: the bound is 2
+    counts = np.array([[30.0, 30.0, 30.0, 0], [0, 30.0, 30.0, 30.0], [50.0, 50.0, 0, 0], [0, 0, 50.0, 50.0]])
+    found = minimum_cover(counts, np.full(4, 50.0), incumbent=4, budget_s=5.0)
+    assert (found.lower_bound, found.proven, found.status) == (2, True, "optimal")
+    assert found.cover is not None
+    assert sorted(found.cover.tolist()) == [2, 3]
+    assert solved == []
+    # three regions, each light filling one and giving the next half: the bound is 2, no pair covers
+    counts = np.array([[50.0, 25.0, 0], [0, 50.0, 25.0], [25.0, 0, 50.0]])
+    found = minimum_cover(counts, np.full(3, 50.0), incumbent=3, budget_s=5.0)
+    assert found.cover is None
+    assert (found.lower_bound, found.proven) == (3, True)
+    assert fewest_by_brute_force(counts, np.full(3, 50.0)) == 3
+    assert solved  # the rounded programme ran for the proof
+
+
 def test_identical_candidates_may_each_be_taken():
     """Three copies of one light, each giving a third of what the region needs: a cover takes all three
     (merged into one variable bounded by 3, the programme must not take the kind once)."""

@@ -70,12 +70,33 @@ class RayCaster:
             dist[start + ray] = np.linalg.norm(loc - o[ray], axis=1)
         return face, dist
 
+    def blocked(self, origins: np.ndarray, directions: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """(N,) bool: the mesh lies along the ray from each origin (N, 3) in its unit direction (N, 3) within
+        ``reach`` (N,) of it. Embree's occlusion query: it stops at any hit and skips the hit point,
+        ~5× faster than :meth:`first_hit` for shadow and visibility rays."""
+        scene = (
+            self._intersector._scene
+        )  # trimesh's wrapper: shifts (and scales) origins as the scene was built
+        origins = np.ascontiguousarray(origins, dtype=np.float64)
+        directions = np.ascontiguousarray(directions, dtype=np.float64)
+        tfar = np.asarray(reach, dtype=np.float64) * scene.scale
+        out = np.zeros(len(origins), dtype=bool)
+        for start in range(0, len(origins), _RAY_CHUNK):
+            end = start + _RAY_CHUNK
+            hit = scene.run(
+                origins[start:end],
+                directions[start:end],
+                query="OCCLUDED",
+                dists=tfar[start:end].astype(np.float32),
+            )
+            out[start:end] = np.asarray(hit) != -1
+        return out
+
     def segment_blocked(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
         """(N,) bool: the open segment start→end crosses the mesh (starts just off the surface)."""
         d = ends - starts
         length = np.linalg.norm(d, axis=1)
-        _, hit = self.first_hit(starts, d / length[:, None])
-        return hit < length * (1 - 1e-9)
+        return self.blocked(starts, d / length[:, None], length * (1 - 1e-9))
 
     def shadowed(self, points: np.ndarray, normals: np.ndarray, light: np.ndarray) -> np.ndarray:
         """(N,) bool: the surface points (N, 3) with normals (N, 3) do not see the point light (3,)."""
@@ -86,8 +107,9 @@ class RayCaster:
         """(N,) bool: nothing lies between the eye ``centre`` (3,) and each surface point (N, 3)."""
         d = points - centre
         dist = np.linalg.norm(d, axis=1)
-        _, hit = self.first_hit(np.broadcast_to(centre, points.shape), d / dist[:, None])
-        return hit >= dist - HIT_TOLERANCE * self.scale
+        return ~self.blocked(
+            np.broadcast_to(centre, points.shape), d / dist[:, None], dist - HIT_TOLERANCE * self.scale
+        )
 
     def gbuffer(self, camera: Camera) -> GBuffer:
         """Cast one ray per pixel centre of ``camera`` (expressed in the mesh frame)."""

@@ -84,10 +84,23 @@ class ViewSamples:
         seen = self.visible(np.arange(len(self.region)))
         return np.bincount(self.region[seen], weights=self.weight[seen], minlength=self.n_regions)
 
-    def footprint_radius(self, theta_c: np.ndarray) -> np.ndarray:
+    def footprint_radius(self, theta_c: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
         """(K,) chord radius on the unit sphere that contains each sample's cone footprint on S, for
-        ``theta_c`` (R,) each region's cone half-angle (radians)."""
-        return self._footprint_scale * np.tan(theta_c[self.region])
+        ``theta_c`` (R,) each region's cone half-angle (radians); of the samples ``which`` (k,) only."""
+        if which is None:
+            return self._footprint_scale * np.tan(theta_c[self.region])
+        return self._footprint_scale[which] * np.tan(theta_c[self.region[which]])
+
+    def largest_footprint_radius(self, theta_c: np.ndarray) -> float:
+        """The largest of :meth:`footprint_radius` (0 without samples), from each region's largest scale."""
+        return float((self._largest_scale * np.tan(theta_c)).max(initial=0.0))
+
+    @cached_property
+    def _largest_scale(self) -> np.ndarray:
+        """(R,) the largest footprint scale among each region's samples (0 for a region without any)."""
+        largest = np.zeros(self.n_regions)
+        np.maximum.at(largest, self.region, self._footprint_scale)
+        return largest
 
     @cached_property
     def _footprint_scale(self) -> np.ndarray:
@@ -201,20 +214,24 @@ def _in_cones(
     finds the candidates; the test itself is exact.
     """
     h = view.highlights
-    radius = view.footprint_radius(theta_c)
-    if len(radius) == 0:
+    if len(view.region) == 0:
         return np.zeros(0, np.int64), np.zeros((0, len(lights)), bool)
     centre = light_dirs.mean(axis=0)
     centre /= np.linalg.norm(centre)
     spread = np.linalg.norm(light_dirs - centre, axis=1).max()
-    near = np.asarray(view.footprint_tree.query_ball_point(centre, radius.max() + spread), dtype=np.int64)
-    gap = np.linalg.norm(view.footprint_dirs[near, None, :] - light_dirs[None], axis=2)  # (n, m)
-    near = near[(gap <= radius[near, None]).any(axis=1)]
+    reach = view.largest_footprint_radius(theta_c) + spread
+    near = np.asarray(view.footprint_tree.query_ball_point(centre, reach), dtype=np.int64)
+    # unit vectors a, b: |a − b| ≤ r ⟺ a·b ≥ 1 − r²/2 — one (n, 3)·(3, m) product, no (n, m, 3) temporary
+    r = view.footprint_radius(theta_c, near)[:, None]
+    near = near[(view.footprint_dirs[near] @ light_dirs.T >= 1 - r * r / 2).any(axis=1)]
     near = near[view.visible(near)]
-    to_light = lights[None, :, :] - h.point[near, None, :]  # (n, m, 3)
-    dist = np.linalg.norm(to_light, axis=2)
-    cos_cone = np.einsum("nmd,nd->nm", to_light, h.mirror[near]) / dist
-    cos_light = np.einsum("nmd,nd->nm", to_light, h.normal[near]) / dist
+    # (L − p)·u = L·u − p·u for u the mirror ray and the normal; |L − p|² = |L|² − 2 L·p + |p|²: (n, m) each
+    p, mirror, normal = h.point[near], h.mirror[near], h.normal[near]  # (n, 3)
+    dist = np.sqrt(np.maximum(
+        np.einsum("md,md->m", lights, lights)[None] - 2 * p @ lights.T + np.einsum("nd,nd->n", p, p)[:, None], 0
+    ))  # fmt: skip
+    cos_cone = (mirror @ lights.T - np.einsum("nd,nd->n", p, mirror)[:, None]) / dist
+    cos_light = (normal @ lights.T - np.einsum("nd,nd->n", p, normal)[:, None]) / dist
     cos_c = np.cos(theta_c)[view.region[near], None]
     return near, (cos_cone >= cos_c) & (cos_light >= np.cos(max_light_angle))
 

@@ -508,16 +508,19 @@ class _Planner:
         fall short its lights' estimates are replaced by their exact counts and the programme solved again
         (as the greedy does light by light), for at most MAX_COVER_ROUNDS rounds — a limit of work, so that
         the plan does not depend on the machine's speed; the time budget only guards the whole. A cover
-        that still falls short is returned unproven: the greedy completes it from there."""
+        that still falls short is returned unproven: the greedy completes it from there. A covering pair is
+        sought before the programme (``pairs_among``) in the first round among all candidates, then among
+        those counted exactly only: the pair search favours the largest totals, and once a cover has fallen
+        short those are the suspect estimates (a pair of exact counts that covers holds outright)."""
         m, budget = need, self.settings.optimum_budget_s  # m (R,): each region's target
         counts, q, start = counts.copy(), len(self.cands.coarse), time.perf_counter()
         exact = np.zeros(len(counts), bool)
         full = need
         found, holds, seed = None, False, None
-        for _ in range(MAX_COVER_ROUNDS):
+        for round_ in range(MAX_COVER_ROUNDS):
             target = np.where(reference, np.minimum(m, np.minimum(counts, m).sum(axis=0)), 0.0)
             left = max(budget - (time.perf_counter() - start), 0.0)
-            found = minimum_cover(counts, target, incumbent, left)
+            found = minimum_cover(counts, target, incumbent, left, pairs_among=None if round_ == 0 else exact)
             if found.cover is None:
                 break
             seed = found.cover
