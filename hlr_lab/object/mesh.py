@@ -69,9 +69,14 @@ class ColouredMesh:
             self.vertices[self.faces[:, 1]] - self.vertices[self.faces[:, 0]],
             self.vertices[self.faces[:, 2]] - self.vertices[self.faces[:, 0]],
         )  # |cross| = 2 × area, so summing it weights by area
-        acc = np.zeros_like(self.vertices)
-        for corner in range(3):
-            np.add.at(acc, self.faces[:, corner], cross)
+        # the sum over each vertex's faces: bincounts per corner and axis (np.add.at: 1.2–3× slower on millions)
+        n = len(self.vertices)
+        acc = np.column_stack(
+            [
+                sum(np.bincount(self.faces[:, c], weights=cross[:, k], minlength=n) for c in range(3))
+                for k in range(3)
+            ]
+        )
         norm = np.linalg.norm(acc, axis=1, keepdims=True)
         return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
 

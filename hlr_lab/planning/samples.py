@@ -87,7 +87,7 @@ def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> Sur
             seg.vertex_labels.astype(np.int64),
         ]
     )
-    _, group, first = _groups(keys)
+    group, first = _groups(keys)
     count = len(first)
     area = np.bincount(group, weights=a, minlength=count)
     weight = np.maximum(area, 1e-300)[:, None]
@@ -100,10 +100,20 @@ def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> Sur
 
 
 def _groups(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rows of ``keys`` (N, K) int64 grouped: the unique rows, each row's group (N,), a member of each group."""
-    rows = np.ascontiguousarray(keys).view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
-    unique, first, group = np.unique(rows, return_index=True, return_inverse=True)
-    return unique, group.ravel(), first
+    """Rows of ``keys`` (N, K) int64 grouped: each row's group (N,) and a member of each group (G,), the
+    groups in the rows' lexicographic order. The rows become one int64 in mixed radix when their ranges
+    allow (sorting integers is ~4× faster than sorting K-word byte strings), else are compared as bytes."""
+    low = keys.min(axis=0, initial=0)
+    span = keys.max(axis=0, initial=0) - low + 1  # (K,)
+    if float(np.prod(span.astype(np.float64))) < 2.0**62:
+        radix = np.concatenate([np.cumprod(span[::-1])[::-1][1:], [1]])  # the last column varies fastest
+        rows = (keys - low) @ radix
+    else:
+        rows = (
+            np.ascontiguousarray(keys).view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
+        )
+    _, first, group = np.unique(rows, return_index=True, return_inverse=True)
+    return group.ravel(), first
 
 
 def sub_triangle_centroids(level: int) -> np.ndarray:
