@@ -99,7 +99,7 @@ def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> Sur
     return SurfaceSamples(point, normal, seg.vertex_labels[first], area)
 
 
-def _groups(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _groups(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rows of ``keys`` (N, K) int64 grouped: each row's group (N,) and a member of each group (G,), the
     groups in the rows' lexicographic order. The rows become one int64 in mixed radix when their ranges
     allow (sorting integers is ~4× faster than sorting K-word byte strings), else are compared as bytes."""
