@@ -50,15 +50,15 @@ def test_merged_vertices_keep_each_regions_area_and_never_mix_sides_or_regions()
 
 @pytest.mark.parametrize("span", [10, 2**40])
 def test_rows_are_grouped_as_numpy_groups_them_in_one_integer_or_as_bytes(span):
-    """``_groups``: rows packed into one int64 when their ranges allow (span 10), compared as bytes when
+    """``group_rows``: rows packed into one int64 when their ranges allow (span 10), compared as bytes when
     not (span 2⁴⁰ in three columns overflows 63 bits): either way the groups of ``np.unique(axis=0)``
     (packed, in its order too), with negative keys."""
-    from hlr_lab.planning.samples import _groups
+    from hlr_lab.object.grouping import group_rows
 
     rng = np.random.default_rng(3)
     base = rng.integers(-span, span, size=(40, 3))
     keys = base[rng.integers(0, 40, 5_000)]  # (5 000, 3), 40 distinct rows at most
-    group, first = _groups(keys)
+    group, first = group_rows(keys)
     unique, inverse = np.unique(keys, axis=0, return_inverse=True)
     if span == 10:  # integer packing keeps the lexicographic order; bytes order differently
         assert np.array_equal(group, inverse.ravel())

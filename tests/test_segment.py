@@ -107,3 +107,18 @@ def test_palette_colours_are_far_apart():
     lab = srgb8_to_lab(PALETTE)
     d = delta_e(lab[:, None], lab[None])
     assert d[~np.eye(len(lab), dtype=bool)].min() > 30
+
+
+@pytest.mark.parametrize("k", [3, 7])
+def test_the_weighted_mode_of_few_columns_is_the_heaviest_label_of_their_votes(k):
+    """``weighted_mode`` (k² passes over the rows, for a face's corners or samples) against the general
+    ``heaviest_label`` (every vote sorted): the same label for every row of 20 000 seeded rows with many
+    ties (labels 0–3, weights 0, 0.1, 0.2, 1, 2), ties to the smaller label."""
+    from hlr_lab.object.segment import heaviest_label
+
+    rng = np.random.default_rng(k)
+    n = 20_000
+    labels = rng.integers(0, 4, (n, k))
+    weights = rng.integers(0, 3, (n, k)) * rng.choice([1.0, 0.1], size=(n, k))
+    expected = heaviest_label(np.repeat(np.arange(n), k), labels.ravel(), weights.ravel(), n)
+    assert np.array_equal(weighted_mode(labels, weights), expected)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hlr_lab.geometry.camera import Camera
+from hlr_lab.object.grouping import group_rows
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.segment import Segmentation
 
@@ -87,7 +88,7 @@ def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> Sur
             seg.vertex_labels.astype(np.int64),
         ]
     )
-    group, first = _groups(keys)
+    group, first = group_rows(keys)
     count = len(first)
     area = np.bincount(group, weights=a, minlength=count)
     weight = np.maximum(area, 1e-300)[:, None]
@@ -97,23 +98,6 @@ def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> Sur
     normal = np.column_stack([np.bincount(group, weights=n[:, k] * a, minlength=count) for k in range(3)])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     return SurfaceSamples(point, normal, seg.vertex_labels[first], area)
-
-
-def _groups(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of ``keys`` (N, K) int64 grouped: each row's group (N,) and a member of each group (G,), the
-    groups in the rows' lexicographic order. The rows become one int64 in mixed radix when their ranges
-    allow (sorting integers is ~4× faster than sorting K-word byte strings), else are compared as bytes."""
-    low = keys.min(axis=0, initial=0)
-    span = keys.max(axis=0, initial=0) - low + 1  # (K,)
-    if float(np.prod(span.astype(np.float64))) < 2.0**62:
-        radix = np.concatenate([np.cumprod(span[::-1])[::-1][1:], [1]])  # the last column varies fastest
-        rows = (keys - low) @ radix
-    else:
-        rows = (
-            np.ascontiguousarray(keys).view(np.dtype((np.void, keys.dtype.itemsize * keys.shape[1]))).ravel()
-        )
-    _, first, group = np.unique(rows, return_index=True, return_inverse=True)
-    return group.ravel(), first
 
 
 def sub_triangle_centroids(level: int) -> np.ndarray:
