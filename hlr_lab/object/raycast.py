@@ -74,9 +74,9 @@ class RayCaster:
         """(N,) bool: the mesh lies along the ray from each origin (N, 3) in its unit direction (N, 3) within
         ``reach`` (N,) of it. Embree's occlusion query: it stops at any hit and skips the hit point,
         ~5× faster than :meth:`first_hit` for shadow and visibility rays."""
-        scene = (
-            self._intersector._scene
-        )  # trimesh's wrapper: shifts (and scales) origins as the scene was built
+        # trimesh's Embree scene wrapper (private, trimesh ≥ 4): it shifts (and scales) origins as the scene
+        # was built, and passes the query through to embreex
+        scene = self._intersector._scene
         origins = np.ascontiguousarray(origins, dtype=np.float64)
         directions = np.ascontiguousarray(directions, dtype=np.float64)
         tfar = np.asarray(reach, dtype=np.float64) * scene.scale
