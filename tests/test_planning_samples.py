@@ -64,3 +64,27 @@ def test_rows_are_grouped_as_numpy_groups_them_in_one_integer_or_as_bytes(span):
         assert np.array_equal(group, inverse.ravel())
     assert np.array_equal(keys[first][group], keys)  # each row is its group's member
     assert len(first) == len(unique)
+
+
+def test_merged_samples_lie_on_the_surface_so_that_it_neither_hides_nor_shadows_them():
+    """On a 5 cm sphere (40 962 vertices) merged in 3 mm cells, a cell's mean point lies ~20 µm inside the
+    surface — beyond the ray caster's tolerances (5 µm to be seen, 0.5 µm off the surface for shadows) —
+    and the sphere itself would hide it from a camera in front and shadow it from a lamp beside that
+    camera. The samples stand on a member vertex: every one facing the camera (within 60°) is seen and
+    lit, and none lies more than 1 µm off the sphere. (At the means: 24 % seen, 81 % shadowed.)"""
+    from hlr_lab.object.raycast import RayCaster
+
+    sphere = trimesh.creation.icosphere(subdivisions=6, radius=0.05)
+    v, f = np.asarray(sphere.vertices, np.float64), np.asarray(sphere.faces, np.int64)
+    mesh = ColouredMesh(v, f, np.tile(np.array([[180, 120, 60]], np.uint8), (len(v), 1)))
+    merged = merged_vertices(mesh, segment(mesh), 0.003)
+    assert len(merged) < len(v) / 5
+    radius = np.linalg.norm(merged.point, axis=1)
+    assert np.abs(radius - 0.05).max() < 1e-6  # the icosphere's vertices lie on the sphere
+    caster = RayCaster(mesh)
+    eye = np.array([0.0, -0.5, 0.0])
+    front = merged.normal @ (eye / np.linalg.norm(eye)) > np.cos(np.radians(60))
+    assert front.sum() > 50
+    assert caster.visible_from(eye, merged.point[front]).all()
+    lamp = np.array([0.05, -0.5, 0.05])
+    assert not caster.shadowed(merged.point[front], merged.normal[front], lamp).any()

@@ -78,8 +78,9 @@ def surface_samples(
 def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> SurfaceSamples:
     """The vertices merged, region by region, into samples of a ``cell_m`` grid (metres): vertices of one
     region in one cell whose normals point alike (``_NORMAL_BINS`` per axis, so that the two sides of a
-    thin part never merge) become one sample at their area-weighted mean point and normal, standing for
-    their summed area. Vectorised: one ``np.unique`` over the (cell, normal bin, region) keys."""
+    thin part never merge) become one sample at the member vertex nearest their area-weighted mean (on the
+    surface), with their area-weighted mean normal, standing for their summed area. Vectorised: one
+    grouping of the (cell, normal bin, region) keys."""
     v, n, a = mesh.vertices, mesh.vertex_normals, mesh.vertex_areas
     keys = np.column_stack(
         [
@@ -92,12 +93,20 @@ def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> Sur
     count = len(first)
     area = np.bincount(group, weights=a, minlength=count)
     weight = np.maximum(area, 1e-300)[:, None]
-    point = (
+    mean = (
         np.column_stack([np.bincount(group, weights=v[:, k] * a, minlength=count) for k in range(3)]) / weight
     )
     normal = np.column_stack([np.bincount(group, weights=n[:, k] * a, minlength=count) for k in range(3)])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    return SurfaceSamples(point, normal, seg.vertex_labels[first], area)
+    # the sample stands at its member vertex nearest the mean, not at the mean: the mean of a curved
+    # patch lies off the surface (inside a convex one), by more than the ray caster's tolerances, and
+    # its own surface would then hide it from the camera or shadow it
+    d2 = np.sum((v - mean[group]) ** 2, axis=1)  # (V,)
+    least = np.full(count, np.inf)
+    np.minimum.at(least, group, d2)
+    at_least = np.flatnonzero(d2 == least[group])  # ascending: of a group's ties, its first vertex is kept
+    nearest = at_least[np.unique(group[at_least], return_index=True)[1]]  # (count,) in the groups' order
+    return SurfaceSamples(v[nearest], normal, seg.vertex_labels[first], area)
 
 
 def sub_triangle_centroids(level: int) -> np.ndarray:
