@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from hlr_lab.object.segment import segment
 from hlr_lab.pipeline import acquire_plan, fit_into, plan_object
 from hlr_lab.placement.faces import other_rests, register_on_faces
 from hlr_lab.placement.photographs import ObservedView, observe, registration_lamps
-from hlr_lab.placement.pose import PlacementFrame, rotation_error_deg, vertex_errors_mm
+from hlr_lab.placement.pose import PlacementFrame, local_difference, rotation_error_deg, vertex_errors_mm
 from hlr_lab.placement.solve import Outlines, Registration, register, turn_by_colours
 from hlr_lab.planning.geometry import placement
 from hlr_lab.planning.planner import PlanSettings
@@ -68,9 +68,26 @@ class Placed:
 PLACEMENTS = (Placed(4, -3, 37), Placed(12, -8, 200), Placed(-20, 0, -95), Placed(6, 9, 130, tilt_deg=3))
 
 
+def random_placements(count: int, seed: int) -> tuple[Placed, ...]:
+    """``count`` seeded placements: turned anywhere about the axis, up to 15 mm off it along each plate axis,
+    tilted up to 3° — for the standard errors' coverage (:func:`coverage_lines`)."""
+    rng = np.random.default_rng(seed)
+    return tuple(
+        Placed(
+            float(rng.uniform(-15, 15)),
+            float(rng.uniform(-15, 15)),
+            float(rng.uniform(-180, 180)),
+            float(rng.uniform(0, 3)),
+        )
+        for _ in range(count)
+    )
+
+
 @dataclass(frozen=True)
 class RegisterFigures:
-    """One case: the object, where it lay, the errors of the measured placement, and the times (s)."""
+    """One case: the object, where it lay, the errors of the measured placement, and the times (s); ``error``
+    (6,): the measured placement less the true one in the local coordinates of its standard errors (turns
+    about the turntable's axes in degrees, shifts in mm: :func:`hlr_lab.placement.pose.local_difference`)."""
 
     object: str
     placed: Placed
@@ -80,6 +97,7 @@ class RegisterFigures:
     registration: Registration
     render_s: float
     solve_s: float
+    error: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
 
 def register_case(
@@ -106,6 +124,7 @@ def register_case(
         registration=found,
         render_s=render_s,
         solve_s=solved - started,
+        error=local_difference(found.params, placed.params()),
     )
 
 
@@ -128,11 +147,12 @@ def register_bench(
     assets: Path | None,
     spp: int = 16,
     seed: int = 0,
+    placements: tuple[Placed, ...] = PLACEMENTS,
     progress: Callable[[str], None] = lambda _: None,
     done: Callable[[RegisterFigures], None] = lambda _: None,
 ) -> list[RegisterFigures]:
-    """Every object of ``objects`` planned into ``folder`` (new or empty) and measured in every placement of
-    :data:`PLACEMENTS`."""
+    """Every object of ``objects`` planned into ``folder`` (new or empty) and measured in every one of
+    ``placements``."""
     results = []
     for name in objects:
         progress(f"planning {name}…")
@@ -142,7 +162,7 @@ def register_bench(
                               up=obj.up, scale=obj.scale)  # fmt: skip
         plan_path = folder / f"{name}-plan.json"
         write_plan(plan_path, plan)
-        for placed in PLACEMENTS:
+        for placed in placements:
             progress(f"{name}: {placed.label()}…")
             result = register_case(name, plan_path, rig, placed, spp=spp, seed=seed)
             done(result)
@@ -246,6 +266,26 @@ def case_line(r: RegisterFigures) -> str:
         "seen; "
         f"render {r.render_s:.1f} s, solve {r.solve_s:.1f} s{ambiguous}"
     )
+
+
+COVERED = ("turn x", "turn y", "turn z", "shift x", "shift y", "shift z")
+
+
+def coverage_lines(results: list[RegisterFigures]) -> list[str]:
+    """Per object and over all, for each of the six numbers (:data:`COVERED`), the share of the cases whose
+    error lies within 1 and 2 stated standard errors (a normal error: 68 % and 95 %)."""
+    lines = ["", "errors within 1 / 2 stated standard errors (normal: 68 / 95 %):",
+             "  " + " " * 9 + "".join(f"{n:>13s}" for n in COVERED) + f"{'all':>13s}"]  # fmt: skip
+    groups = {
+        name: [r for r in results if r.object == name] for name in dict.fromkeys(r.object for r in results)
+    }
+    if len(groups) > 1:
+        groups["all"] = list(results)
+    for name, mine in groups.items():
+        z = np.abs(np.array([r.error / r.registration.se for r in mine]))  # (cases, 6)
+        cells = [f"{100 * (c < 1).mean():5.0f} /{100 * (c < 2).mean():4.0f} %" for c in [*z.T, z.ravel()]]
+        lines.append(f"  {name:7s} {len(mine):2d}" + "".join(f"{c:>13s}" for c in cells))
+    return lines
 
 
 def summary_lines(results: list[RegisterFigures]) -> list[str]:

@@ -43,6 +43,24 @@ class PlacementFrame:
         return np.concatenate([rotvec, 1000 * shift])
 
 
+def nudged(params: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """(6,) the placement ``params`` (6,) turned further by ``delta[:3]`` (a rotation vector in degrees about the
+    turntable's axes, through the object's centre) and shifted by ``delta[3:]`` (mm): the local coordinates
+    in which a registration states its standard errors. (A rotation vector's own components are turns about
+    the axes only near zero, and a placement turned 345° is one turned −15°.)"""
+    turn = Rotation.from_rotvec(np.radians(delta[:3])) * Rotation.from_rotvec(np.radians(params[:3]))
+    return np.concatenate([np.degrees(turn.as_rotvec()), params[3:] + delta[3:]])
+
+
+def local_difference(params: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(6,) the ``delta`` that :func:`nudged` takes ``reference`` (6,) to ``params`` (6,) with: how far one
+    placement lies from another, turn (degrees, about the turntable's axes) and shift (mm)."""
+    turn = (
+        Rotation.from_rotvec(np.radians(params[:3])) * Rotation.from_rotvec(np.radians(reference[:3])).inv()
+    )
+    return np.concatenate([np.degrees(turn.as_rotvec()), params[3:] - reference[3:]])
+
+
 def yaw_params(yaw_deg: float, shift_mm: np.ndarray) -> np.ndarray:
     """(6,) a turn of ``yaw_deg`` about the vertical through the centre, then ``shift_mm`` (3,)."""
     return np.concatenate([[0.0, 0.0, yaw_deg], shift_mm])

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 import trimesh
-from scipy.ndimage import map_coordinates
+from scipy.ndimage import gaussian_filter, map_coordinates
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -31,7 +31,7 @@ from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface, RayCaster
 from hlr_lab.placement.photographs import ObservedView
-from hlr_lab.placement.pose import PlacementFrame, yaw_params
+from hlr_lab.placement.pose import PlacementFrame, local_difference, nudged, yaw_params
 
 YAW_STEP_DEG = 10.0  # the search's step about the axis: a mask overlaps its own 5° turn by ≳ 90 %
 CANDIDATES = 3  # yaws refined from the search's best scores
@@ -42,8 +42,17 @@ OUTLINE_PX = 1.5  # a contour point within this of the predicted mask's border i
 ROBUST_PX = 1.0  # soft-L1 scale of the outline residuals (px): a mask's border is known to ~0.5 px
 MAX_SHIFT_MM = 30.0  # the search range: off the axis, in the plate's plane
 MAX_TILT_DEG = 5.0  # and tilted from how the plan stands it
+# px: the photographed border's signed distance is smoothed by a Gaussian this wide. A binary mask's border is a
+# staircase, whose signed distance slopes along the edge as much as across it: a contour point sliding along
+# the edge as the object turns then looks like a point moving across it, and the fit both stalled on the steps
+# and believed itself 10–30× surer of a near-round object's tilt than it was (the ray-cast pebble: 0.4° off,
+# ±0.03°); smoothed over a step, the slope is the edge's own (0.1° off, ±0.05°; docs/placement.md)
+SDF_BLUR_PX = 1.0
 # a contour point this near the photographed border was seen there (else: not lit, or not the object)
 SEEN_PX = 3.0
+# the border's bias as a function of its direction, to this harmonic (a pixel staircase's is the 4th)
+BIAS_HARMONICS = 4
+BIAS_FLOOR_PX = 0.02  # the least spread of its coefficients: ray-cast binary masks measured ~0.015 px
 # the outline where the surface the camera sees faces further down than this (the z of its unit normal,
 # turntable frame) is left out: every lamp is above the plate, so no lamp lights it head on, its shading
 # fades toward the edge and the half-bright rule cuts the mask short there (bench register, at the truth:
@@ -79,7 +88,9 @@ COLOUR_FLOOR_DEG = 0.1  # the colour turn's least stated error: bench register's
 @dataclass(frozen=True, eq=False)
 class Registration:
     """Where the object was found: ``params`` (6,) of ``frame`` (rotation vector in degrees about the planned
-    centre, then the shift in mm), their standard errors ``se`` (6,), ``mesh_to_turntable`` (4, 4), the
+    centre, then the shift in mm), their standard errors ``se`` (6,: of a further small turn about the
+    turntable's x, y and z axes through the object's centre, degrees — the yaw is about z — then of the shift,
+    mm), ``mesh_to_turntable`` (4, 4), the
     outline residual's RMS (px) over the ``points`` contour points found on the photographed outline
     (within :data:`SEEN_PX`), the share of the contour points so found (``outline_seen``), when a turn
     about the axis is not determined by the outlines, why (``ambiguous``), and the photographed outline's
@@ -118,7 +129,7 @@ class Outlines:
             raise PlacementError("registration needs at least one photographed view")
         self.mesh, self.frame, self.views = mesh, frame, views
         self.cameras = [view_camera(camera, v.turntable_deg) for v in views]
-        self.sdf = [signed_distance(v.mask) for v in views]
+        self.sdf = [gaussian_filter(signed_distance(v.mask).astype(np.float64), SDF_BLUR_PX) for v in views]
         tm = mesh.trimesh
         self._adjacent_faces = np.asarray(tm.face_adjacency)  # (E, 2)
         self._shared_edges = np.asarray(tm.face_adjacency_edges)  # (E, 2) vertices, beside _adjacent_faces
@@ -185,6 +196,17 @@ class Outlines:
                 for cam, sdf, p in zip(self.cameras, self.sdf, points, strict=True)
             ]
         )
+
+    def border_angles(self, params: np.ndarray, points: list[np.ndarray]) -> np.ndarray:
+        """(ΣN_k,) radians: the direction in the image (atan2 of y, x) of the photographed border's outward
+        normal at each contour point, from the gradient of its view's signed distance."""
+        m = self.frame.matrix(params)
+        angles = []
+        for cam, sdf, p in zip(self.cameras, self.sdf, points, strict=True):
+            pixels = self._project(cam, m, p)
+            across, down = (_sample(sdf, pixels + h) - _sample(sdf, pixels - h) for h in 0.5 * np.eye(2))
+            angles.append(np.arctan2(down, across))
+        return np.concatenate(angles)
 
     def overlap(self, params: np.ndarray) -> float:
         """The masks' mean intersection over union at 1/:data:`SEARCH_SCALE` resolution (0–1)."""
@@ -469,13 +491,15 @@ def _result(
             f"{MAX_TILT_DEG:.0f}°): put it back near the turntable's centre, standing as the plan says, and "
             "register again"
         )
-    # the standard errors (a jackknife of six refits) only for a placement that is kept
+    # the standard errors (a jackknife of six refits) only for a placement that is kept, in the local
+    # coordinates nudged() defines: a rotation vector's own components mean turns about the axes only near
+    # zero, and a search may settle on one of ~345° as well as on its −15°
     step = 1e-3  # degrees, mm and px: central differences, far above the residuals' rounding
     jac = np.stack(
         [
             (
-                _offset_residuals(x + step * e, outlines, points)
-                - _offset_residuals(x - step * e, outlines, points)
+                _offset_residuals(_nudged(x, step * e), outlines, points)
+                - _offset_residuals(_nudged(x, -step * e), outlines, points)
             )
             / (2 * step)
             for e in np.eye(7)
@@ -496,7 +520,9 @@ def _result(
     # a ridge far below any determined direction's curvature: a direction the outlines do not see (the turn
     # of a round object) gets a huge standard error instead of a singular matrix
     cov = np.linalg.inv(jtj + 1e-12 * np.trace(jtj) * np.eye(7)) * robust_sigma**2 * inflate
-    se = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)), _jackknife_se(outlines, x, points))[:6]
+    statistical = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)), _jackknife_se(outlines, x, points))
+    bias = _outline_bias_se(jac, outlines.border_angles(params, points)[seen], residual_seen)
+    se = np.hypot(statistical, bias)[:6]
     if ambiguous is None and se[2] > AMBIGUOUS_SE_DEG:
         ambiguous = (
             f"the outlines hardly change as the object turns about the axis (yaw ± {min(se[2], 999):.0f}°): "
@@ -515,9 +541,9 @@ def _result(
 
 
 def _jackknife_se(outlines: Outlines, x: np.ndarray, points: list[np.ndarray]) -> np.ndarray:
-    """(7,) standard errors of ``x`` (the placement, the outline's offset) from the fits that leave one view
-    out (the jackknife over views; zeros with
-    fewer than three views). The outline's errors are not independent pixel to pixel — a mask's edge biased
+    """(7,) standard errors of ``x`` (the placement, the outline's offset; in :func:`_nudged`'s local
+    coordinates) from the fits that leave one view out (the jackknife over views; zeros with fewer than three
+    views). The outline's errors are not independent pixel to pixel — a mask's edge biased
     where the brightness changes fast, a straight edge quantised the same way along its length — so the
     Jacobian's errors alone came out 10–50× below the true errors (pebble: ±0.007° against 0.1–0.4°); how
     much the placement moves when a whole view is dropped measures what the views disagree on."""
@@ -529,13 +555,49 @@ def _jackknife_se(outlines: Outlines, x: np.ndarray, points: list[np.ndarray]) -
         kept = [p if k != left_out else p[:0] for k, p in enumerate(points)]
         fit = least_squares(_offset_residuals, x, args=(outlines, kept), loss="soft_l1", f_scale=ROBUST_PX)
         estimates.append(fit.x)
-    spread = np.asarray(estimates) - np.mean(estimates, axis=0)
+    local = np.array(
+        [np.append(local_difference(e[:6], x[:6]), e[6] - x[6]) for e in estimates]
+    )  # (views, 7)
+    spread = local - local.mean(axis=0)
     return np.sqrt((views - 1) / views * (spread**2).sum(axis=0))
+
+
+def _outline_bias_se(jac: np.ndarray, angles: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """(7,) what a bias of the photographed border that depends on its direction leaves uncertain in the fit's
+    seven numbers (local coordinates), given its Jacobian ``jac`` (N, 7) at the contour points, their border's
+    outward direction ``angles`` (N,) radians, and their residuals ``residual`` (N,) px.
+
+    A mask's edge is not displaced at random from point to point: where the lamps light the outline from
+    above, its top lies a little further out than its bottom (a vertical shift of the outline, which is a
+    height), a binary mask's staircase sits differently on a diagonal than on a straight edge, and so on —
+    one smooth function of the direction, the same in every view. The bias is modelled as its first
+    :data:`BIAS_HARMONICS` harmonics in the direction, each coefficient of a spread σ_b; the numbers then move
+    by G·c, G the least-squares map from a residual pattern to them, hence σ_b²·GGᵀ. σ_b is read from the fit's
+    own residuals (the RMS of their harmonic coefficients; what the placement took up of the bias is not seen
+    there, so it is a floor, never below :data:`BIAS_FLOOR_PX`). The rendered pebble measured 0.05–0.3 px of
+    such bias at the true placement, the ray-cast masks ~0.02 px; without the term its height came out 3–5 SE
+    off (docs/placement.md)."""
+    order = np.arange(1, BIAS_HARMONICS + 1)
+    basis = np.concatenate(
+        [np.cos(np.outer(angles, order)), np.sin(np.outer(angles, order))], axis=1
+    )  # (N, 2K)
+    coefficients = np.linalg.lstsq(basis, residual - residual.mean(), rcond=None)[0]
+    sigma_b = max(float(np.sqrt(np.mean(coefficients**2))), BIAS_FLOOR_PX)
+    moves = np.linalg.lstsq(jac, basis, rcond=None)[0]  # (7, 2K)
+    return sigma_b * np.sqrt((moves**2).sum(axis=1))
+
+
+def _nudged(x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """(7,) :func:`~hlr_lab.placement.pose.nudged` of the placement ``x[:6]``, the outline's offset ``x[6]``
+    moved by ``delta[6]``."""
+    return np.append(nudged(x[:6], delta[:6]), x[6] + delta[6])
 
 
 def _sample(image: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """(N,) ``image`` (H, W) bilinear at ``pixels`` (N, 2) (x, y); far beyond the image where off it."""
-    values = map_coordinates(image, [pixels[:, 1], pixels[:, 0]], order=1, mode="nearest")
+    # interpolated in float64 whatever the image's type: the fit's finite differences move a point by ~1e-7 px,
+    # below a float32 result's resolution, and a Jacobian of rounding noise stalls the fit short of the minimum
+    values = map_coordinates(image, [pixels[:, 1], pixels[:, 0]], order=1, mode="nearest", output=np.float64)
     off = ~np.isfinite(pixels).all(axis=1)
     values[off] = 1e3
     return values
