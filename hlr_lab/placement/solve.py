@@ -129,7 +129,8 @@ class Outlines:
             raise PlacementError("registration needs at least one photographed view")
         self.mesh, self.frame, self.views = mesh, frame, views
         self.cameras = [view_camera(camera, v.turntable_deg) for v in views]
-        self.sdf = [gaussian_filter(signed_distance(v.mask).astype(np.float64), SDF_BLUR_PX) for v in views]
+        # kept in float32 (5 MB a 1280 × 960 view); _sample reads it in float64
+        self.sdf = [gaussian_filter(signed_distance(v.mask), SDF_BLUR_PX) for v in views]
         tm = mesh.trimesh
         self._adjacent_faces = np.asarray(tm.face_adjacency)  # (E, 2)
         self._shared_edges = np.asarray(tm.face_adjacency_edges)  # (E, 2) vertices, beside _adjacent_faces
