@@ -10,11 +10,12 @@ import multiprocessing
 import os
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.spatial import KDTree
 
 from hlr_lab.errors import HlrLabError
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName, fit_region
@@ -23,9 +24,9 @@ from hlr_lab.geometry.sphere import directions_with_spacing
 from hlr_lab.object.mesh import ColouredMesh, load_mesh
 from hlr_lab.object.procedural import paint_patches, pebble
 from hlr_lab.object.raycast import RayCaster, visible_vertices
-from hlr_lab.object.segment import segment
+from hlr_lab.object.segment import Segmentation, segment
 from hlr_lab.planning.geometry import placement
-from hlr_lab.planning.planner import PlanSettings, plan_lights
+from hlr_lab.planning.planner import PlannedLight, PlanSettings, TakenLight, plan_lights
 from hlr_lab.rig.file import Rig, sim_rig
 
 PAPER_REGIONS = 8
@@ -46,9 +47,19 @@ def paper_41_object(
 
 
 def subdivided(mesh: ColouredMesh, min_vertices: int) -> ColouredMesh:
+    """``mesh`` split at its edges' midpoints (the same surface) until it has at least ``min_vertices``:
+    whole rounds while a round (~4× the vertices) stays within the count, then rounds on a subset of the
+    faces, spread over the mesh, that add about the vertices still missing (their unsplit neighbours keep
+    the midpoints as T-junctions on straight edges: no gap opens), so that the count lands just past it."""
     v, f = mesh.vertices, mesh.faces
     while len(v) < min_vertices:
-        v, f = trimesh.remesh.subdivide(v, f)[:2]
+        missing = min_vertices - len(v)
+        if 4 * len(v) <= min_vertices:
+            v, f = trimesh.remesh.subdivide(v, f)[:2]
+            continue
+        # a split face adds its three edges' midpoints (fewer where a neighbour is split too: another round)
+        k = min(len(f), int(np.ceil(missing / 3)))
+        v, f = trimesh.remesh.subdivide(v, f, face_index=np.linspace(0, len(f) - 1, k).astype(np.int64))[:2]
     return ColouredMesh(v, f)
 
 
@@ -65,6 +76,13 @@ class PlanFigures:
     stages: dict[str, float]
     rss_before_mb: float
     rss_peak_plan_mb: float
+    segment_s: float
+    rss_peak_segment_mb: float
+    proxy_vertices: int = 0  # the ray proxy's vertices (0: planned on the mesh itself)
+    # the plan's claims against its lights counted exactly on the mesh itself (planned on a proxy), and on
+    # the mesh it was subdivided from (a decimated copy), as ratios claim / count: per region, in total
+    claims_on_mesh: np.ndarray | None = None
+    claims_on_copy: np.ndarray | None = None
 
 
 class _PeakRss:
@@ -98,17 +116,24 @@ class _PeakRss:
 def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vertices: int) -> PlanFigures:
     rig = sim_rig()
     base = load_mesh(mesh_path) if mesh_path else pebble().mesh
-    if min_vertices:
-        base = subdivided(base, min_vertices)
-    painted = paper_41_object(base, rig, up=up, scale=scale)
-    seg = segment(painted)
+    coarse = paper_41_object(base, rig, up=up, scale=scale)
+    painted = (
+        paper_41_object(subdivided(base, min_vertices), rig, up=up, scale=scale) if min_vertices else coarse
+    )
+    del base  # a plan process holds one copy of the mesh
+    gc.collect()
+    with _PeakRss() as segmenting:
+        t = time.perf_counter()
+        seg = segment(painted)
+        segment_s = time.perf_counter() - t
+    gc.collect()
     rss = _PeakRss()
     before = rss._rss()
     with rss:
         t = time.perf_counter()
         result = plan_lights(painted, seg, rig, PAPER_SETTINGS)
         elapsed = time.perf_counter() - t
-    return PlanFigures(
+    figures = PlanFigures(
         case,
         len(painted.vertices),
         seg.n_regions,
@@ -120,7 +145,30 @@ def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vert
         result.seconds,
         before / 2**20,
         rss.peak / 2**20,
+        segment_s,
+        segmenting.peak / 2**20,
     )
+    if result.proxy is None:
+        return figures
+    # the claims checked, after the figures: the full mesh's ray engine is what the proxy spares
+    claims = np.sum([light.expected for light in result.lights], axis=0)  # (R,)
+    figures.proxy_vertices = len(result.proxy.mesh.vertices)
+    figures.claims_on_mesh = claims / counted_on(painted, seg, rig, result.lights)
+    if coarse is not painted:
+        # the decimated copy painted as the scan is (each vertex the label of the scan's nearest)
+        label = seg.vertex_labels[KDTree(painted.vertices).query(coarse.vertices)[1]]
+        copy_seg = replace(seg, vertex_labels=label, face_labels=label[coarse.faces[:, 0]])
+        figures.claims_on_copy = claims / counted_on(coarse, copy_seg, rig, result.lights)
+    return figures
+
+
+def counted_on(mesh: ColouredMesh, seg: Segmentation, rig: Rig, lights: list[PlannedLight]) -> np.ndarray:
+    """(R,) the highlight samples ``lights`` give each region, counted exactly on ``mesh`` itself (no proxy)
+    with the paper set-up's settings."""
+    taken = [TakenLight(light.turntable_deg, light.light_world) for light in lights]
+    settings = replace(PAPER_SETTINGS, max_lights=len(taken), compare_criteria=False, optimum_budget_s=0)
+    counted = plan_lights(mesh, seg, rig, settings, caster=RayCaster(mesh), taken=taken)
+    return np.sum([light.expected for light in counted.lights[: len(taken)]], axis=0)
 
 
 @dataclass
@@ -383,13 +431,31 @@ def run_session_fit_case(session: Path) -> SessionFitFigures:
 def plan_report(f: PlanFigures) -> list[str]:
     """What ``hlr-lab bench plan`` prints for one case."""
     stages = ", ".join(f"{k} {v:.2f}" for k, v in f.stages.items())
-    return [
+    lines = [
         f"{f.case}: {f.vertices:,} vertices, {f.regions} regions",
         f"  lights {f.lights} (lower bound {f.lower_bound}; the plain count's greedy {f.lights_plain}), "
         f"uncovered regions {f.uncovered}",
         f"  plan time {f.plan_s:.2f} s  [{stages}]",
         f"  memory: RSS {f.rss_before_mb:.0f} MB before planning, peak RSS {f.rss_peak_plan_mb:.0f} MB while planning",
+        f"  segmenting it (not in the plan time): {f.segment_s:.2f} s, peak RSS {f.rss_peak_segment_mb:.0f} MB",
     ]
+    if f.proxy_vertices:
+        lines.append(
+            f"  planned on a ray proxy of {f.proxy_vertices:,} vertices; claims / the lights counted exactly:"
+        )
+    for where, ratio in (
+        ("on the mesh itself", f.claims_on_mesh),
+        ("on the mesh it was subdivided from", f.claims_on_copy),
+    ):
+        if ratio is not None:
+            spread = ", ".join(f"{r:.2f}" for r in ratio)
+            lines.append(f"    {where}: per region {spread}; worst {_worst(ratio):+.0%}")
+    return lines
+
+
+def _worst(ratio: np.ndarray) -> float:
+    """The ratio furthest from 1, as a relative error."""
+    return float(ratio[np.argmax(np.abs(ratio - 1))] - 1)
 
 
 def grid_report(rows: list[FitErrors]) -> list[str]:

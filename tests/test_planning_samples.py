@@ -52,7 +52,7 @@ def test_merged_vertices_keep_each_regions_area_and_never_mix_sides_or_regions()
 def test_rows_are_grouped_as_numpy_groups_them_in_one_integer_or_as_bytes(span):
     """``group_rows``: rows packed into one int64 when their ranges allow (span 10), compared as bytes when
     not (span 2⁴⁰ in three columns overflows 63 bits): either way the groups of ``np.unique(axis=0)``
-    (packed, in its order too), with negative keys."""
+    (packed, in its order too), with negative keys; given as narrow columns, the same groups."""
     from hlr_lab.object.grouping import group_rows
 
     rng = np.random.default_rng(3)
@@ -60,6 +60,13 @@ def test_rows_are_grouped_as_numpy_groups_them_in_one_integer_or_as_bytes(span):
     keys = base[rng.integers(0, 40, 5_000)]  # (5 000, 3), 40 distinct rows at most
     group, first = group_rows(keys)
     unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    if span == 10:  # the same from narrow columns
+        narrow = group_rows(
+            [keys[:, 0].astype(np.int8), keys[:, 1].astype(np.int16), keys[:, 2].astype(np.int32)]
+        )
+        assert np.array_equal(narrow[0], group)
+        assert np.array_equal(narrow[1], first)
+        assert np.array_equal(first, np.unique(keys, axis=0, return_index=True)[1])  # each group's first row
     if span == 10:  # integer packing keeps the lexicographic order; bytes order differently
         assert np.array_equal(group, inverse.ravel())
     assert np.array_equal(keys[first][group], keys)  # each row is its group's member

@@ -27,6 +27,7 @@ CREASE_DEG = 60.0  # faces meeting at a sharper angle than this do not share a s
 # trimesh gives an OBJ that has UVs but no material a 2×2 grey placeholder image; anything this
 # small is not a real texture.
 _PLACEHOLDER_TEXELS = 4
+_FACE_BLOCK = 1 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +39,9 @@ class ColouredMesh:
     vertex_colours (V, 3) uint8 sRGB, or None
     corner_uv      (F, 3, 2) float64 texture coordinates per face corner, or None
     texture        (H, W, 3) uint8 sRGB (row 0 is the top of the image), or None
+    normals        (V, 3) float64 unit vertex normals given with the mesh (a planning proxy's: the mean
+                   normal of the scan's vertices each of its vertices stands for), or None: computed
+                   from the faces
     """
 
     vertices: np.ndarray
@@ -48,6 +52,7 @@ class ColouredMesh:
     source: Path | None = None
     sha256: str | None = None
     texture_source: Path | None = field(default=None)
+    normals: np.ndarray | None = None
 
     @property
     def has_colour(self) -> bool:
@@ -57,37 +62,52 @@ class ColouredMesh:
     def trimesh(self) -> trimesh.Trimesh:
         return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
 
-    @cached_property
-    def _normals_and_areas(self) -> tuple[np.ndarray, np.ndarray]:
-        """(F, 3) unit face normals (0 for a degenerate face) and (F,) areas from one cross product: not
-        trimesh's, which keeps every face's corners (F × 72 bytes) and the cross product in its cache."""
-        v, f = self.vertices, self.faces
-        cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # (F, 3), |cross| = 2 × area
-        double_area = np.linalg.norm(cross, axis=1)
-        normals = np.divide(
-            cross, double_area[:, None], out=np.zeros_like(cross), where=double_area[:, None] > 0
-        )
-        return normals, double_area / 2
+    def _face_cross(self, start: int, stop: int) -> np.ndarray:
+        """(stop − start, 3) the cross products of faces start…stop−1's edges: normal × twice the area."""
+        v, f = self.vertices, self.faces[start:stop]
+        corner = v[f[:, 0]]
+        e1, e2 = v[f[:, 1]] - corner, v[f[:, 2]] - corner
+        out = corner  # reused: a scan's blocks are the largest temporaries here
+        for k in range(3):  # np.cross, without its general-shape overhead (~2× on millions)
+            i, j = (k + 1) % 3, (k + 2) % 3
+            out[:, k] = e1[:, i] * e2[:, j] - e1[:, j] * e2[:, i]
+        return out
+
+    def _face_blocks(self) -> range:
+        """Starts of blocks of ``_FACE_BLOCK`` faces: a scan's per-face temporaries stay bounded (a whole
+        (F, 3) float64 is 430 MB at 18 M faces, and a cross product makes four)."""
+        return range(0, len(self.faces), _FACE_BLOCK)
 
     @cached_property
     def face_normals(self) -> np.ndarray:
-        """(F, 3) unit normals (counter-clockwise winding faces outward)."""
-        return self._normals_and_areas[0]
+        """(F, 3) unit normals (counter-clockwise winding faces outward; 0 for a degenerate face). Not
+        trimesh's, which keeps every face's corners (F × 72 bytes) and the cross product in its cache."""
+        out = np.zeros((len(self.faces), 3))
+        for start in self._face_blocks():
+            cross = self._face_cross(start, start + _FACE_BLOCK)
+            norm = np.linalg.norm(cross, axis=1, keepdims=True)
+            np.divide(cross, norm, out=out[start : start + len(cross)], where=norm > 0)
+        return out
 
     @cached_property
     def vertex_normals(self) -> np.ndarray:
-        """(V, 3) unit normals, area-weighted mean of the adjacent faces' normals."""
-        cross = self.face_normals * (2 * self.face_areas)[:, None]  # the faces' cross products: area-weighted
-        # the sum over each vertex's faces: bincounts per corner and axis (np.add.at: 1.2–3× slower on millions)
+        """(V, 3) unit normals: those given with the mesh, else :meth:`area_weighted_normals` (kept)."""
+        return self.normals if self.normals is not None else self.area_weighted_normals()
+
+    def area_weighted_normals(self) -> np.ndarray:
+        """(V, 3) unit normals, the area-weighted mean of the adjacent faces' normals, computed anew (a scan's
+        planning proxy needs them once, and 240 MB at 10 M vertices need not stay)."""
+        # the sum over each vertex's faces of their cross products (area-weighted normals): bincounts per
+        # axis (np.add.at: 1.2–3× slower on millions), a block of faces at a time
         n = len(self.vertices)
-        acc = np.column_stack(
-            [
-                sum(np.bincount(self.faces[:, c], weights=cross[:, k], minlength=n) for c in range(3))
-                for k in range(3)
-            ]
-        )
-        norm = np.linalg.norm(acc, axis=1, keepdims=True)
-        return np.divide(acc, norm, out=np.zeros_like(acc), where=norm > 0)
+        acc = np.zeros((n, 3))
+        for start in self._face_blocks():
+            cross = self._face_cross(start, start + _FACE_BLOCK)
+            corners = self.faces[start : start + len(cross)].ravel()  # (3B,) each face's three corners
+            for k in range(3):
+                acc[:, k] += np.bincount(corners, weights=np.repeat(cross[:, k], 3), minlength=n)
+        norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]  # np.linalg.norm makes a (V, 3) temporary
+        return np.divide(acc, norm, out=acc, where=norm > 0)  # in place: a vertex without area stays 0
 
     @cached_property
     def corner_normals(self) -> np.ndarray:
@@ -131,7 +151,11 @@ class ColouredMesh:
     @cached_property
     def face_areas(self) -> np.ndarray:
         """(F,) triangle areas, m²."""
-        return self._normals_and_areas[1]
+        out = np.empty(len(self.faces))
+        for start in self._face_blocks():
+            cross = self._face_cross(start, start + _FACE_BLOCK)
+            out[start : start + len(cross)] = np.linalg.norm(cross, axis=1) / 2
+        return out
 
     @cached_property
     def vertex_areas(self) -> np.ndarray:
@@ -140,17 +164,15 @@ class ColouredMesh:
             self.faces.ravel(), weights=np.repeat(self.face_areas / 3.0, 3), minlength=len(self.vertices)
         )
 
-    @cached_property
     def vertex_adjacency(self) -> sp.csr_matrix:
-        """(V, V) symmetric boolean adjacency along mesh edges."""
+        """(V, V) symmetric boolean adjacency along mesh edges (not kept: 30 bytes a vertex)."""
         e = self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
         n = len(self.vertices)
         a = sp.coo_matrix((np.ones(len(e), bool), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
         return (a + a.T).astype(bool).tocsr()
 
-    @cached_property
     def face_adjacency(self) -> sp.csr_matrix:
-        """(F, F) symmetric boolean adjacency of faces sharing an edge."""
+        """(F, F) symmetric boolean adjacency of faces sharing an edge (not kept)."""
         pairs = np.asarray(self.trimesh.face_adjacency)
         n = len(self.faces)
         a = sp.coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
@@ -170,8 +192,20 @@ class ColouredMesh:
             if self.corner_uv is None
             else (self.corner_uv if faces is self.faces else self.corner_uv[:, ::-1])
         )
+        normals = None
+        if self.normals is not None:  # a similarity turns normals as it turns the vertices (M⁻ᵀ ∝ M)
+            normals = self.normals @ matrix[:3, :3].T
+            normals /= np.linalg.norm(normals, axis=1, keepdims=True)
         return ColouredMesh(
-            v, faces, self.vertex_colours, uv, self.texture, self.source, self.sha256, self.texture_source
+            v,
+            faces,
+            self.vertex_colours,
+            uv,
+            self.texture,
+            self.source,
+            self.sha256,
+            self.texture_source,
+            normals,
         )
 
 

@@ -80,10 +80,10 @@ def segment(
         srgb = sample_texture(texture, np.einsum("sk,fkt->fst", FACE_SAMPLES, corner_uv))
         samples = srgb.reshape(-1, 3)
         sample_weight = np.repeat(mesh.face_areas / len(FACE_SAMPLES), len(FACE_SAMPLES))
-        node_weight, adjacency = mesh.face_areas, mesh.face_adjacency
+        node_weight, adjacency = mesh.face_areas, mesh.face_adjacency()
     else:
         samples, sample_weight = vertex_colours, mesh.vertex_areas
-        node_weight, adjacency = mesh.vertex_areas, mesh.vertex_adjacency
+        node_weight, adjacency = mesh.vertex_areas, mesh.vertex_adjacency()
 
     sample_label = cluster_colours(
         srgb8_to_lab(samples), sample_weight, delta_e=delta_e, n_clusters=n_materials
@@ -315,7 +315,7 @@ def _summarise(
     used = np.unique(np.concatenate([vertex_labels, face_labels]))
     area = np.bincount(face_labels, weights=mesh.face_areas, minlength=used.max() + 1)
     order = used[np.lexsort((used, -area[used]))]  # largest area first, ties by old id
-    new_id = np.full(used.max() + 1, -1)
+    new_id = np.full(used.max() + 1, -1, dtype=np.int32)  # int32: a scan's labels at half the memory
     new_id[order] = np.arange(len(order))
     vertex_labels, face_labels = new_id[vertex_labels], new_id[face_labels]
     sample_new = new_id[sample_region]

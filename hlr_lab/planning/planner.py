@@ -32,6 +32,7 @@ from hlr_lab.planning.diffuse import diffuse_counts, diffuse_estimates
 from hlr_lab.planning.geometry import LightSphere, light_sphere, mirror_highlights
 from hlr_lab.planning.greedy import MIN_GAIN, Choice, Selection, prune, score, select_lights
 from hlr_lab.planning.optimum import TIME_GUARD, CoverOptimum, minimum_cover
+from hlr_lab.planning.proxy import RayProxy, ray_proxy
 from hlr_lab.planning.samples import ESTIMATE_PX, SurfaceSamples, surface_samples
 from hlr_lab.rig.file import Rig
 
@@ -167,6 +168,7 @@ class PlanResult:
     samples: SurfaceSamples  # what the counts count (points in the turntable frame)
     optimum: PlanOptimum
     seconds: dict[str, float] = field(default_factory=dict)
+    proxy: RayProxy | None = None  # the coarser copy of a scan the plan was made on (planning/proxy.py)
 
     @property
     def diffuse(self) -> np.ndarray:
@@ -247,8 +249,17 @@ def plan_lights(
 
     ``taken``: lights already photographed; the plan starts with them (purpose "taken", their exact counts)
     and adds lights only for what they leave short (the optimum's figures are of the added lights).
+
+    A mesh far finer than the image (a scan) is planned on its ray proxy (``PlanResult.proxy``,
+    :mod:`hlr_lab.planning.proxy`) unless ``caster`` is given, which is then the mesh's own.
     """
     clock = _Clock()
+    proxy = None
+    if caster is None and settings.count == "pixels":
+        proxy = ray_proxy(placed, segmentation, rig.camera)
+        if proxy is not None:
+            placed, segmentation = proxy.mesh, proxy.segmentation
+    clock.lap("proxy")
     planner = _Planner(placed, segmentation, rig, settings, caster, clock, taken)
     given = [planner.taken_light(i, t) for i, t in enumerate(taken)]
     had = np.sum([light.expected for light in given], axis=0) + np.zeros(segmentation.n_regions)
@@ -294,6 +305,7 @@ def plan_lights(
         planner.surface,
         optimum,
         clock.laps,
+        proxy,
     )
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hlr_lab.geometry.camera import Camera
-from hlr_lab.object.grouping import group_rows
+from hlr_lab.object.clusters import cluster_vertices
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.segment import Segmentation
 
@@ -30,7 +30,6 @@ MERGE_BELOW = 0.25
 # put the 2.2 M-vertex bunny's LP bound at 2.03 over its exact 2-light plan; 4 px cells give 1.78 (its
 # vertices unmerged: 1.69)
 MERGED_MAX_PX = 4.0
-_NORMAL_BINS = 3  # per axis: vertices whose normals differ by more than ~40° are never merged
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,6 +45,11 @@ class SurfaceSamples:
         return len(self.region)
 
 
+def pixels_per_m2(points: np.ndarray, camera: Camera) -> np.ndarray:
+    """(N,) pixels a square metre at each point (N, 3) covers when it faces ``camera`` (same frame)."""
+    return camera.matrix[0, 0] * camera.matrix[1, 1] / np.sum((camera.centre - points) ** 2, axis=1)
+
+
 def vertex_samples(mesh: ColouredMesh, seg: Segmentation) -> SurfaceSamples:
     """The mesh's vertices as samples (the paper's count): positions, normals, labels, areas (m²)."""
     return SurfaceSamples(mesh.vertices, mesh.vertex_normals, seg.vertex_labels, mesh.vertex_areas)
@@ -58,9 +62,7 @@ def surface_samples(
     vertices when they are already that fine); ``camera`` (in the mesh's frame) sets the pixel scale."""
     if count == "vertices":
         return vertex_samples(mesh, seg)
-    px_per_m2 = (
-        camera.matrix[0, 0] * camera.matrix[1, 1] / np.sum((camera.centre - mesh.vertices) ** 2, axis=1)
-    )
+    px_per_m2 = pixels_per_m2(mesh.vertices, camera)
     vertex_px = float(np.median(mesh.vertex_areas * px_per_m2))
     if vertex_px <= target_px:
         if vertex_px < MERGE_BELOW * target_px:
@@ -76,37 +78,12 @@ def surface_samples(
 
 
 def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> SurfaceSamples:
-    """The vertices merged, region by region, into samples of a ``cell_m`` grid (metres): vertices of one
-    region in one cell whose normals point alike (``_NORMAL_BINS`` per axis, so that the two sides of a
-    thin part never merge) become one sample at the member vertex nearest their area-weighted mean (on the
-    surface), with their area-weighted mean normal, standing for their summed area. Vectorised: one
-    grouping of the (cell, normal bin, region) keys."""
-    v, n, a = mesh.vertices, mesh.vertex_normals, mesh.vertex_areas
-    keys = np.column_stack(
-        [
-            np.floor(v / cell_m).astype(np.int64),
-            np.clip(np.floor((n + 1) * _NORMAL_BINS / 2), 0, _NORMAL_BINS - 1).astype(np.int64),
-            seg.vertex_labels.astype(np.int64),
-        ]
-    )
-    group, first = group_rows(keys)
-    count = len(first)
-    area = np.bincount(group, weights=a, minlength=count)
-    weight = np.maximum(area, 1e-300)[:, None]
-    mean = (
-        np.column_stack([np.bincount(group, weights=v[:, k] * a, minlength=count) for k in range(3)]) / weight
-    )
-    normal = np.column_stack([np.bincount(group, weights=n[:, k] * a, minlength=count) for k in range(3)])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    # the sample stands at its member vertex nearest the mean, not at the mean: the mean of a curved
-    # patch lies off the surface (inside a convex one), by more than the ray caster's tolerances, and
-    # its own surface would then hide it from the camera or shadow it
-    d2 = np.sum((v - mean[group]) ** 2, axis=1)  # (V,)
-    least = np.full(count, np.inf)
-    np.minimum.at(least, group, d2)
-    at_least = np.flatnonzero(d2 == least[group])  # ascending: of a group's ties, its first vertex is kept
-    nearest = at_least[np.unique(group[at_least], return_index=True)[1]]  # (count,) in the groups' order
-    return SurfaceSamples(v[nearest], normal, seg.vertex_labels[first], area)
+    """The vertices merged, region by region, into samples of a ``cell_m`` grid (metres): the vertices of one
+    region in one cell whose normals point alike become one sample at the member vertex nearest their
+    area-weighted mean (on the surface), with their area-weighted mean normal, standing for their summed
+    area (:func:`~hlr_lab.object.clusters.cluster_vertices`)."""
+    c = cluster_vertices(mesh.vertices, mesh.vertex_normals, mesh.vertex_areas, seg.vertex_labels, cell_m)
+    return SurfaceSamples(mesh.vertices[c.member], c.normal, c.label, c.area)
 
 
 def sub_triangle_centroids(level: int) -> np.ndarray:
