@@ -117,3 +117,21 @@ def test_a_scan_is_planned_on_its_proxy_and_its_claims_hold_on_the_scan_itself()
     assert claims.sum() == pytest.approx(on_scan.sum(), rel=0.12)
     stone = pebble().mesh
     assert ray_proxy(stone.transformed(placement(stone)), segment(stone), rig.camera) is None
+
+
+def test_bench_plan_prints_the_proxy_and_the_claims_checked_on_the_mesh():
+    """``bench plan``'s lines for a scan: the proxy's size, and claim / count per region on the mesh itself
+    and on the copy it was split from, with the worst as a signed per cent."""
+    from benchmarks.numerical import PlanFigures, plan_report
+
+    figures = PlanFigures(
+        "bunny subdivided", 10_000_000, 3, 2, 4, 2, 0, 12.4, {"proxy": 8.2}, 1219.0, 1802.0, 20.9, 2739.0,
+        proxy_vertices=1_078_893,
+        claims_on_mesh=np.array([1.05, 0.96, 1.09]),
+        claims_on_copy=np.array([14.47, 0.72, 1.0]),
+    )  # fmt: skip
+    text = "\n".join(plan_report(figures))
+    assert "ray proxy of 1,078,893 vertices" in text
+    assert "on the mesh itself: per region 1.05, 0.96, 1.09; worst +9%" in text
+    assert "worst +1347%" in text
+    assert "segmenting it (not in the plan time): 20.90 s, peak RSS 2739 MB" in text

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+import trimesh
 
 from hlr_lab.errors import InputError
 from hlr_lab.geometry.colour import delta_e, srgb8_to_lab
@@ -73,12 +74,25 @@ def test_weighted_mode_and_fragment_merge_primitives():
     weights = np.array([[5.0, 1.0, 1.0], [1.0, 1.0, 3.0]])
     assert weighted_mode(labels, weights).tolist() == [0, 0]
     # a path graph 0-1-2-3-4: label 1 at node 2 is a light fragment between two 0s
-    import scipy.sparse as sp
-
-    a = sp.coo_matrix((np.ones(4, bool), ([0, 1, 2, 3], [1, 2, 3, 4])), shape=(5, 5)).tocsr()
-    a = (a + a.T).tocsr()
-    out = merge_fragments(np.array([0, 0, 1, 0, 0]), a, np.ones(5), min_weight=2)
+    edges = (np.array([0, 1, 2, 3]), np.array([1, 2, 3, 4]))
+    out = merge_fragments(np.array([0, 0, 1, 0, 0]), edges, np.ones(5), min_weight=2)
     assert out.tolist() == [0, 0, 0, 0, 0]
+
+
+def test_a_meshs_edges_are_each_edge_once_in_one_direction():
+    """``vertex_edges``: every edge of every face, once, lower vertex first, as int32 (a scan's adjacency
+    in a fraction of the memory); ``face_edges``: every pair of faces sharing an edge, once."""
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mesh = ColouredMesh(np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int64))
+    low, high = mesh.vertex_edges()
+    assert low.dtype == np.int32
+    assert np.all(low < high)
+    every = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    assert np.array_equal(np.unique(np.column_stack([low, high]), axis=0), np.unique(every, axis=0))
+    assert len(low) == len(np.unique(every, axis=0))
+    first, second = mesh.face_edges()
+    assert len(first) == len(low)  # a closed mesh: one pair of faces per edge
+    assert len(np.unique(np.sort(np.column_stack([first, second]), axis=1), axis=0)) == len(first)
 
 
 def test_bunny_with_eight_painted_regions(bunny_path):

@@ -23,6 +23,7 @@ from hlr_lab.object.grouping import group_rows
 from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, sample_texture
 
 DEFAULT_DELTA_E = 10.0
+_FACE_BLOCK = 1 << 20
 DEFAULT_MIN_FRAGMENT = 0.001  # fraction of the total surface area
 _LAB_BIN = 0.5  # ΔE; colours closer than this are one bin before clustering (speed only)
 _KMEANS_ITERATIONS = 20
@@ -80,14 +81,21 @@ def segment(
         srgb = sample_texture(texture, np.einsum("sk,fkt->fst", FACE_SAMPLES, corner_uv))
         samples = srgb.reshape(-1, 3)
         sample_weight = np.repeat(mesh.face_areas / len(FACE_SAMPLES), len(FACE_SAMPLES))
-        node_weight, adjacency = mesh.face_areas, mesh.face_adjacency()
+        node_weight, edges = mesh.face_areas, mesh.face_edges()
     else:
         samples, sample_weight = vertex_colours, mesh.vertex_areas
-        node_weight, adjacency = mesh.vertex_areas, mesh.vertex_adjacency()
+        node_weight, edges = mesh.vertex_areas, mesh.vertex_edges()
 
+    # the distinct colours clustered, each weighted by its samples: a scan's millions of samples hold
+    # few colours, and Lab for each sample took (N, 3) float64 temporaries over and over
+    colour_of, first = group_rows([samples[:, c] for c in range(3)])
     sample_label = cluster_colours(
-        srgb8_to_lab(samples), sample_weight, delta_e=delta_e, n_clusters=n_materials
-    )
+        srgb8_to_lab(samples[first]),
+        np.bincount(colour_of, weights=sample_weight, minlength=len(first)),
+        delta_e=delta_e,
+        n_clusters=n_materials,
+    )[colour_of]
+    del colour_of
     if on_faces:
         node_label = weighted_mode(
             sample_label.reshape(len(mesh.faces), -1),
@@ -96,17 +104,17 @@ def segment(
     else:
         node_label = sample_label
     if n_materials is None:  # with a fixed count, every requested material stays
-        node_label = merge_fragments(node_label, adjacency, node_weight, min_fragment * node_weight.sum())
+        node_label = merge_fragments(node_label, edges, node_weight, min_fragment * node_weight.sum())
     node_material = node_label
     if split_connected:
-        node_label = _connected_patches(node_label, adjacency)
+        node_label = _components(node_label, edges)
 
     if on_faces:
         face_labels = node_label
         vertex_labels = _vertex_majority(mesh, face_labels)
     else:
         vertex_labels = node_label
-        face_labels = weighted_mode(vertex_labels[mesh.faces], mesh.vertex_areas[mesh.faces])
+        face_labels = _face_modes(mesh, vertex_labels)
 
     material = _material_of(node_label, node_material)
     per_node = len(samples) // len(node_label)
@@ -251,40 +259,66 @@ def heaviest_label(rows: np.ndarray, labels: np.ndarray, weights: np.ndarray, n_
 
 
 def merge_fragments(
-    label: np.ndarray, adjacency: sp.csr_matrix, weight: np.ndarray, min_weight: float
+    label: np.ndarray, edges: tuple[np.ndarray, np.ndarray], weight: np.ndarray, min_weight: float
 ) -> np.ndarray:
     """Relabel connected same-label patches lighter than ``min_weight`` to the neighbouring label they
-    share most edges with; repeats until none is left (a patch with no neighbour stays)."""
+    share most edges with; repeats until none is left (a patch with no neighbour stays). ``label`` (N,)
+    and ``weight`` (N,) per node, ``edges`` the node pairs (E,) and (E,) joined, each pair once."""
     label = label.copy()
-    a = adjacency.tocoo()
+    u, v = edges
     for _ in range(50):
-        comp = _components(label, a)
+        same = label[u] == label[v]  # (E,): the few others are the borders between patches
+        comp = _components(label, edges, same)
         comp_w = np.bincount(comp, weights=weight)
         small = comp_w < min_weight
-        cross = (label[a.row] != label[a.col]) & small[comp[a.row]] & ~small[comp[a.col]]
-        if not cross.any():
+        border = (u[~same], v[~same])
+        del same
+        # every border edge from a small patch into a patch that is not small, in either direction
+        row, col = _crossing(border, comp, small, ~small)
+        if len(row) == 0:
             # small patches bordering only small patches: let the lightest join its neighbour
-            cross = (label[a.row] != label[a.col]) & small[comp[a.row]]
-            if not cross.any():
+            lightest = np.arange(len(comp_w)) == np.argmin(np.where(small, comp_w, np.inf))
+            row, col = _crossing(border, comp, small & lightest, np.ones(len(comp_w), bool))
+            if len(row) == 0:
                 return label
-            lightest = np.argmin(np.where(small, comp_w, np.inf))
-            cross &= comp[a.row] == lightest
-        new_label_of_comp = heaviest_label(
-            comp[a.row[cross]], label[a.col[cross]], np.ones(cross.sum()), comp.max() + 1
-        )
+        new_label_of_comp = heaviest_label(comp[row], label[col], np.ones(len(row)), comp.max() + 1)
         moved = new_label_of_comp[comp]
         label = np.where(moved >= 0, moved, label)
     return label
 
 
-def _components(label: np.ndarray, a: sp.coo_array | sp.coo_matrix) -> np.ndarray:
-    same = label[a.row] == label[a.col]
-    g = sp.coo_matrix((np.ones(same.sum(), bool), (a.row[same], a.col[same])), shape=a.shape)
+def _crossing(
+    border: tuple[np.ndarray, np.ndarray], comp: np.ndarray, source: np.ndarray, target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Border edges (between two labels, each stored once) taken in both directions: those (from, to)
+    whose ``from`` lies in a patch of ``comp`` that ``source`` (per patch, bool) selects and ``to`` in one
+    that ``target`` selects."""
+    u, v = border
+    forward = source[comp[u]] & target[comp[v]]
+    backward = source[comp[v]] & target[comp[u]]
+    return np.concatenate([u[forward], v[backward]]), np.concatenate([v[forward], u[backward]])
+
+
+def _components(
+    label: np.ndarray, edges: tuple[np.ndarray, np.ndarray], same: np.ndarray | None = None
+) -> np.ndarray:
+    """(N,) the connected same-label patch of each node (numbered from the lowest node up); ``same`` (E,)
+    whether each edge joins two nodes of one label, when already known."""
+    u, v = edges
+    joined = label[u] == label[v] if same is None else same
+    n = len(label)
+    g = sp.coo_matrix((np.ones(int(joined.sum()), bool), (u[joined], v[joined])), shape=(n, n))
     return connected_components(g, directed=False)[1]
 
 
-def _connected_patches(label: np.ndarray, adjacency: sp.csr_matrix) -> np.ndarray:
-    return _components(label, adjacency.tocoo())
+def _face_modes(mesh: ColouredMesh, vertex_labels: np.ndarray) -> np.ndarray:
+    """(F,) each face's label: its corners' label weighted by their vertex areas (:func:`weighted_mode`), a
+    million faces at a time (a scan's (F, 3) labels and weights at once are ~1 GB)."""
+    out = np.empty(len(mesh.faces), dtype=vertex_labels.dtype)
+    for start in range(0, len(mesh.faces), _FACE_BLOCK):
+        corners = mesh.faces[start : start + _FACE_BLOCK]
+        out[start : start + len(corners)] = weighted_mode(vertex_labels[corners], mesh.vertex_areas[corners])
+    return out
 
 
 def _vertex_majority(mesh: ColouredMesh, face_labels: np.ndarray) -> np.ndarray:
