@@ -79,6 +79,8 @@ class PlanFigures:
     segment_s: float
     rss_peak_segment_mb: float
     proxy_vertices: int = 0  # the ray proxy's vertices (0: planned on the mesh itself)
+    gbuffer_s: float = 0.0  # the ray engine built on the mesh itself and one G-buffer cast, as a fit does
+    rss_peak_gbuffer_mb: float = 0.0
     # the plan's claims against its lights counted exactly on the mesh itself (planned on a proxy), and on
     # the mesh it was subdivided from (a decimated copy), as ratios claim / count: per region, in total
     claims_on_mesh: np.ndarray | None = None
@@ -153,7 +155,15 @@ def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vert
     # the claims checked, after the figures: the full mesh's ray engine is what the proxy spares
     claims = np.sum([light.expected for light in result.lights], axis=0)  # (R,)
     figures.proxy_vertices = len(result.proxy.mesh.vertices)
-    figures.claims_on_mesh = claims / counted_on(painted, seg, rig, result.lights)
+    # what fitting the scan asks of its geometry: the ray engine on the mesh itself, and a G-buffer
+    gc.collect()
+    with _PeakRss() as geometry:
+        t = time.perf_counter()
+        caster = RayCaster(painted)
+        caster.gbuffer(rig.camera)
+        figures.gbuffer_s = time.perf_counter() - t
+    figures.rss_peak_gbuffer_mb = geometry.peak / 2**20
+    figures.claims_on_mesh = claims / counted_on(painted, seg, rig, result.lights, caster)
     if coarse is not painted:
         # the decimated copy painted as the scan is (each vertex the label of the scan's nearest)
         label = seg.vertex_labels[KDTree(painted.vertices).query(coarse.vertices)[1]]
@@ -162,12 +172,18 @@ def _plan_case(case: str, mesh_path: str | None, up: str, scale: float, min_vert
     return figures
 
 
-def counted_on(mesh: ColouredMesh, seg: Segmentation, rig: Rig, lights: list[PlannedLight]) -> np.ndarray:
-    """(R,) the highlight samples ``lights`` give each region, counted exactly on ``mesh`` itself (no proxy)
-    with the paper set-up's settings."""
+def counted_on(
+    mesh: ColouredMesh,
+    seg: Segmentation,
+    rig: Rig,
+    lights: list[PlannedLight],
+    caster: RayCaster | None = None,
+) -> np.ndarray:
+    """(R,) the highlight samples ``lights`` give each region, counted exactly on ``mesh`` itself (no proxy;
+    ``caster`` its own, if already built) with the paper set-up's settings."""
     taken = [TakenLight(light.turntable_deg, light.light_world) for light in lights]
     settings = replace(PAPER_SETTINGS, max_lights=len(taken), compare_criteria=False, optimum_budget_s=0)
-    counted = plan_lights(mesh, seg, rig, settings, caster=RayCaster(mesh), taken=taken)
+    counted = plan_lights(mesh, seg, rig, settings, caster=caster or RayCaster(mesh), taken=taken)
     return np.sum([light.expected for light in counted.lights[: len(taken)]], axis=0)
 
 
@@ -439,6 +455,11 @@ def plan_report(f: PlanFigures) -> list[str]:
         f"  memory: RSS {f.rss_before_mb:.0f} MB before planning, peak RSS {f.rss_peak_plan_mb:.0f} MB while planning",
         f"  segmenting it (not in the plan time): {f.segment_s:.2f} s, peak RSS {f.rss_peak_segment_mb:.0f} MB",
     ]
+    if f.gbuffer_s:
+        lines.append(
+            f"  the fit's geometry on it (its own ray engine, one G-buffer of the simulated rig's camera): "
+            f"{f.gbuffer_s:.2f} s, peak RSS {f.rss_peak_gbuffer_mb:.0f} MB"
+        )
     if f.proxy_vertices:
         lines.append(
             f"  planned on a ray proxy of {f.proxy_vertices:,} vertices; claims / the lights counted exactly:"

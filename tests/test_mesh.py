@@ -129,3 +129,18 @@ def test_corner_normals_are_sharp_across_creases_and_smooth_elsewhere():
     sphere = trimesh.creation.icosphere(subdivisions=3)
     smooth = ColouredMesh(np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int64))
     np.testing.assert_array_equal(smooth.corner_normals, smooth.vertex_normals[smooth.faces])
+
+
+def test_a_few_faces_corner_normals_are_those_of_all_faces(monkeypatch):
+    """``corner_normals_of`` (a G-buffer's hit faces on a scan) works out only the faces asked for, its
+    crease vertices and their faces found a block of faces at a time: with blocks of 50 faces, the
+    welded cylinder's creased and smooth corners are exactly those of :attr:`corner_normals`."""
+    from hlr_lab.object import mesh as mesh_module
+
+    cyl = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=64)
+    cyl.merge_vertices()
+    v, f = np.asarray(cyl.vertices), np.asarray(cyl.faces, np.int64)
+    every = ColouredMesh(v, f).corner_normals
+    monkeypatch.setattr(mesh_module, "_FACE_BLOCK", 50)
+    few = np.random.default_rng(4).integers(0, len(f), 60)
+    np.testing.assert_array_equal(ColouredMesh(v, f).corner_normals_of(few), every[few])

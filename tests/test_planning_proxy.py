@@ -127,6 +127,8 @@ def test_bench_plan_prints_the_proxy_and_the_claims_checked_on_the_mesh():
     figures = PlanFigures(
         "bunny subdivided", 10_000_000, 3, 2, 4, 2, 0, 12.4, {"proxy": 8.2}, 1219.0, 1802.0, 20.9, 2739.0,
         proxy_vertices=1_078_893,
+        gbuffer_s=9.5,
+        rss_peak_gbuffer_mb=3100.0,
         claims_on_mesh=np.array([1.05, 0.96, 1.09]),
         claims_on_copy=np.array([14.47, 0.72, 1.0]),
     )  # fmt: skip
@@ -135,3 +137,7 @@ def test_bench_plan_prints_the_proxy_and_the_claims_checked_on_the_mesh():
     assert "on the mesh itself: per region 1.05, 0.96, 1.09; worst +9%" in text
     assert "worst +1347%" in text
     assert "segmenting it (not in the plan time): 20.90 s, peak RSS 2739 MB" in text
+    assert (
+        "the fit's geometry on it (its own ray engine, one G-buffer of the simulated rig's camera): 9.50 s"
+        in text
+    )

@@ -69,7 +69,9 @@ def bench_plan(mesh_path, up, scale, min_vertices, assets, fewest) -> None:
       hlr-lab bench plan --mesh ../shared/assets/stanford-bunny.obj --up y --large 10000000 --no-fewest
     """
     console.print(spacing_line())
-    out.print("plan benchmark: one fresh process per case; loading and segmenting the mesh not in the plan time")
+    out.print(
+        "plan benchmark: one fresh process per case; loading and segmenting the mesh not in the plan time"
+    )
     for case in plan_cases(mesh_path, up, scale, min_vertices):
         with console.status(f"planning {case[0]}…"):
             _print(plan_report(run_plan_case(*case)))

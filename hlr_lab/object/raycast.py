@@ -141,7 +141,7 @@ class RayCaster:
         if hit.any():
             corners = self.mesh.faces[face[hit]]
             bary[hit] = trimesh.triangles.points_to_barycentric(self.mesh.vertices[corners], point[hit])
-            nrm = np.einsum("ij,ijk->ik", bary[hit], self.mesh.corner_normals[face[hit]])
+            nrm = np.einsum("ij,ijk->ik", bary[hit], self.mesh.corner_normals_of(face[hit]))
             normal[hit] = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
         return PixelSurface(face, point, normal, bary)
 
