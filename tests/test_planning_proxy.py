@@ -3,6 +3,8 @@ whose claims hold when its lights are counted on the scan itself."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -115,6 +117,10 @@ def test_a_scan_is_planned_on_its_proxy_and_its_claims_hold_on_the_scan_itself()
     claims = result.coverage
     np.testing.assert_allclose(claims, on_scan, rtol=0.25)
     assert claims.sum() == pytest.approx(on_scan.sum(), rel=0.12)
+    from hlr_lab.display.plan import plan_summary
+
+    said = "\n".join(plan_summary(result, Path("plan.json")))
+    assert f"of its {len(scan.vertices):,} vertices" in said  # plan says what it planned on
     stone = pebble().mesh
     assert ray_proxy(stone.transformed(placement(stone)), segment(stone), rig.camera) is None
 

@@ -72,6 +72,12 @@ def plan_summary(result: PlanResult, output: Path) -> list[str]:
             f"(--sphere-scale), not on the gantry's {result.sphere.gantry.arm_radius:.3f} m arm, so acquire "
             "refuses it; plan without --sphere-scale to measure on the rig"
         )
+    if result.proxy is not None:
+        p = result.proxy
+        lines.append(
+            f"planned on a ray proxy of the mesh: {len(p.mesh.vertices):,} of its {p.source_vertices:,} vertices, "
+            f"clustered in {p.cell_m * 1e3:.2f} mm cells (about a pixel; docs/planning.md)"
+        )
     lines.append(optimum_line(result))
     greedy = ", ".join(f"{k} {n}" for k, n in by.items())
     lines.append(f"chosen by: {result.optimum.chosen_by} (the greedy alone: {greedy}; {crit} requested)")
