@@ -73,20 +73,19 @@ class ColouredMesh:
             out[:, k] = e1[:, i] * e2[:, j] - e1[:, j] * e2[:, i]
         return out
 
-    def _face_blocks(self) -> range:
-        """Starts of blocks of ``_FACE_BLOCK`` faces: a scan's per-face temporaries stay bounded (a whole
+    def _face_blocks(self) -> list[slice]:
+        """The faces in blocks of ``_FACE_BLOCK``: a scan's per-face temporaries stay bounded (a whole
         (F, 3) float64 is 430 MB at 18 M faces, and a cross product makes four)."""
-        return range(0, len(self.faces), _FACE_BLOCK)
+        n = len(self.faces)
+        return [slice(start, min(start + _FACE_BLOCK, n)) for start in range(0, n, _FACE_BLOCK)]
 
     @cached_property
     def face_normals(self) -> np.ndarray:
         """(F, 3) unit normals (counter-clockwise winding faces outward; 0 for a degenerate face). Not
         trimesh's, which keeps every face's corners (F × 72 bytes) and the cross product in its cache."""
-        out = np.zeros((len(self.faces), 3))
-        for start in self._face_blocks():
-            cross = self._face_cross(slice(start, start + _FACE_BLOCK))
-            norm = np.linalg.norm(cross, axis=1, keepdims=True)
-            np.divide(cross, norm, out=out[start : start + len(cross)], where=norm > 0)
+        out = np.empty((len(self.faces), 3))
+        for block in self._face_blocks():
+            out[block] = self._unit_normals(block)
         return out
 
     @cached_property
@@ -101,9 +100,9 @@ class ColouredMesh:
         # axis (np.add.at: 1.2–3× slower on millions), a block of faces at a time
         n = len(self.vertices)
         acc = np.zeros((n, 3))
-        for start in self._face_blocks():
-            cross = self._face_cross(slice(start, start + _FACE_BLOCK))
-            corners = self.faces[start : start + len(cross)].ravel()  # (3B,) each face's three corners
+        for block in self._face_blocks():
+            cross = self._face_cross(block)
+            corners = self.faces[block].ravel()  # (3B,) each face's three corners
             for k in range(3):
                 acc[:, k] += np.bincount(corners, weights=np.repeat(cross[:, k], 3), minlength=n)
         norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]  # np.linalg.norm makes a (V, 3) temporary
@@ -160,8 +159,7 @@ class ColouredMesh:
     def _crease_vertices(self) -> np.ndarray:
         """(V,) bool: the vertices with a face more than half ``CREASE_DEG`` off their smooth normal."""
         worst = np.ones(len(self.vertices))
-        for start in self._face_blocks():
-            block = slice(start, start + _FACE_BLOCK)
+        for block in self._face_blocks():
             cos_off = np.einsum(
                 "fk,fck->fc", self._unit_normals(block), self.vertex_normals[self.faces[block]]
             )
@@ -172,11 +170,11 @@ class ColouredMesh:
     def _crease_incidence(self) -> sp.csr_matrix:
         """(V, F) boolean vertex → face incidence, its rows for the crease vertices alone (faces ascending)."""
         rows, cols = [], []
-        for start in self._face_blocks():
-            block = self.faces[start : start + _FACE_BLOCK].ravel()
-            at_crease = np.flatnonzero(self._crease_vertices[block])
-            rows.append(block[at_crease])
-            cols.append(start + at_crease // 3)
+        for block in self._face_blocks():
+            corners = self.faces[block].ravel()
+            at_crease = np.flatnonzero(self._crease_vertices[corners])
+            rows.append(corners[at_crease])
+            cols.append(block.start + at_crease // 3)
         rows_, cols_ = np.concatenate(rows), np.concatenate(cols)
         return sp.csr_matrix(
             (np.ones(len(rows_), bool), (rows_, cols_)), shape=(len(self.vertices), len(self.faces))
@@ -186,9 +184,8 @@ class ColouredMesh:
     def face_areas(self) -> np.ndarray:
         """(F,) triangle areas, m²."""
         out = np.empty(len(self.faces))
-        for start in self._face_blocks():
-            cross = self._face_cross(slice(start, start + _FACE_BLOCK))
-            out[start : start + len(cross)] = np.linalg.norm(cross, axis=1) / 2
+        for block in self._face_blocks():
+            out[block] = np.linalg.norm(self._face_cross(block), axis=1) / 2
         return out
 
     @cached_property
