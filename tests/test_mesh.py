@@ -144,3 +144,51 @@ def test_a_few_faces_corner_normals_are_those_of_all_faces(monkeypatch):
     monkeypatch.setattr(mesh_module, "_FACE_BLOCK", 50)
     few = np.random.default_rng(4).integers(0, len(f), 60)
     np.testing.assert_array_equal(ColouredMesh(v, f).corner_normals_of(few), every[few])
+
+
+def _open_box() -> ColouredMesh:
+    """A unit cube without its top (two rims' worth of open edges), plus a fin: an edge of three faces."""
+    box = trimesh.creation.box()
+    up = box.face_normals[:, 2] > 0.5
+    faces = np.asarray(box.faces)[~up]
+    fin_tip = len(box.vertices)  # a face on an existing bottom edge, sticking out: that edge has three
+    bottom = faces[np.asarray(box.face_normals)[~up][:, 2] < -0.5][0]
+    vertices = np.vstack([box.vertices, [[0.0, 0.0, -2.0]]])
+    faces = np.vstack([faces, [[bottom[0], bottom[1], fin_tip]]])
+    return ColouredMesh(np.asarray(vertices), faces.astype(np.int64))
+
+
+def test_the_faces_beside_each_edge_are_trimeshs_and_the_rims_each_edge_of_one_face():
+    """``edge_faces``: the pairs of faces sharing an edge and that edge's vertices are trimesh's
+    ``face_adjacency`` and ``face_adjacency_edges`` (as sets, an edge of three faces in neither); the rims
+    are the edges used once, each with its face."""
+    for mesh in (_open_box(), pebble(subdivisions=2).mesh):
+        shared, faces, rims, rim_faces = mesh.edge_faces()
+        tm = mesh.trimesh
+        ours = {(tuple(e), tuple(sorted(f))) for e, f in zip(shared.tolist(), faces.tolist(), strict=True)}
+        theirs = {
+            (tuple(sorted(e)), tuple(sorted(f)))
+            for e, f in zip(tm.face_adjacency_edges.tolist(), tm.face_adjacency.tolist(), strict=True)
+        }
+        assert ours == theirs
+        edges, first, uses = np.unique(tm.edges_sorted, axis=0, return_index=True, return_counts=True)
+        once = uses == 1
+        expected = {
+            (tuple(e), f)
+            for e, f in zip(edges[once].tolist(), tm.edges_face[first[once]].tolist(), strict=True)
+        }
+        assert {(tuple(e), f) for e, f in zip(rims.tolist(), rim_faces.tolist(), strict=True)} == expected
+        assert shared.dtype == faces.dtype == rims.dtype == rim_faces.dtype == np.int32
+    shared, _, rims, _ = _open_box().edge_faces()
+    assert len(rims) == 4 + 2  # the open top's four edges and the fin's two free ones
+    # the cube's 18 edges (a diagonal a side), less the top's diagonal, its rim and the fin's base
+    assert len(shared) == 18 - 1 - 4 - 1
+
+
+def test_surface_samples_are_trimeshs_seeded_draws():
+    """The same points as trimesh's ``sample_surface`` with the same seed (the registration's search
+    stands on them), without its per-face copies."""
+    mesh = pebble(subdivisions=2).mesh
+    ours = mesh.surface_samples(2000, seed=3)
+    theirs = np.asarray(trimesh.sample.sample_surface(mesh.trimesh, 2000, seed=3)[0])
+    np.testing.assert_allclose(ours, theirs, atol=1e-12)

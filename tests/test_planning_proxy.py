@@ -127,8 +127,8 @@ def test_a_scan_is_planned_on_its_proxy_and_its_claims_hold_on_the_scan_itself()
 
 def test_bench_plan_prints_the_proxy_and_the_claims_checked_on_the_mesh():
     """``bench plan``'s lines for a scan: the proxy's size, and claim / count per region on the mesh itself
-    and on the copy it was split from, with the worst as a signed per cent."""
-    from benchmarks.numerical import PlanFigures, plan_report
+    and on the copy it was split from, with the worst as a signed per cent; the registration with it."""
+    from benchmarks.numerical import PlanFigures, ScanRegistration, plan_report
 
     figures = PlanFigures(
         "bunny subdivided", 10_000_000, 3, 2, 4, 2, 0, 12.4, {"proxy": 8.2}, 1219.0, 1802.0, 20.9, 2739.0,
@@ -136,14 +136,32 @@ def test_bench_plan_prints_the_proxy_and_the_claims_checked_on_the_mesh():
         gbuffer_s=9.5,
         rss_peak_gbuffer_mb=3100.0,
         claims_on_mesh=np.array([1.05, 0.96, 1.09]),
-        claims_on_copy=np.array([14.47, 0.72, 1.0]),
+        claims_on_copy=np.array([14.47, 0.72, np.inf]),
+        register=ScanRegistration(412.3, 3456.0, 0.0123, 0.0081, 14.1),
     )  # fmt: skip
     text = "\n".join(plan_report(figures))
     assert "ray proxy of 1,078,893 vertices" in text
-    assert "on the mesh itself: per region 1.05, 0.96, 1.09; worst +9%" in text
-    assert "worst +1347%" in text
+    assert "on the mesh itself: per region 1.05, 0.96, 1.09; worst +9% where counted" in text
+    assert "per region 14.47, 0.72, none counted; worst +1347% where counted" in text
     assert "segmenting it (not in the plan time): 20.90 s, peak RSS 2739 MB" in text
+    assert "412.3 s, peak RSS 3456 MB; vertices 0.012 mm RMS off, rotation 0.008°" in text
+    assert "(the mesh it was subdivided from: 14.1 s)" in text
     assert (
         "the fit's geometry on it (its own ray engine, one G-buffer of the simulated rig's camera): 9.50 s"
         in text
     )
+
+
+def test_bench_plans_scan_is_the_same_surface_watertight_with_the_vertices_asked():
+    """``bench plan --large N``'s scan: exactly N vertices (whole midpoint rounds, then single edges split),
+    the same area, no rim where the mesh had none (a T-junction's edges would be rims: outlines to the
+    registration) and its faces wound as the mesh's."""
+    from benchmarks.numerical import subdivided
+
+    stone = pebble().mesh
+    for count in (stone.vertices.shape[0] + 1, 50_000, 200_000):
+        scan = subdivided(stone, count)
+        assert len(scan.vertices) == count
+        assert scan.face_areas.sum() == pytest.approx(stone.face_areas.sum(), rel=1e-12)
+        assert len(scan.edge_faces()[2]) == 0
+        assert scan.trimesh.is_winding_consistent

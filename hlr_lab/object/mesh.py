@@ -73,7 +73,7 @@ class ColouredMesh:
             out[:, k] = e1[:, i] * e2[:, j] - e1[:, j] * e2[:, i]
         return out
 
-    def _face_blocks(self) -> list[slice]:
+    def face_blocks(self) -> list[slice]:
         """The faces in blocks of ``_FACE_BLOCK``: a scan's per-face temporaries stay bounded (a whole
         (F, 3) float64 is 430 MB at 18 M faces, and a cross product makes four)."""
         n = len(self.faces)
@@ -84,7 +84,7 @@ class ColouredMesh:
         """(F, 3) unit normals (counter-clockwise winding faces outward; 0 for a degenerate face). Not
         trimesh's, which keeps every face's corners (F × 72 bytes) and the cross product in its cache."""
         out = np.empty((len(self.faces), 3))
-        for block in self._face_blocks():
+        for block in self.face_blocks():
             out[block] = self._unit_normals(block)
         return out
 
@@ -100,7 +100,7 @@ class ColouredMesh:
         # axis (np.add.at: 1.2–3× slower on millions), a block of faces at a time
         n = len(self.vertices)
         acc = np.zeros((n, 3))
-        for block in self._face_blocks():
+        for block in self.face_blocks():
             cross = self._face_cross(block)
             corners = self.faces[block].ravel()  # (3B,) each face's three corners
             for k in range(3):
@@ -159,7 +159,7 @@ class ColouredMesh:
     def _crease_vertices(self) -> np.ndarray:
         """(V,) bool: the vertices with a face more than half ``CREASE_DEG`` off their smooth normal."""
         worst = np.ones(len(self.vertices))
-        for block in self._face_blocks():
+        for block in self.face_blocks():
             cos_off = np.einsum(
                 "fk,fck->fc", self._unit_normals(block), self.vertex_normals[self.faces[block]]
             )
@@ -170,7 +170,7 @@ class ColouredMesh:
     def _crease_incidence(self) -> sp.csr_matrix:
         """(V, F) boolean vertex → face incidence, its rows for the crease vertices alone (faces ascending)."""
         rows, cols = [], []
-        for block in self._face_blocks():
+        for block in self.face_blocks():
             corners = self.faces[block].ravel()
             at_crease = np.flatnonzero(self._crease_vertices[corners])
             rows.append(corners[at_crease])
@@ -184,9 +184,21 @@ class ColouredMesh:
     def face_areas(self) -> np.ndarray:
         """(F,) triangle areas, m²."""
         out = np.empty(len(self.faces))
-        for block in self._face_blocks():
+        for block in self.face_blocks():
             out[block] = np.linalg.norm(self._face_cross(block), axis=1) / 2
         return out
+
+    def surface_samples(self, count: int, seed: int) -> np.ndarray:
+        """(count, 3) points spread evenly over the surface (each face drawn by its area, a point uniform in
+        it), seeded: trimesh's ``sample_surface`` draws, without its copies of every face's corners (2 GB for
+        a scan's 20 M faces)."""
+        random = np.random.default_rng(seed).random
+        cumulative = np.cumsum(self.face_areas)
+        face = np.searchsorted(cumulative, random(count) * cumulative[-1])  # (count,)
+        corners = self.vertices[self.faces[face]]  # (count, 3, 3)
+        t = random((count, 2, 1))
+        t[t.sum(axis=1)[:, 0] > 1.0] -= 1.0  # a point of the parallelogram's far half, folded into the face
+        return corners[:, 0] + (np.abs(t) * (corners[:, 1:] - corners[:, :1])).sum(axis=1)
 
     @cached_property
     def vertex_areas(self) -> np.ndarray:
@@ -200,23 +212,49 @@ class ColouredMesh:
         computed when asked (not kept). In int32 and one direction: a 10 M-vertex scan's 30 M edges take
         240 MB, where a symmetric int64 adjacency took gigabytes to build."""
         n = len(self.vertices)
-        # each face edge as one int64 key, lower·n + higher, sorted in place: an inner edge's two faces
-        # give it twice
-        key = np.empty(3 * len(self.faces), dtype=np.int64)
-        for c in range(3):
-            a, b = self.faces[:, c], self.faces[:, (c + 1) % 3]
-            key[c * len(self.faces) : (c + 1) * len(self.faces)] = np.minimum(a, b) * n + np.maximum(a, b)
-        key.sort()
+        key = self._edge_keys()
+        key.sort()  # an inner edge's two faces give it twice
         first = np.empty(len(key), dtype=bool)
         first[:1] = True
         np.not_equal(key[1:], key[:-1], out=first[1:])
         key = key[first]
         return (key // n).astype(np.int32), (key % n).astype(np.int32)
 
+    def edge_faces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The faces on either side of each edge, computed when asked (not kept):
+
+        shared (E, 2) int32, the lower and higher vertex of each edge two faces share, and faces (E, 2)
+        int32, those two faces; rims (R, 2) int32, each edge of one face only (an open mesh's border), and
+        rim_faces (R,) int32, that face. An edge of three or more faces (non-manifold) is in neither. The
+        edges in order of their vertices."""
+        n, f = len(self.vertices), len(self.faces)
+        key = self._edge_keys()
+        order = np.argsort(key, kind="stable")  # face edge c·F + face: the faces in order along an edge
+        key = key[order]
+        start = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+        count = np.diff(np.append(start, len(key)))
+        face = (order % f).astype(np.int32)
+        del order
+
+        def vertices(at: np.ndarray) -> np.ndarray:
+            return np.stack([key[at] // n, key[at] % n], axis=1).astype(np.int32)
+
+        pair, rim = start[count == 2], start[count == 1]
+        return vertices(pair), np.stack([face[pair], face[pair + 1]], axis=1), vertices(rim), face[rim]
+
+    def _edge_keys(self) -> np.ndarray:
+        """(3F,) int64: each face's edges as one key, lower·V + higher; edge c of face i at c·F + i."""
+        n, f = len(self.vertices), len(self.faces)
+        key = np.empty(3 * f, dtype=np.int64)
+        for c in range(3):
+            a, b = self.faces[:, c], self.faces[:, (c + 1) % 3]
+            key[c * f : (c + 1) * f] = np.minimum(a, b) * n + np.maximum(a, b)
+        return key
+
     def face_edges(self) -> tuple[np.ndarray, np.ndarray]:
         """Pairs of faces sharing an edge, each pair once: (E,) and (E,) face indices (not kept)."""
-        pairs = np.asarray(self.trimesh.face_adjacency)
-        return pairs[:, 0], pairs[:, 1]
+        faces = self.edge_faces()[1]
+        return faces[:, 0], faces[:, 1]
 
     def bounding_sphere(self) -> tuple[np.ndarray, float]:
         """Centre (3,) and radius of the sphere about the bounding-box centre enclosing every vertex."""

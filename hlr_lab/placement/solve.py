@@ -19,7 +19,6 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-import trimesh
 from scipy.ndimage import gaussian_filter, map_coordinates
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -75,6 +74,11 @@ EXPECTED_RESIDUAL_PX, MAX_RESIDUAL_PX = 0.6, 1.2
 # object is larger or smaller than the mesh says: the lopsided test box 1 % larger than its mesh −0.47 px,
 # 0.5 % −0.24 px (tests/test_placement.py)
 EXPECTED_OFFSET_PX, MAX_OUTLINE_OFFSET_PX = 0.15, 0.35
+# faces whose corners lie within this many pixels of each other are drawn at once (a scan's millions), the
+# rest one by one by OpenCV (a call each): a scan's faces are under a pixel
+_SMALL_FACE_PX = 1
+_FACE_CHUNK = 1 << 20
+_UNDER_A_PIXEL = 0.85  # px: a face this long at most spans neighbouring pixels (see Outlines._mask)
 MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photographed one is no match
 AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
 # a candidate whose cost after two rounds is this many times the best's is refined no further: the rounds
@@ -131,17 +135,26 @@ class Outlines:
         self.cameras = [view_camera(camera, v.turntable_deg) for v in views]
         # kept in float32 (5 MB a 1280 × 960 view); _sample reads it in float64
         self.sdf = [gaussian_filter(signed_distance(v.mask), SDF_BLUR_PX) for v in views]
-        tm = mesh.trimesh
-        self._adjacent_faces = np.asarray(tm.face_adjacency)  # (E, 2)
-        self._shared_edges = np.asarray(tm.face_adjacency_edges)  # (E, 2) vertices, beside _adjacent_faces
-        edges, first, uses = np.unique(
-            np.asarray(tm.edges_sorted), axis=0, return_index=True, return_counts=True
-        )
-        self._rim_edges = edges[uses == 1]  # (R, 2): an open mesh's rims are outlines too
-        self._rim_faces = np.asarray(tm.edges_face)[first[uses == 1]]  # (R,): the face of each
-        self._centroids = mesh.vertices[mesh.faces].mean(axis=1)  # (F, 3)
+        # (E, 2) vertices of the edges two faces share, (E, 2) those faces; (R, 2) the edges of one face (an
+        # open mesh's rims are outlines too), (R,) that face
+        self._shared_edges, self._adjacent_faces, self._rim_edges, self._rim_faces = mesh.edge_faces()
+        # (F,) each face's plane, n · x = offset (n its unit normal): a face turns toward an eye e when
+        # n · e > offset. Kept instead of the faces' centroids: a scan's per-face arrays are its memory
+        normals = mesh.face_normals
+        self._plane_offset = np.empty(len(mesh.faces))
+        for block in mesh.face_blocks():
+            centroid = mesh.vertices[mesh.faces[block]].mean(axis=1)  # (B, 3)
+            self._plane_offset[block] = np.einsum("ij,ij->i", normals[block], centroid)
+        self._normal_length = np.linalg.norm(normals, axis=1).astype(np.float32)  # (F,) 1, or 0 degenerate
+        self._face_size = np.zeros(len(mesh.faces), np.float32)  # (F,) m, the longest edge of each face
+        for block in mesh.face_blocks():
+            corners = mesh.vertices[mesh.faces[block]]  # (B, 3, 3)
+            edges = corners - np.roll(corners, 1, axis=1)
+            self._face_size[block] = np.sqrt((edges**2).sum(axis=2).max(axis=1))
+        self._in_a_face = np.zeros(len(mesh.vertices), bool)  # (V,) a loaded mesh may carry stray vertices
+        self._in_a_face[mesh.faces.ravel()] = True
         # the search's stand-in for the surface: points spread evenly over it (seeded: the same every run)
-        self._samples = np.asarray(trimesh.sample.sample_surface(tm, SEARCH_SAMPLES, seed=0)[0])
+        self._samples = mesh.surface_samples(SEARCH_SAMPLES, seed=0)
         self._small = [_scaled(cam, 1 / SEARCH_SCALE) for cam in self.cameras]
         self._small_seen = [
             cv2.resize(v.mask.astype(np.float32), (c.width, c.height), interpolation=cv2.INTER_AREA) >= 0.5
@@ -156,7 +169,7 @@ class Outlines:
         lit = self._lit_faces(m)
         for cam in self.cameras:
             eye = inverse[:3, :3] @ cam.centre + inverse[:3, 3]  # the camera centre in the mesh frame
-            toward = np.einsum("ij,ij->i", self.mesh.face_normals, eye - self._centroids) > 0  # (F,)
+            toward = self.mesh.face_normals @ eye > self._plane_offset  # (F,)
             a, b = toward[self._adjacent_faces[:, 0]], toward[self._adjacent_faces[:, 1]]
             # the face of a contour edge that the camera sees must not face down (UNDERSIDE_NZ)
             front = np.where(a, self._adjacent_faces[:, 0], self._adjacent_faces[:, 1])
@@ -172,8 +185,9 @@ class Outlines:
     def _lit_faces(self, m: np.ndarray) -> np.ndarray:
         """(F,) bool: the faces that do not face down, the mesh lying as ``m`` (4, 4) says (the underside,
         which no registration lamp lights head on, is left out: :data:`UNDERSIDE_NZ`)."""
-        turned = self.mesh.face_normals @ m[:3, :3].T  # m may scale: the direction is what counts
-        return turned[:, 2] >= UNDERSIDE_NZ * np.linalg.norm(turned, axis=1)
+        # m may scale (uniformly): the direction is what counts
+        up = self.mesh.face_normals @ m[2, :3]  # (F,) the turned normals' z
+        return up >= UNDERSIDE_NZ * np.linalg.norm(m[2, :3]) * self._normal_length
 
     def _along(self, edges: np.ndarray, cam: Camera, m: np.ndarray) -> np.ndarray:
         """(N, 3) mesh-frame points along ``edges`` (E, 2), about a pixel apart in ``cam``'s image (each
@@ -264,14 +278,32 @@ class Outlines:
 
     def _mask(self, cam: Camera, m: np.ndarray) -> np.ndarray:
         """(H, W) bool: every face filled in — the object's image, also where an open mesh (a scan with holes
-        in its base) shows its inside."""
-        uv, _ = cam.project(self.mesh.vertices @ m[:3, :3].T + m[:3, 3])
-        corners = uv[self.mesh.faces]  # (F, 3, 2)
-        ok = np.isfinite(corners).all(axis=(1, 2)) & (np.abs(corners) < 1e5).all(axis=(1, 2))
-        fixed = np.round(corners[ok] * 16).astype(np.int32)  # 4 fractional bits, as OpenCV's shift
+        in its base) shows its inside. Faces whose corners lie within :data:`_SMALL_FACE_PX` pixels of each
+        other (a scan's faces) are their corners' pixels, marked at once with every vertex's; larger faces
+        are filled one by one by OpenCV (a call each: minutes for a scan's millions). OpenCV's fill of a
+        small face sets its corners' pixels and, for 1.3 % of them (random faces up to 1.8 px across), one
+        more across a diagonal: on a scan, a pixel a neighbouring face's corner sets."""
+        uv, depth = cam.project(self.mesh.vertices @ m[:3, :3].T + m[:3, 3])
+        valid = np.asarray(np.isfinite(uv).all(axis=1) & (np.abs(uv) < 1e5).all(axis=1))  # (V,)
+        fixed = np.zeros(uv.shape, np.int32)
+        fixed[valid] = np.round(uv[valid] * 16)  # 4 fractional bits, as OpenCV's shift
+        pixel = (fixed + 8) >> 4  # (V, 2) the pixel each vertex lies in
         mask = np.zeros((cam.height, cam.width), np.uint8)
-        for triangle in fixed:
-            cv2.fillConvexPoly(mask, triangle, 1, lineType=cv2.LINE_8, shift=4)
+        _mark(mask, pixel[valid & self._in_a_face])  # every face's fill holds its corners' pixels
+        # a face under a pixel across spans no more than neighbouring pixels: its corners' pixels are its fill.
+        # Sized where the object is nearest the camera (m's scale included), with a margin for the lens's
+        # distortion and the 1/16 px rounding; only larger faces are looked at
+        nearest = float(depth[valid].min()) if valid.any() else 1.0
+        px_per_m = max(cam.matrix[0, 0], cam.matrix[1, 1]) * np.linalg.norm(m[2, :3]) / max(nearest, 1e-9)
+        larger = np.flatnonzero(self._face_size * px_per_m >= _UNDER_A_PIXEL)
+        for start in range(0, len(larger), _FACE_CHUNK):
+            faces = self.mesh.faces[larger[start : start + _FACE_CHUNK]]
+            ok = valid[faces[:, 0]] & valid[faces[:, 1]] & valid[faces[:, 2]]
+            a, b, c = (pixel[faces[:, k]] for k in range(3))  # (B, 2) each corner's pixel
+            spread = np.maximum(np.maximum(a, b), c) - np.minimum(np.minimum(a, b), c)
+            small = (spread <= _SMALL_FACE_PX).all(axis=1)  # its corners, marked above, are its fill
+            for triangle in fixed[faces[ok & ~small]]:
+                cv2.fillConvexPoly(mask, triangle, 1, lineType=cv2.LINE_8, shift=4)
         return mask > 0
 
     @staticmethod
@@ -387,6 +419,13 @@ def turn_by_colours(
     se[2] = se_yaw
     return replace(found, params=outlines.frame.params(m), se=se, mesh_to_turntable=m, ambiguous=None,
                    turn_from="colours")  # fmt: skip
+
+
+def _mark(mask: np.ndarray, pixel: np.ndarray) -> None:
+    """Set the pixels (N, 2) (column, row) of ``mask`` (H, W) that lie in it."""
+    h, w = mask.shape
+    inside = (pixel[:, 0] >= 0) & (pixel[:, 0] < w) & (pixel[:, 1] >= 0) & (pixel[:, 1] < h)
+    mask[pixel[inside, 1], pixel[inside, 0]] = 1
 
 
 def rotation_about_vertical(yaw_deg: float, centre: np.ndarray) -> np.ndarray:
