@@ -291,10 +291,15 @@ class Outlines:
         mask = np.zeros((cam.height, cam.width), np.uint8)
         _mark(mask, pixel[valid & self._in_a_face])  # every face's fill holds its corners' pixels
         # a face under a pixel across spans no more than neighbouring pixels: its corners' pixels are its fill.
-        # Sized where the object is nearest the camera (m's scale included), with a margin for the lens's
-        # distortion and the 1/16 px rounding; only larger faces are looked at
-        nearest = float(depth[valid].min()) if valid.any() else 1.0
-        px_per_m = max(cam.matrix[0, 0], cam.matrix[1, 1]) * np.linalg.norm(m[2, :3]) / max(nearest, 1e-9)
+        # Sized where the object is nearest the camera (m's scale included) and as far off the axis as it
+        # reaches (a step of L at depth z and off-axis tangent t moves the image by at most L (1 + t) / z),
+        # with a margin for the lens's distortion and the 1/16 px rounding; only larger faces are looked at
+        nearest, off_axis = 1.0, 0.0
+        if valid.any():
+            nearest = max(float(depth[valid].min()), 1e-9)
+            off_axis = float((np.abs(uv[valid] - cam.matrix[:2, 2]) / np.diag(cam.matrix)[:2]).max())
+        focal = max(cam.matrix[0, 0], cam.matrix[1, 1])
+        px_per_m = focal * np.linalg.norm(m[2, :3]) * (1 + off_axis) / nearest
         larger = np.flatnonzero(self._face_size * px_per_m >= _UNDER_A_PIXEL)
         for start in range(0, len(larger), _FACE_CHUNK):
             faces = self.mesh.faces[larger[start : start + _FACE_CHUNK]]
