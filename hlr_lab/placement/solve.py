@@ -14,6 +14,7 @@ object), is reported as ambiguous rather than guessed. docs/placement.md says wh
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -25,8 +26,10 @@ from scipy.spatial.transform import Rotation
 
 from hlr_lab.errors import PlacementError
 from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.raster import ONE_PX, corner_pixels, fill_triangles
 from hlr_lab.geometry.silhouette import signed_distance
 from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.object.clusters import cluster_vertices, clustered_mesh
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface, RayCaster
 from hlr_lab.placement.photographs import ObservedView
@@ -79,6 +82,13 @@ EXPECTED_OFFSET_PX, MAX_OUTLINE_OFFSET_PX = 0.15, 0.35
 _SMALL_FACE_PX = 1
 _FACE_CHUNK = 1 << 20
 _UNDER_A_PIXEL = 0.85  # px: a face this long at most spans neighbouring pixels (see Outlines._mask)
+# a mesh whose median edge spans less than this in the image (a scan) is solved on a stand-in first, its vertices
+# clustered on a grid of this cell (px at the object's distance), and only the last rounds on the mesh itself:
+# at 3 px the stand-in's mask lies within a pixel of the scan's ray-cast one, inside the 1.5 px the outline is
+# chosen within (the bunny split to 2.2 M vertices, docs/placement.md), and the rounds cost what a coarse
+# mesh's do
+STAND_IN_BELOW_PX, STAND_IN_CELL_PX = 1.0, 3.0
+_EDGES_SIZED = 100_000  # edges whose median length sizes a mesh (spread evenly over its edges)
 MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photographed one is no match
 AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
 # a candidate whose cost after two rounds is this many times the best's is refined no further: the rounds
@@ -135,6 +145,18 @@ class Outlines:
         self.cameras = [view_camera(camera, v.turntable_deg) for v in views]
         # kept in float32 (5 MB a 1280 × 960 view); _sample reads it in float64
         self.sdf = [gaussian_filter(signed_distance(v.mask), SDF_BLUR_PX) for v in views]
+        self._use(mesh)
+        # the search's stand-in for the surface: points spread evenly over it (seeded: the same every run)
+        self._samples = mesh.surface_samples(SEARCH_SAMPLES, seed=0)
+        self._small = [_scaled(cam, 1 / SEARCH_SCALE) for cam in self.cameras]
+        self._small_seen = [
+            cv2.resize(v.mask.astype(np.float32), (c.width, c.height), interpolation=cv2.INTER_AREA) >= 0.5
+            for v, c in zip(views, self._small, strict=True)
+        ]
+
+    def _use(self, mesh: ColouredMesh) -> None:
+        """Take ``mesh`` (in its own frame) as the one whose outlines are drawn: the arrays every round reads."""
+        self.mesh = mesh
         # (E, 2) vertices of the edges two faces share, (E, 2) those faces; (R, 2) the edges of one face (an
         # open mesh's rims are outlines too), (R,) that face
         self._shared_edges, self._adjacent_faces, self._rim_edges, self._rim_faces = mesh.edge_faces()
@@ -153,16 +175,41 @@ class Outlines:
             self._face_size[block] = np.sqrt((edges**2).sum(axis=2).max(axis=1))
         self._in_a_face = np.zeros(len(mesh.vertices), bool)  # (V,) a loaded mesh may carry stray vertices
         self._in_a_face[mesh.faces.ravel()] = True
-        # the search's stand-in for the surface: points spread evenly over it (seeded: the same every run)
-        self._samples = mesh.surface_samples(SEARCH_SAMPLES, seed=0)
-        self._small = [_scaled(cam, 1 / SEARCH_SCALE) for cam in self.cameras]
-        self._small_seen = [
-            cv2.resize(v.mask.astype(np.float32), (c.width, c.height), interpolation=cv2.INTER_AREA) >= 0.5
-            for v, c in zip(views, self._small, strict=True)
-        ]
 
-    def contour_points(self, params: np.ndarray) -> list[np.ndarray]:
-        """Per view, the (N_k, 3) mesh-frame points along the contour edges on the outer outline."""
+    def stand_in(self) -> Outlines | None:
+        """These outlines on a coarser copy of the mesh, for the search and the rounds that bring the placement
+        near its end (:func:`register`), or None when the mesh's median edge spans :data:`STAND_IN_BELOW_PX`
+        or more in the image. A scan's millions of vertices cost every round time in proportion to them, yet a
+        copy whose vertices are the scan's clustered on a :data:`STAND_IN_CELL_PX` grid has an outline within
+        a pixel of the scan's (docs/placement.md); the views, their masks and the search's surface samples are
+        shared."""
+        mesh = self.mesh
+        cam = self.cameras[0]
+        scale = float(np.cbrt(abs(np.linalg.det(self.frame.nominal[:3, :3]))))  # the plan's scale of the mesh
+        px_per_m = (
+            max(cam.matrix[0, 0], cam.matrix[1, 1]) * scale / np.linalg.norm(cam.centre - self.frame.centre)
+        )
+        sized = self._shared_edges[:: max(1, len(self._shared_edges) // _EDGES_SIZED)]  # (≤ 2 × 100 000, 2)
+        ends = mesh.vertices[sized]  # (n, 2, 3)
+        edge_px = (
+            np.median(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)) * px_per_m if len(ends) else np.inf
+        )
+        if edge_px >= STAND_IN_BELOW_PX:
+            return None
+        normals = mesh.normals if mesh.normals is not None else mesh.area_weighted_normals()
+        unlabelled = np.zeros(len(mesh.vertices), np.int8)
+        clusters = cluster_vertices(
+            mesh.vertices, normals, mesh.vertex_areas, unlabelled, STAND_IN_CELL_PX / px_per_m
+        )
+        coarse = copy.copy(self)
+        coarse._use(clustered_mesh(mesh, clusters)[0])
+        return coarse
+
+    def contour_points(self, params: np.ndarray, drawn: Outlines | None = None) -> list[np.ndarray]:
+        """Per view, the (N_k, 3) mesh-frame points along the contour edges on the outer outline: those within
+        :data:`OUTLINE_PX` of the border of the mesh's predicted mask, or of ``drawn``'s (a stand-in's, whose
+        border lies within a pixel of the mesh's: a scan's mask costs every face every round)."""
+        drawn = drawn or self
         m = self.frame.matrix(params)
         inverse = np.linalg.inv(m)
         chosen = []
@@ -177,7 +224,7 @@ class Outlines:
             rims = self._rim_edges[lit[self._rim_faces]]
             points = self._along(np.concatenate([contour, rims]), cam, m)
             pixels = self._project(cam, m, points)
-            border = _border_distance(self._mask(cam, m))
+            border = _border_distance(drawn._mask(cam, m))
             near = _sample(border, pixels) <= OUTLINE_PX
             chosen.append(points[near])
         return chosen
@@ -278,16 +325,16 @@ class Outlines:
 
     def _mask(self, cam: Camera, m: np.ndarray) -> np.ndarray:
         """(H, W) bool: every face filled in — the object's image, also where an open mesh (a scan with holes
-        in its base) shows its inside. Faces whose corners lie within :data:`_SMALL_FACE_PX` pixels of each
-        other (a scan's faces) are their corners' pixels, marked at once with every vertex's; larger faces
-        are filled one by one by OpenCV (a call each: minutes for a scan's millions). OpenCV's fill of a
-        small face sets its corners' pixels and, for 1.3 % of them (random faces up to 1.8 px across), one
-        more across a diagonal: on a scan, a pixel a neighbouring face's corner sets."""
+        in its base) shows its inside: each pixel whose centre a face covers, as a ray through it would hit
+        the mesh (:func:`~hlr_lab.geometry.raster.fill_triangles`, all faces at once), and each vertex's pixel
+        (the only pixels of a face whose corners lie within :data:`_SMALL_FACE_PX` of each other — a scan's
+        faces — that are not looked at one by one), so the mask holds the ray-cast one and at most a pixel
+        more along its border."""
         uv, depth = cam.project(self.mesh.vertices @ m[:3, :3].T + m[:3, 3])
         valid = np.asarray(np.isfinite(uv).all(axis=1) & (np.abs(uv) < 1e5).all(axis=1))  # (V,)
-        fixed = np.zeros(uv.shape, np.int32)
-        fixed[valid] = np.round(uv[valid] * 16)  # 4 fractional bits, as OpenCV's shift
-        pixel = (fixed + 8) >> 4  # (V, 2) the pixel each vertex lies in
+        fixed = np.zeros(uv.shape, np.int64)
+        fixed[valid] = np.round(uv[valid] * ONE_PX)  # fixed point, as OpenCV's shift
+        pixel = corner_pixels(fixed)  # (V, 2) the pixel each vertex lies in
         mask = np.zeros((cam.height, cam.width), np.uint8)
         _mark(mask, pixel[valid & self._in_a_face])  # every face's fill holds its corners' pixels
         # a face under a pixel across spans no more than neighbouring pixels: its corners' pixels are its fill.
@@ -307,8 +354,7 @@ class Outlines:
             a, b, c = (pixel[faces[:, k]] for k in range(3))  # (B, 2) each corner's pixel
             spread = np.maximum(np.maximum(a, b), c) - np.minimum(np.minimum(a, b), c)
             small = (spread <= _SMALL_FACE_PX).all(axis=1)  # its corners, marked above, are its fill
-            for triangle in fixed[faces[ok & ~small]]:
-                cv2.fillConvexPoly(mask, triangle, 1, lineType=cv2.LINE_8, shift=4)
+            fill_triangles(mask, fixed[faces[ok & ~small]])
         return mask > 0
 
     @staticmethod
@@ -322,6 +368,7 @@ def register(outlines: Outlines, *, yaw_step_deg: float = YAW_STEP_DEG) -> Regis
 
     Raises :class:`PlacementError` when the best placement lies outside the search range
     (:data:`MAX_SHIFT_MM` off the axis, :data:`MAX_TILT_DEG` of tilt)."""
+    solved = outlines.stand_in() or outlines  # a scan: its coarser stand-in until the last rounds
     scored = []
     for yaw in np.arange(0.0, 360.0, yaw_step_deg):
         params = yaw_params(float(yaw), np.zeros(3))
@@ -337,11 +384,13 @@ def register(outlines: Outlines, *, yaw_step_deg: float = YAW_STEP_DEG) -> Regis
             break
     # two rounds of each, then to the end only those that could still compete (a wrong turn's fit wanders
     # for all its rounds: 60 % of the solve's time before this)
-    fits = sorted((_refine(outlines, params, rounds=2) for params in starts), key=lambda f: f[1])
-    fits = [_refine(outlines, f[0]) if k == 0 or _competes(f, fits[:k], yaw_step_deg) else f
+    fits = sorted((_refine(solved, params, rounds=2) for params in starts), key=lambda f: f[1])
+    fits = [_refine(solved, f[0]) if k == 0 or _competes(f, fits[:k], yaw_step_deg) else f
             for k, f in enumerate(fits)]  # fmt: skip
     fits.sort(key=lambda f: f[1])
     best, cost, points = fits[0]
+    if solved is not outlines:  # the last rounds on the mesh itself, from where its stand-in came to rest
+        best, _, points = _refine(outlines, best, drawn=solved)
     ambiguous = None
     best_yaw = turn_angles(best)[0]
     for other, other_cost, _ in fits[1:]:
@@ -475,13 +524,14 @@ def _offset_residuals(x: np.ndarray, outlines: Outlines, points: list[np.ndarray
 
 
 def _refine(
-    outlines: Outlines, start: np.ndarray, *, rounds: int = 8
+    outlines: Outlines, start: np.ndarray, *, rounds: int = 8, drawn: Outlines | None = None
 ) -> tuple[np.ndarray, float, list[np.ndarray]]:
     """ICP on the outlines from ``start`` (6 or 7: a placement, with or without the outline's offset):
-    choose the contour points, fit, until the placement stops moving (0.001° and 0.001 mm), at most
-    ``rounds`` times. Returns the seven numbers, the mean robust cost per point and the last points."""
+    choose the contour points (on ``drawn``'s masks' borders, if given: :meth:`Outlines.contour_points`),
+    fit, until the placement stops moving (0.001° and 0.001 mm), at most ``rounds`` times. Returns the seven
+    numbers, the mean robust cost per point and the last points."""
     x = start if len(start) == 7 else np.append(start, 0.0)
-    points = outlines.contour_points(x[:6])
+    points = outlines.contour_points(x[:6], drawn)
     cost = np.inf
     for _ in range(rounds):
         fit = least_squares(
@@ -490,7 +540,7 @@ def _refine(
         moved = np.abs(fit.x - x).max()
         x = fit.x
         cost = 2 * fit.cost / max(len(fit.fun), 1)
-        points = outlines.contour_points(x[:6])
+        points = outlines.contour_points(x[:6], drawn)
         if moved < 1e-3:
             break
     return x, float(cost), points
