@@ -121,6 +121,13 @@ def test_a_bound_of_two_met_by_a_pair_is_proven_without_an_integer_programme(mon
     assert found.cover is not None
     assert sorted(found.cover.tolist()) == [2, 3]
     assert solved == []
+    # a later round of the planner's exact checks: no pair among the lights counted exactly (0 and 1)
+    # covers, so the pair is sought among all of them — still no programme
+    exact = np.array([True, True, False, False])
+    found = minimum_cover(counts, np.full(4, 50.0), incumbent=4, budget_s=5.0, pairs_among=exact)
+    assert found.cover is not None
+    assert sorted(found.cover.tolist()) == [2, 3]
+    assert solved == []
     # three regions, each light filling one and giving the next half: the bound is 2, no pair covers
     counts = np.array([[50.0, 25.0, 0], [0, 50.0, 25.0], [25.0, 0, 50.0]])
     found = minimum_cover(counts, np.full(3, 50.0), incumbent=3, budget_s=5.0)

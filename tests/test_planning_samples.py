@@ -9,8 +9,10 @@ import pytest
 import trimesh
 
 from hlr_lab.object.mesh import ColouredMesh
+from hlr_lab.object.procedural import pebble
 from hlr_lab.object.segment import segment
-from hlr_lab.planning.samples import merged_vertices
+from hlr_lab.planning.geometry import placement
+from hlr_lab.planning.samples import merged_vertices, surface_samples
 
 
 def thin_plate() -> ColouredMesh:
@@ -95,3 +97,24 @@ def test_merged_samples_lie_on_the_surface_so_that_it_neither_hides_nor_shadows_
     assert caster.visible_from(eye, merged.point[front]).all()
     lamp = np.array([0.05, -0.5, 0.05])
     assert not caster.shadowed(merged.point[front], merged.normal[front], lamp).any()
+
+
+def test_faces_no_view_can_see_the_front_of_give_no_samples_and_no_facing_sample_is_lost(rig):
+    """A coarse pebble (faces split into samples) seen from the camera at turntable 0: the samples of the
+    faces some eye may face are fewer than the whole surface's, and they hold every sample of the whole
+    set whose (interpolated) normal points towards the eye — the same points, none lost."""
+    obj = pebble(subdivisions=2)
+    placed = obj.mesh.transformed(placement(obj.mesh))
+    seg = segment(placed)
+    eye = rig.camera.centre
+    every = surface_samples(placed, seg, rig.camera, "pixels")
+    kept = surface_samples(placed, seg, rig.camera, "pixels", eyes=eye[None])
+    assert len(every) > len(placed.faces)  # faces were split: the filter is what this tests
+    assert len(kept) < 0.7 * len(every)
+
+    def facing_points(s) -> np.ndarray:
+        towards = np.einsum("nd,nd->n", s.normal, eye - s.point) > 0
+        p = s.point[towards]
+        return p[np.lexsort(p.T)]
+
+    np.testing.assert_array_equal(facing_points(kept), facing_points(every))

@@ -17,17 +17,19 @@ _CANDIDATES_PER_BATCH = 8  # lights × samples × 3 floats at a time: ~20 MB on 
 
 
 def _lit_outside_cone(
-    view: ViewSamples, which: np.ndarray, lights: np.ndarray, theta_c: np.ndarray, max_light_angle: float
+    view: ViewSamples,
+    which: np.ndarray | None,
+    lights: np.ndarray,
+    theta_c: np.ndarray,
+    max_light_angle: float,
 ) -> np.ndarray:
-    """(m, len(which)) bool: each of m lights (view frame, (m, 3)) lights the samples ``which`` within the
-    grazing limit and lies outside their highlight cone (half-angle ``theta_c`` (R,) of their region,
-    radians; no occlusion or shadow tested)."""
-    h = view.highlights
-    to_light = lights[:, None, :] - h.point[which][None]  # (m, n, 3)
-    dist = np.linalg.norm(to_light, axis=2)
-    cos_light = np.einsum("mnd,nd->mn", to_light, h.normal[which]) / dist
-    cos_cone = np.einsum("mnd,nd->mn", to_light, h.mirror[which]) / dist
-    return (cos_light >= np.cos(max_light_angle)) & (cos_cone < np.cos(theta_c)[view.region[which]])
+    """(m, n) bool: each of m lights (view frame, (m, 3)) lights the samples ``which`` (n,) (None: all)
+    within the grazing limit and lies outside their highlight cone (half-angle ``theta_c`` (R,) of their
+    region, radians; no occlusion or shadow tested)."""
+    cos_cone, cos_light = view.towards(lights, which)  # (n, m) each
+    region = view.region if which is None else view.region[which]
+    outside = cos_cone < np.cos(theta_c)[region, None]
+    return ((cos_light >= np.cos(max_light_angle)) & outside).T
 
 
 def diffuse_counts(
@@ -42,11 +44,10 @@ def diffuse_counts(
 ) -> np.ndarray:
     """(R,) exact diffuse-only samples per region (the plan's unit) one light (3,) (view frame) gives;
     ``regions`` (R,) bool limits the work to those regions (the others count 0)."""
-    which = np.arange(len(view.region))
-    if regions is not None:
-        which = which[regions[view.region]]
-    which = which[view.visible(which)]
-    lit = which[_lit_outside_cone(view, which, light[None], theta_c, max_light_angle)[0]]
+    which = None if regions is None else np.flatnonzero(regions[view.region])
+    lit = np.flatnonzero(_lit_outside_cone(view, which, light[None], theta_c, max_light_angle)[0])
+    lit = lit if which is None else which[lit]
+    lit = lit[view.visible(lit)]  # rays last: the light reaches about half the samples the camera faces
     if shadows and len(lit):
         h = view.highlights
         lit = lit[~caster.shadowed(h.point[lit], h.normal[lit], light)]

@@ -10,6 +10,7 @@ import numpy as np
 
 from hlr_lab.errors import InputError, PlanningError
 from hlr_lab.geometry.camera import Camera
+from hlr_lab.geometry.vectors import unit_rows
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.rig.file import Gantry
 
@@ -130,10 +131,8 @@ def mirror_highlights(
 ) -> Highlights:
     """Paper §3.2 step 2: the light position that puts a highlight on each point is where the mirror
     reflection of the view direction about the normal meets S (points must lie inside S)."""
-    view = eye - points
-    view /= np.linalg.norm(view, axis=1, keepdims=True)
-    mirror = 2.0 * np.einsum("ij,ij->i", normals, view)[:, None] * normals - view
-    mirror /= np.linalg.norm(mirror, axis=1, keepdims=True)
+    view = unit_rows(eye - points)
+    mirror = unit_rows(2.0 * np.einsum("ij,ij->i", normals, view)[:, None] * normals - view)
     rel = points - centre
     b = np.einsum("ij,ij->i", mirror, rel)
     c = np.einsum("ij,ij->i", rel, rel) - radius * radius  # < 0 inside S

@@ -94,7 +94,10 @@ def minimum_cover(
         (N,) bool: the candidates among which, with an LP bound of 2, a covering pair is sought before any
         integer programme (milliseconds against ~0.1 s); None: all of them. The pair search favours the
         largest totals, and where counts are estimates those are the likeliest to be too high: a caller
-        whose cover fell short when counted exactly passes the candidates it has counted exactly.
+        whose cover fell short when counted exactly passes the candidates it has counted exactly. Where
+        none of their pairs covers, a pair among all of them is sought next, still before any programme:
+        with a bound of 2 the programme's proof would only repeat the bound (on the paper's bunny a
+        programme took 85 ms of its 0.17 s search).
     """
     start = time.perf_counter()
     target = np.asarray(target, dtype=np.float64)
@@ -123,10 +126,13 @@ def minimum_cover(
     # only columns with reduced cost d ≤ incumbent − 1 − L can be in a cover of fewer lights
     useful = np.flatnonzero(reduced <= incumbent - 1 - lp_value + _EPS)
     if lower == 2 < incumbent:  # a covering pair is the fewest outright: try them first
-        among = useful if pairs_among is None else useful[pairs_among[useful]]
-        if (pair := _pair_cover(capped, among, reduced, need, deadline)) is not None:
-            return result(lower, pair, True, "optimal")
-    pairs_tried = lower == 2 < incumbent and pairs_among is None
+        # among those given first (exact counts), then among all: still a pair, where the programme's
+        # proof (~0.1 s) would only say what the LP bound already does
+        firsts = [] if pairs_among is None else [useful[pairs_among[useful]]]
+        for among in [*firsts, useful]:
+            if (pair := _pair_cover(capped, among, reduced, need, deadline)) is not None:
+                return result(lower, pair, True, "optimal")
+    pairs_tried = lower == 2 < incumbent
     # 1. The proof, on counts rounded up to a quantum of the largest target: every cover is still one, so
     #    the rounded programme's minimum bounds the true one from below. Rounding merges columns into few
     #    kinds, each an integer variable bounded by how many columns it stands for.

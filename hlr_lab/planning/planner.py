@@ -217,7 +217,9 @@ class _Candidates:
         self.coarse = reachable(coarse_deg)[0] if coarse_deg > spacing_deg else self.fine
         self.coarse_tree = KDTree(self.coarse)
         owner = (
-            np.asarray(self.coarse_tree.query(self.fine)[1]) if len(self.coarse) else np.zeros(0, np.int64)
+            np.asarray(self.coarse_tree.query(self.fine, workers=-1)[1])
+            if len(self.coarse)
+            else np.zeros(0, np.int64)
         )
         self._order = np.argsort(owner, kind="stable")
         self._start = np.searchsorted(owner[self._order], np.arange(len(self.coarse) + 1))
@@ -352,18 +354,6 @@ class _Planner:
         self.cands = _Candidates(
             self.sphere, rig, settings.spacing_deg, narrowest_deg * COARSE_FRACTION_OF_THETA_C
         )
-        # exact counts use samples as fine as the count unit needs; the estimates only steer the greedy and
-        # bound the plan, and samples of ~ESTIMATE_PX pixels do that at a fraction of the cost (a coarse
-        # mesh's vertices would not: one stands for hundreds of pixels, all or none in a cone)
-        self.surface = surface_samples(placed, segmentation, rig.camera, settings.count)
-        self.coarse_surface = (
-            surface_samples(placed, segmentation, rig.camera, settings.count, target_px=ESTIMATE_PX)
-            if settings.count == "pixels"
-            else self.surface
-        )
-        if len(self.coarse_surface) >= len(self.surface):
-            self.coarse_surface = self.surface
-        clock.lap("candidates")
         self.views = (
             given_views(settings.views_deg, rig.turntable_limits_deg)
             if settings.views_deg is not None
@@ -372,6 +362,22 @@ class _Planner:
         for t in taken:  # a light already photographed counts from the view it was taken in
             if not any(abs(t.turntable_deg - v) < 1e-6 for v in self.views):
                 self.views.append(float(t.turntable_deg))
+        # exact counts use samples as fine as the count unit needs; the estimates only steer the greedy and
+        # bound the plan, and samples of ~ESTIMATE_PX pixels do that at a fraction of the cost (a coarse
+        # mesh's vertices would not: one stands for hundreds of pixels, all or none in a cone). Faces no
+        # view sees the front of give no samples (one view: half the surface)
+        eyes = np.array([rotation_z(np.radians(v))[:3, :3].T @ rig.camera.centre for v in self.views])
+        self.surface = surface_samples(placed, segmentation, rig.camera, settings.count, eyes=eyes)
+        self.coarse_surface = (
+            surface_samples(
+                placed, segmentation, rig.camera, settings.count, target_px=ESTIMATE_PX, eyes=eyes
+            )
+            if settings.count == "pixels"
+            else self.surface
+        )
+        if len(self.coarse_surface) >= len(self.surface):
+            self.coarse_surface = self.surface
+        clock.lap("candidates")
         self.pool_cell = np.radians(max(settings.spacing_deg, narrowest_deg / POOL_FRACTION))
         self._samples: dict[int, ViewSamples] = {}
         self._coarse_samples: dict[int, ViewSamples] = {}
@@ -522,7 +528,7 @@ class _Planner:
         the plan does not depend on the machine's speed; the time budget only guards the whole. A cover
         that still falls short is returned unproven: the greedy completes it from there. A covering pair is
         sought before the programme (``pairs_among``) in the first round among all candidates, then among
-        those counted exactly only: the pair search favours the largest totals, and once a cover has fallen
+        those counted exactly first: the pair search favours the largest totals, and once a cover has fallen
         short those are the suspect estimates (a pair of exact counts that covers holds outright)."""
         m, budget = need, self.settings.optimum_budget_s  # m (R,): each region's target
         counts, q, start = counts.copy(), len(self.cands.coarse), time.perf_counter()

@@ -56,10 +56,20 @@ def vertex_samples(mesh: ColouredMesh, seg: Segmentation) -> SurfaceSamples:
 
 
 def surface_samples(
-    mesh: ColouredMesh, seg: Segmentation, camera: Camera, count: str, *, target_px: float = TARGET_PX
+    mesh: ColouredMesh,
+    seg: Segmentation,
+    camera: Camera,
+    count: str,
+    *,
+    target_px: float = TARGET_PX,
+    eyes: np.ndarray | None = None,
 ) -> SurfaceSamples:
     """Samples for the count unit, each standing for about ``target_px`` pixels at most (``"pixels"``: the
-    vertices when they are already that fine); ``camera`` (in the mesh's frame) sets the pixel scale."""
+    vertices when they are already that fine); ``camera`` (in the mesh's frame) sets the pixel scale.
+
+    ``eyes`` (E, 3): where the camera stands in each view (mesh frame). Faces split into samples are then
+    only those whose front some view may see (:func:`faces_towards`): the others' samples would never
+    count (one view: half the surface). None: every face. Vertices as samples are all kept."""
     if count == "vertices":
         return vertex_samples(mesh, seg)
     px_per_m2 = pixels_per_m2(mesh.vertices, camera)
@@ -71,10 +81,32 @@ def surface_samples(
     # a face's footprint when facing the camera, from its nearest corner
     face_px = mesh.face_areas * px_per_m2[mesh.faces].max(axis=1)
     level = np.clip(np.ceil(np.sqrt(face_px / target_px)), 1, MAX_LEVEL).astype(np.int64)
-    parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level)]
+    if eyes is not None:
+        level[~faces_towards(mesh, eyes)] = 0
+    parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level) if lv]
     return SurfaceSamples(
         *(np.concatenate([getattr(p, k) for p in parts]) for k in ("point", "normal", "region", "area"))
     )
+
+
+def faces_towards(mesh: ColouredMesh, eyes: np.ndarray) -> np.ndarray:
+    """(F,) bool: some point of the face, with its normal interpolated from the corners' as the samples'
+    are, may face one of the ``eyes`` (E, 3) — False only where it cannot.
+
+    A point p = Σ b_j x_j with normal n = Σ b_i n_i faces an eye c only if n·(c − p) > 0, and
+    n·(c − p) = Σ_ij b_i b_j n_i·(c − x_j) ≤ max_ij n_i·(c − x_j): so a face none of whose corner normals
+    n_i has n_i·c > min_j n_i·x_j for some eye faces away from every one."""
+    normals = mesh.vertex_normals[mesh.faces]  # (F, 3, 3): corner i's normal
+    x = mesh.vertices[mesh.faces]  # (F, 3, 3): corner j's position
+    # (F, 3) min_j n_i·x_j, written out by component: 3× faster than a batched product of 3×3 matrices
+    n0, n1, n2 = normals[..., 0], normals[..., 1], normals[..., 2]
+    lowest = np.min(
+        [n0 * x[:, None, j, 0] + n1 * x[:, None, j, 1] + n2 * x[:, None, j, 2] for j in range(3)], axis=0
+    )
+    towards = np.zeros(len(mesh.faces), bool)
+    for eye in np.asarray(eyes, dtype=np.float64).reshape(-1, 3):
+        towards |= (normals @ eye > lowest).any(axis=1)
+    return towards
 
 
 def merged_vertices(mesh: ColouredMesh, seg: Segmentation, cell_m: float) -> SurfaceSamples:
@@ -101,8 +133,9 @@ def sub_triangle_centroids(level: int) -> np.ndarray:
 def _split_faces(mesh: ColouredMesh, seg: Segmentation, faces: np.ndarray, level: int) -> SurfaceSamples:
     bary = sub_triangle_centroids(level)  # (k, 3)
     corners = mesh.faces[faces]  # (n, 3)
-    point = np.einsum("kc,ncd->nkd", bary, mesh.vertices[corners]).reshape(-1, 3)
-    normal = np.einsum("kc,ncd->nkd", bary, mesh.vertex_normals[corners]).reshape(-1, 3)
+    # optimize=True contracts through BLAS: ~10× faster than einsum's own loop on (n, 3, 3)
+    point = np.einsum("kc,ncd->nkd", bary, mesh.vertices[corners], optimize=True).reshape(-1, 3)
+    normal = np.einsum("kc,ncd->nkd", bary, mesh.vertex_normals[corners], optimize=True).reshape(-1, 3)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     k = len(bary)
     return SurfaceSamples(
