@@ -118,3 +118,16 @@ def test_faces_no_view_can_see_the_front_of_give_no_samples_and_no_facing_sample
         return p[np.lexsort(p.T)]
 
     np.testing.assert_array_equal(facing_points(kept), facing_points(every))
+
+
+def test_a_surface_no_eye_sees_the_front_of_gives_no_samples(rig):
+    """An open plate facing down, the camera above it: no face may face the eye, so no sample (an empty
+    set, not an error)."""
+    plate = trimesh.creation.box(extents=(0.1, 0.1, 0.001))
+    v, f = plate.vertices, plate.faces[plate.face_normals[:, 2] < -0.5]  # the underside only
+    grey = np.full((len(v), 3), 128, np.uint8)
+    mesh = ColouredMesh(np.asarray(v, np.float64), np.asarray(f, np.int64), grey)
+    seg = segment(mesh)
+    assert len(surface_samples(mesh, seg, rig.camera, "pixels", target_px=1e-3)) > 0
+    none = surface_samples(mesh, seg, rig.camera, "pixels", target_px=1e-3, eyes=np.array([[0, 0, 0.5]]))
+    assert len(none) == 0

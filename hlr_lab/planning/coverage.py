@@ -212,9 +212,8 @@ def _pool(view: ViewSamples, keep: np.ndarray, radius: np.ndarray, cell: float) 
 
     total = np.bincount(group, weights=w, minlength=n)
 
-    def mean(
-        a: np.ndarray,
-    ) -> np.ndarray:  # a column at a time: bincount adds in np.add.at's order, 10× faster
+    # a column at a time: bincount adds in np.add.at's order (the same sums), 10× faster
+    def mean(a: np.ndarray) -> np.ndarray:
         return np.column_stack([np.bincount(group, weights=c * w, minlength=n) for c in a.T]) / total[:, None]
 
     mirror, footprint = mean(h.mirror[idx]), mean(fp)

@@ -84,6 +84,7 @@ def surface_samples(
     if eyes is not None:
         level[~faces_towards(mesh, eyes)] = 0
     parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level) if lv]
+    parts = parts or [_split_faces(mesh, seg, np.zeros(0, np.int64), 1)]  # no face towards any eye: none
     return SurfaceSamples(
         *(np.concatenate([getattr(p, k) for p in parts]) for k in ("point", "normal", "region", "area"))
     )
