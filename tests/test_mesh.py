@@ -192,3 +192,17 @@ def test_surface_samples_are_trimeshs_seeded_draws():
     ours = mesh.surface_samples(2000, seed=3)
     theirs = np.asarray(trimesh.sample.sample_surface(mesh.trimesh, 2000, seed=3)[0])
     np.testing.assert_allclose(ours, theirs, atol=1e-12)
+
+
+def test_the_faces_beside_each_edge_are_the_same_read_in_blocks(monkeypatch):
+    """``edge_faces`` reads a scan's sorted edges in blocks (bounded memory): blocks of 7 face edges, which
+    split edges' pairs at block ends, give what one block does."""
+    import hlr_lab.object.mesh as mesh_module
+
+    for mesh in (_open_box(), pebble(subdivisions=1).mesh):
+        whole = mesh.edge_faces()
+        monkeypatch.setattr(mesh_module, "_FACE_BLOCK", 7)
+        blocks = mesh.edge_faces()
+        monkeypatch.undo()
+        for a, b in zip(whole, blocks, strict=True):
+            assert np.array_equal(a, b)

@@ -138,3 +138,33 @@ def test_lengths_of_rows_are_numpys_norms():
     u = unit_rows(v.copy())
     np.testing.assert_allclose(np.linalg.norm(u, axis=1), 1.0, rtol=1e-15)
     np.testing.assert_allclose(u * np.linalg.norm(v, axis=1)[:, None], v, rtol=1e-14)
+
+
+def test_the_first_hit_is_trimeshs_without_every_faces_corners():
+    """``first_hit`` against trimesh's ``intersects_id`` (its float64 plane crossing) on 20 000 seeded rays
+    through a 330 k-face sphere: the same faces, distances within 1e-12 m. And it allocates for the rays,
+    not the faces: under 4 MB for 1 000 rays, where trimesh's every-face corners and normals are 31 MB."""
+    import tracemalloc
+
+    caster = RayCaster(sphere_mesh(0.05, subdivisions=7))
+    rng = np.random.default_rng(3)
+    origins = rng.normal(size=(20_000, 3)) * 0.2
+    dirs = rng.normal(size=(20_000, 3)) * 0.03 - origins
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    tracemalloc.start()
+    try:
+        caster.first_hit(origins[:1000], dirs[:1000])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 * 2**20
+    face, dist = caster.first_hit(origins, dirs)
+    tri, ray, loc = caster._intersector.intersects_id(
+        origins, dirs, multiple_hits=False, return_locations=True
+    )
+    expected = np.full(len(origins), -1)
+    expected[ray] = tri
+    assert np.array_equal(face, expected)
+    assert 0.2 < (face >= 0).mean() < 0.9  # hits and misses both exercised
+    np.testing.assert_allclose(dist[ray], np.linalg.norm(loc - origins[ray], axis=1), rtol=0, atol=1e-12)
+    assert np.isinf(dist[face < 0]).all()

@@ -85,11 +85,22 @@ def clustered_mesh(mesh: ColouredMesh, clusters: VertexClusters) -> tuple[Colour
     """The mesh the clusters span: a vertex per cluster (at its member, with its mean normal), each face
     whose corners fall in three different clusters once (a face repeated by another, in either winding,
     is dropped). Returns the mesh (no colour) and (F',) the index of each kept face in ``mesh.faces``."""
-    corners = clusters.group[mesh.faces]  # (F, 3)
-    proper = np.flatnonzero(
+    proper = np.concatenate(  # a block of faces at a time: a scan's (F, 3) corner clusters are 480 MB
+        [
+            np.flatnonzero(_proper(clusters.group[mesh.faces[block]])) + block.start
+            for block in mesh.face_blocks()
+        ]
+        or [np.zeros(0, np.int64)]
+    )
+    corners = clusters.group[mesh.faces[proper]]  # (F', 3): of a stand-in's cells, a few per cent of F
+    _, once = group_rows(np.sort(corners, axis=1))
+    once = np.sort(once)
+    kept, faces = proper[once], corners[once].astype(np.int64)
+    return ColouredMesh(mesh.vertices[clusters.member], faces, normals=clusters.normal), kept
+
+
+def _proper(corners: np.ndarray) -> np.ndarray:
+    """(F,) bool: the faces whose corners (F, 3) lie in three different clusters."""
+    return (
         (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2]) & (corners[:, 0] != corners[:, 2])
     )
-    _, once = group_rows(np.sort(corners[proper], axis=1))
-    kept = proper[np.sort(once)]
-    faces = corners[kept].astype(np.int64)
-    return ColouredMesh(mesh.vertices[clusters.member], faces, normals=clusters.normal), kept

@@ -85,7 +85,7 @@ class ColouredMesh:
         trimesh's, which keeps every face's corners (F × 72 bytes) and the cross product in its cache."""
         out = np.empty((len(self.faces), 3))
         for block in self.face_blocks():
-            out[block] = self._unit_normals(block)
+            out[block] = self.face_normals_of(block)
         return out
 
     @cached_property
@@ -137,10 +137,10 @@ class ColouredMesh:
             np.cumsum(counts) - counts, counts
         )  # 0, 1, … per corner
         pair_face = incidence.indices[np.repeat(incidence.indptr[v], counts) + rank]
-        own = self._unit_normals(faces[corner_f])  # (C, 3) the corners' faces
+        own = self.face_normals_of(faces[corner_f])  # (C, 3) the corners' faces
         cross = self._face_cross(pair_face)
         double_area = np.linalg.norm(cross, axis=1)
-        around = self._unit_normals(pair_face)
+        around = self.face_normals_of(pair_face)
         near = np.einsum("pk,pk->p", own[pair_corner], around) >= np.cos(np.radians(CREASE_DEG))
         weighted = around * (double_area * near)[:, None]
         acc = np.zeros((len(v), 3))
@@ -149,8 +149,9 @@ class ColouredMesh:
         out[corner_f, corner_c] = np.divide(acc, norm, out=own.copy(), where=norm > 0)
         return out
 
-    def _unit_normals(self, faces: np.ndarray | slice) -> np.ndarray:
-        """(N, 3) the unit normals of the faces ``faces`` indexes (0 for a degenerate face)."""
+    def face_normals_of(self, faces: np.ndarray | slice) -> np.ndarray:
+        """(N, 3) the unit normals of the faces ``faces`` indexes (0 for a degenerate face), worked out for them
+        alone (:attr:`face_normals` keeps every face's: 480 MB on a 10 M-vertex scan)."""
         cross = self._face_cross(faces)
         norm = np.linalg.norm(cross, axis=1, keepdims=True)
         return np.divide(cross, norm, out=np.zeros_like(cross), where=norm > 0)
@@ -161,7 +162,7 @@ class ColouredMesh:
         worst = np.ones(len(self.vertices))
         for block in self.face_blocks():
             cos_off = np.einsum(
-                "fk,fck->fc", self._unit_normals(block), self.vertex_normals[self.faces[block]]
+                "fk,fck->fc", self.face_normals_of(block), self.vertex_normals[self.faces[block]]
             )
             np.minimum.at(worst, self.faces[block].ravel(), cos_off.ravel())
         return worst < np.cos(np.radians(CREASE_DEG / 2))
@@ -203,9 +204,13 @@ class ColouredMesh:
     @cached_property
     def vertex_areas(self) -> np.ndarray:
         """(V,) a third of the adjacent faces' area: the surface each vertex stands for."""
-        return np.bincount(
-            self.faces.ravel(), weights=np.repeat(self.face_areas / 3.0, 3), minlength=len(self.vertices)
-        )
+        out = np.zeros(len(self.vertices))
+        for block in self.face_blocks():  # a scan's corner weights at once were 640 MB of temporaries
+            corners = self.faces[block].ravel()  # (3B,)
+            out += np.bincount(
+                corners, weights=np.repeat(self.face_areas[block] / 3.0, 3), minlength=len(out)
+            )
+        return out
 
     def vertex_edges(self) -> tuple[np.ndarray, np.ndarray]:
         """The mesh's edges, each once: their lower (E,) and higher (E,) vertex, int32, in that order,
@@ -227,20 +232,41 @@ class ColouredMesh:
         int32, those two faces; rims (R, 2) int32, each edge of one face only (an open mesh's border), and
         rim_faces (R,) int32, that face. An edge of three or more faces (non-manifold) is in neither. The
         edges in order of their vertices."""
-        n, f = len(self.vertices), len(self.faces)
+        f = len(self.faces)
         key = self._edge_keys()
         order = np.argsort(key, kind="stable")  # face edge c·F + face: the faces in order along an edge
-        key = key[order]
-        start = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
-        count = np.diff(np.append(start, len(key)))
-        face = (order % f).astype(np.int32)
-        del order
+        # same[i]: sorted face edges i and i + 1 are one edge. Read in blocks, and the keys dropped after: a
+        # sorted copy of a 10 M-vertex scan's 60 M keys would be another 480 MB at the peak
+        same = np.zeros(len(key) + 1, dtype=bool)  # a False after the last, for the tests below
+        for s in range(0, len(key) - 1, _FACE_BLOCK):
+            k = key[order[s : s + _FACE_BLOCK + 1]]
+            np.equal(k[1:], k[:-1], out=same[s : s + len(k) - 1])
+        del key
+        after = same[:-1]  # (3F,) the next is this edge
+        before = np.zeros_like(after)  # (3F,) the previous is this edge
+        before[1:] = same[: len(after) - 1]
+        pair = np.flatnonzero(after & ~before & ~same[1:])  # exactly two faces: the next's next is another
+        rim = np.flatnonzero(~after & ~before)  # one face
+        del same, after, before
+
+        def faces_at(at: np.ndarray) -> np.ndarray:
+            out = np.empty(len(at), dtype=np.int32)
+            for s in range(0, len(at), _FACE_BLOCK):
+                out[s : s + _FACE_BLOCK] = order[at[s : s + _FACE_BLOCK]] % f
+            return out
 
         def vertices(at: np.ndarray) -> np.ndarray:
-            return np.stack([key[at] // n, key[at] % n], axis=1).astype(np.int32)
+            out = np.empty((len(at), 2), dtype=np.int32)
+            for s in range(0, len(at), _FACE_BLOCK):
+                # the edge c of face i (at c·F + i) joins the face's corners c and c + 1
+                corner, face = np.divmod(order[at[s : s + _FACE_BLOCK]], f)
+                a, b = self.faces[face, corner], self.faces[face, (corner + 1) % 3]
+                out[s : s + _FACE_BLOCK, 0] = np.minimum(a, b)
+                out[s : s + _FACE_BLOCK, 1] = np.maximum(a, b)
+            return out
 
-        pair, rim = start[count == 2], start[count == 1]
-        return vertices(pair), np.stack([face[pair], face[pair + 1]], axis=1), vertices(rim), face[rim]
+        faces = np.stack([faces_at(pair), faces_at(pair + 1)], axis=1)
+        return vertices(pair), faces, vertices(rim), faces_at(rim)
 
     def _edge_keys(self) -> np.ndarray:
         """(3F,) int64: each face's edges as one key, lower·V + higher; edge c of face i at c·F + i."""

@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 import trimesh
@@ -73,17 +72,29 @@ class RayCaster:
         self.scale = mesh.bounding_sphere()[1]
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) origins and unit directions → hit face (N,) (−1 on a miss) and distance (N,) (inf)."""
+        """(N, 3) origins and unit directions → hit face (N,) (−1 on a miss) and distance (N,) (inf).
+
+        Embree finds the face; the distance is the ray's crossing of that face's plane in float64 (as
+        trimesh's ``intersects_id`` does, without its every-face corner and normal arrays: 2 GB on a 10 M
+        vertex scan). A ray within 1e-5 of parallel to the face it grazes is a miss, as in trimesh.
+        """
         origins = np.ascontiguousarray(origins, dtype=np.float64)
         directions = np.ascontiguousarray(directions, dtype=np.float64)
         face = np.full(len(origins), -1, dtype=np.int64)
         dist = np.full(len(origins), np.inf)
         for start in range(0, len(origins), _RAY_CHUNK):
             o, d = origins[start : start + _RAY_CHUNK], directions[start : start + _RAY_CHUNK]
-            hits = self._intersector.intersects_id(o, d, multiple_hits=False, return_locations=True)
-            tri, ray, loc = cast(tuple[np.ndarray, np.ndarray, np.ndarray], hits)  # with return_locations
-            face[start + ray] = tri
-            dist[start + ray] = np.linalg.norm(loc - o[ray], axis=1)
+            primitive = np.asarray(self._scene.run(o, d))  # (n,) face index, −1 on a miss
+            ray = np.flatnonzero(primitive != -1)
+            hit_face = primitive[ray].astype(np.int64)
+            normal = self.mesh.face_normals_of(hit_face)  # (h, 3)
+            along = np.einsum("ij,ij->i", d[ray], normal)
+            ok = np.abs(along) > 1e-5
+            ray, hit_face, normal, along = ray[ok], hit_face[ok], normal[ok], along[ok]
+            corner = self.mesh.vertices[self.mesh.faces[hit_face, 0]]
+            t = np.einsum("ij,ij->i", corner - o[ray], normal) / along
+            face[start + ray] = hit_face
+            dist[start + ray] = np.abs(t)
         return face, dist
 
     def blocked(self, origins: np.ndarray, directions: np.ndarray, reach: np.ndarray) -> np.ndarray:

@@ -129,7 +129,7 @@ def segment(
         node_label,
         material,
         sample_region[own],
-        srgb8_to_linear(samples[own]),
+        samples[own],
         sample_weight[own],
         delta_e,
         split_connected,
@@ -340,7 +340,7 @@ def _summarise(
     node_label,
     material,
     sample_region,
-    sample_linear,
+    sample_srgb8,
     sample_weight,
     delta_e,
     split_connected,
@@ -354,8 +354,14 @@ def _summarise(
     vertex_labels, face_labels = new_id[vertex_labels], new_id[face_labels]
     sample_new = new_id[sample_region]
 
-    colour_sum = np.zeros((len(order), 3))
-    np.add.at(colour_sum, sample_new, sample_linear * sample_weight[:, None])
+    # per channel through a table of the 256 levels: a scan's (V, 3) float64 conversion took 1.2 GB at once
+    linear = srgb8_to_linear(np.arange(256))
+    colour_sum = np.column_stack(
+        [
+            np.bincount(sample_new, weights=linear[sample_srgb8[:, k]] * sample_weight, minlength=len(order))
+            for k in range(3)
+        ]
+    )
     mass = np.bincount(sample_new, weights=sample_weight, minlength=len(order))
     mean_colour = linear_to_srgb8(colour_sum / np.maximum(mass, 1e-300)[:, None])
     n_vert = np.bincount(vertex_labels, minlength=len(order))

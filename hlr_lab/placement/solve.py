@@ -29,6 +29,7 @@ from hlr_lab.geometry.camera import Camera
 from hlr_lab.geometry.raster import ONE_PX, corner_pixels, fill_triangles
 from hlr_lab.geometry.silhouette import signed_distance
 from hlr_lab.geometry.sphere import rotation_z
+from hlr_lab.geometry.vectors import lengths
 from hlr_lab.object.clusters import cluster_vertices, clustered_mesh
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import PixelSurface, RayCaster
@@ -161,16 +162,19 @@ class Outlines:
         # open mesh's rims are outlines too), (R,) that face
         self._shared_edges, self._adjacent_faces, self._rim_edges, self._rim_faces = mesh.edge_faces()
         # (F,) each face's plane, n · x = offset (n its unit normal): a face turns toward an eye e when
-        # n · e > offset. Kept instead of the faces' centroids: a scan's per-face arrays are its memory
-        normals = mesh.face_normals
-        self._plane_offset = np.empty(len(mesh.faces))
+        # n · e > offset. Kept instead of the faces' centroids, and the normals in float32 (the test is off only
+        # for a face within ~1e-7 rad of edge-on): a scan's per-face arrays are its memory
+        f = len(mesh.faces)
+        self._normals = np.empty((f, 3), np.float32)  # (F, 3) unit, 0 for a degenerate face
+        self._plane_offset = np.empty(f)
+        self._normal_length = np.empty(f, np.float32)  # (F,) 1, or 0 degenerate
+        self._face_size = np.empty(f, np.float32)  # (F,) m, the longest edge of each face
         for block in mesh.face_blocks():
-            centroid = mesh.vertices[mesh.faces[block]].mean(axis=1)  # (B, 3)
-            self._plane_offset[block] = np.einsum("ij,ij->i", normals[block], centroid)
-        self._normal_length = np.linalg.norm(normals, axis=1).astype(np.float32)  # (F,) 1, or 0 degenerate
-        self._face_size = np.zeros(len(mesh.faces), np.float32)  # (F,) m, the longest edge of each face
-        for block in mesh.face_blocks():
+            normals = mesh.face_normals_of(block)  # (B, 3)
             corners = mesh.vertices[mesh.faces[block]]  # (B, 3, 3)
+            self._normals[block] = normals
+            self._plane_offset[block] = np.einsum("ij,ij->i", normals, corners.mean(axis=1))
+            self._normal_length[block] = lengths(normals)
             edges = corners - np.roll(corners, 1, axis=1)
             self._face_size[block] = np.sqrt((edges**2).sum(axis=2).max(axis=1))
         self._in_a_face = np.zeros(len(mesh.vertices), bool)  # (V,) a loaded mesh may carry stray vertices
@@ -216,7 +220,7 @@ class Outlines:
         lit = self._lit_faces(m)
         for cam in self.cameras:
             eye = inverse[:3, :3] @ cam.centre + inverse[:3, 3]  # the camera centre in the mesh frame
-            toward = self.mesh.face_normals @ eye > self._plane_offset  # (F,)
+            toward = self._normals @ eye.astype(np.float32) > self._plane_offset  # (F,)
             a, b = toward[self._adjacent_faces[:, 0]], toward[self._adjacent_faces[:, 1]]
             # the face of a contour edge that the camera sees must not face down (UNDERSIDE_NZ)
             front = np.where(a, self._adjacent_faces[:, 0], self._adjacent_faces[:, 1])
@@ -233,7 +237,7 @@ class Outlines:
         """(F,) bool: the faces that do not face down, the mesh lying as ``m`` (4, 4) says (the underside,
         which no registration lamp lights head on, is left out: :data:`UNDERSIDE_NZ`)."""
         # m may scale (uniformly): the direction is what counts
-        up = self.mesh.face_normals @ m[2, :3]  # (F,) the turned normals' z
+        up = self._normals @ m[2, :3].astype(np.float32)  # (F,) the turned normals' z
         return up >= UNDERSIDE_NZ * np.linalg.norm(m[2, :3]) * self._normal_length
 
     def _along(self, edges: np.ndarray, cam: Camera, m: np.ndarray) -> np.ndarray:
