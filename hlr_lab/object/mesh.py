@@ -234,7 +234,9 @@ class ColouredMesh:
         edges in order of their vertices."""
         f = len(self.faces)
         key = self._edge_keys()
-        order = np.argsort(key, kind="stable")  # face edge c·F + face: the faces in order along an edge
+        # face edge c·F + face, in the order of the edges' keys; the two faces of an edge in either order
+        # (introsort: half a stable sort's time, 4 s of a 10 M-vertex scan's registration)
+        order = np.argsort(key)
         # same[i]: sorted face edges i and i + 1 are one edge. Read in blocks, and the keys dropped after: a
         # sorted copy of a 10 M-vertex scan's 60 M keys would be another 480 MB at the peak
         same = np.zeros(len(key) + 1, dtype=bool)  # a False after the last, for the tests below
