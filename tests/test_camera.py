@@ -39,6 +39,20 @@ def test_pixel_rays_invert_projection_with_distortion(camera):
     np.testing.assert_allclose(back, pixels, atol=1e-6)  # iterative undistortion converges far below a pixel
 
 
+def test_grid_rays_are_every_pixels_ray_for_each_camera_asked(camera):
+    """``grid_rays`` (the grid's undistortion kept per intrinsics) is ``pixel_rays(pixel_grid())`` exactly:
+    for the camera, the same camera turned (the kept grid reused, the pose its own), another distortion and
+    another size asked in turn, and the first again."""
+    turned = camera.in_frame(rotation_z(np.radians(30)))
+    other = Camera.look_at([0.1, -0.6, 0.3], [0.0, 0.0, 0.05], matrix=K, width=640, height=480,
+                           distortion=-DIST)  # fmt: skip
+    smaller = Camera.look_at([0.1, -0.6, 0.3], [0.0, 0.0, 0.05], matrix=K, width=320, height=240)
+    for cam in (camera, turned, other, smaller, camera):
+        for ours, theirs in zip(cam.grid_rays(), cam.pixel_rays(cam.pixel_grid()), strict=True):
+            assert np.array_equal(ours, theirs)
+    assert not np.array_equal(other.grid_rays()[1], camera.grid_rays()[1])
+
+
 def test_points_behind_the_camera_do_not_project(camera):
     behind = camera.centre - camera.forward
     px, z = camera.project(behind[None])

@@ -147,7 +147,7 @@ class RayCaster:
     def gbuffer(self, camera: Camera) -> GBuffer:
         """Cast one ray per pixel centre of ``camera`` (expressed in the mesh frame)."""
         h, w = camera.height, camera.width
-        s = self.surface(camera, camera.pixel_grid())
+        s = self.surface_along(*camera.grid_rays())
         depth = np.full(h * w, np.inf)
         depth[s.hit] = camera.to_camera(s.point[s.hit])[:, 2]
         return GBuffer(
