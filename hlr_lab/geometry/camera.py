@@ -168,9 +168,8 @@ def _normalised(pixels: np.ndarray, matrix: np.ndarray, dist5: np.ndarray) -> np
     pts = pixels.reshape(-1, 1, 2)
     if np.any(dist5):
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-        undistort_iter = getattr(
-            cv2, "undistortPointsIter", None
-        )  # OpenCV 4; 5 folded it into undistortPoints
+        # OpenCV 4; 5 folded it into undistortPoints
+        undistort_iter = getattr(cv2, "undistortPointsIter", None)
         if undistort_iter is not None:
             norm = undistort_iter(pts, matrix, dist5, None, None, criteria)
         else:
