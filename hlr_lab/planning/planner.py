@@ -28,12 +28,18 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster, facing
 from hlr_lab.object.segment import Segmentation
 from hlr_lab.planning.coverage import ViewSamples, best_light, count_estimates, exact_counts
-from hlr_lab.planning.diffuse import diffuse_counts, diffuse_estimates
+from hlr_lab.planning.diffuse import diffuse_counts_of_light, diffuse_estimates
 from hlr_lab.planning.geometry import LightSphere, light_sphere, mirror_highlights
 from hlr_lab.planning.greedy import MIN_GAIN, Choice, Selection, prune, score, select_lights
 from hlr_lab.planning.optimum import TIME_GUARD, CoverOptimum, minimum_cover
 from hlr_lab.planning.proxy import RayProxy, ray_proxy
-from hlr_lab.planning.samples import ESTIMATE_PX, SurfaceSamples, surface_samples
+from hlr_lab.planning.samples import (
+    ESTIMATE_PX,
+    SurfaceSamples,
+    faces_towards,
+    splits_faces,
+    surface_samples,
+)
 from hlr_lab.rig.file import Rig
 
 CountUnit = Literal["pixels", "vertices"]
@@ -367,10 +373,13 @@ class _Planner:
         # mesh's vertices would not: one stands for hundreds of pixels, all or none in a cone). Faces no
         # view sees the front of give no samples (one view: half the surface)
         eyes = np.array([rotation_z(np.radians(v))[:3, :3].T @ rig.camera.centre for v in self.views])
-        self.surface = surface_samples(placed, segmentation, rig.camera, settings.count, eyes=eyes)
+        # one side-of-eye test for both samplings (the coarser splits faces only if the finer does)
+        split = settings.count == "pixels" and splits_faces(placed, rig.camera)
+        towards = faces_towards(placed, eyes) if split else None
+        self.surface = surface_samples(placed, segmentation, rig.camera, settings.count, towards=towards)
         self.coarse_surface = (
             surface_samples(
-                placed, segmentation, rig.camera, settings.count, target_px=ESTIMATE_PX, eyes=eyes
+                placed, segmentation, rig.camera, settings.count, target_px=ESTIMATE_PX, towards=towards
             )
             if settings.count == "pixels"
             else self.surface
@@ -593,16 +602,7 @@ class _Planner:
         ``counts`` (R,) and its diffuse-only samples."""
         az, el = self.rig.gantry.kinematics.direction_angles(d)
         world_from_tt = rotation_z(np.radians(self.views[v]))[:3, :3]
-        vs = self.view_samples(v)
-        light = vs.light_position(d)
-        diffuse = diffuse_counts(
-            vs,
-            self.caster,
-            light,
-            theta_c=self.theta_c,
-            max_light_angle=self.max_light_angle,
-            shadows=self.settings.shadows,
-        )
+        light = self.view_samples(v).light_position(d)
         return PlannedLight(
             step=step,
             turntable_deg=float(self.views[v]),
@@ -613,8 +613,23 @@ class _Planner:
             camera_turntable=world_from_tt.T @ self.rig.camera.centre,
             expected=counts,
             counted=self.counted(v, d),
-            diffuse=diffuse,
+            diffuse=self.diffuse(v, light),
             purpose=purpose,
+        )
+
+    def diffuse(self, v: int, light: np.ndarray, regions: np.ndarray | None = None) -> np.ndarray:
+        """(R,) the diffuse-only samples a light at ``light`` (3,) (view v's frame) gives each region (of
+        ``regions`` (R,) bool only, if given): :func:`diffuse_counts_of_light`."""
+        return diffuse_counts_of_light(
+            self.view_samples(v),
+            self.coarse_view_samples(v),
+            self.caster,
+            light,
+            theta_c=self.theta_c,
+            max_light_angle=self.max_light_angle,
+            shadows=self.settings.shadows,
+            min_diffuse=self.settings.min_diffuse,
+            regions=regions,
         )
 
     def taken_light(self, step: int, taken: TakenLight) -> PlannedLight:
@@ -671,17 +686,8 @@ class _Planner:
             options.sort(key=lambda o: (-o[0], not o[1]))
             best, best_gain = None, MIN_GAIN - 1e-9
             for _, _, v, q in options[:DIFFUSE_EXACT_TRIES]:
-                vs = self.view_samples(v)
-                exact = diffuse_counts(
-                    vs,
-                    self.caster,
-                    vs.light_position(dirs[q]),
-                    theta_c=self.theta_c,
-                    max_light_angle=self.max_light_angle,
-                    shadows=self.settings.shadows,
-                    regions=short,
-                )
-                gain = float(np.minimum(exact, np.maximum(need, 0))[short].sum())
+                counted = self.diffuse(v, self.view_samples(v).light_position(dirs[q]), regions=short)
+                gain = float(np.minimum(counted, np.maximum(need, 0))[short].sum())
                 if gain > best_gain:
                     best, best_gain = (v, q), gain
             if best is None:

@@ -63,17 +63,19 @@ def surface_samples(
     *,
     target_px: float = TARGET_PX,
     eyes: np.ndarray | None = None,
+    towards: np.ndarray | None = None,
 ) -> SurfaceSamples:
     """Samples for the count unit, each standing for about ``target_px`` pixels at most (``"pixels"``: the
     vertices when they are already that fine); ``camera`` (in the mesh's frame) sets the pixel scale.
 
     ``eyes`` (E, 3): where the camera stands in each view (mesh frame). Faces split into samples are then
     only those whose front some view may see (:func:`faces_towards`): the others' samples would never
-    count (one view: half the surface). None: every face. Vertices as samples are all kept."""
+    count (one view: half the surface). ``towards`` (F,) bool: that test already made for the eyes (a plan
+    samples its mesh twice). Both None: every face. Vertices as samples are all kept."""
     if count == "vertices":
         return vertex_samples(mesh, seg)
     px_per_m2 = pixels_per_m2(mesh.vertices, camera)
-    vertex_px = float(np.median(mesh.vertex_areas * px_per_m2))
+    vertex_px = _vertex_px(mesh, px_per_m2)
     if vertex_px <= target_px:
         if vertex_px < MERGE_BELOW * target_px:
             return merged_vertices(mesh, seg, np.sqrt(min(target_px, MERGED_MAX_PX) / np.median(px_per_m2)))
@@ -81,13 +83,26 @@ def surface_samples(
     # a face's footprint when facing the camera, from its nearest corner
     face_px = mesh.face_areas * px_per_m2[mesh.faces].max(axis=1)
     level = np.clip(np.ceil(np.sqrt(face_px / target_px)), 1, MAX_LEVEL).astype(np.int64)
-    if eyes is not None:
-        level[~faces_towards(mesh, eyes)] = 0
+    if towards is None and eyes is not None:
+        towards = faces_towards(mesh, eyes)
+    if towards is not None:
+        level[~towards] = 0
     parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level) if lv]
     parts = parts or [_split_faces(mesh, seg, np.zeros(0, np.int64), 1)]  # no face towards any eye: none
     return SurfaceSamples(
         *(np.concatenate([getattr(p, k) for p in parts]) for k in ("point", "normal", "region", "area"))
     )
+
+
+def splits_faces(mesh: ColouredMesh, camera: Camera, target_px: float = TARGET_PX) -> bool:
+    """Whether :func:`surface_samples` ``"pixels"`` splits the faces of ``mesh`` (its vertices stand for more
+    than ``target_px`` pixels each) rather than taking or merging its vertices."""
+    return _vertex_px(mesh, pixels_per_m2(mesh.vertices, camera)) > target_px
+
+
+def _vertex_px(mesh: ColouredMesh, px_per_m2: np.ndarray) -> float:
+    """The median pixels a vertex's area covers facing the camera (``px_per_m2`` (V,))."""
+    return float(np.median(mesh.vertex_areas * px_per_m2))
 
 
 def faces_towards(mesh: ColouredMesh, eyes: np.ndarray) -> np.ndarray:
