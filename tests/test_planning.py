@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial import KDTree
 
 from benchmarks.numerical import PAPER_SETTINGS, paper_41_object
 from hlr_lab.errors import InputError, PlanningError
@@ -15,7 +16,15 @@ from hlr_lab.object.segment import segment
 from hlr_lab.planning.diffuse import COARSE_COUNT_FROM_PX, diffuse_counts
 from hlr_lab.planning.geometry import light_sphere, mirror_highlights, placement
 from hlr_lab.planning.greedy import select_lights
-from hlr_lab.planning.planner import PlanResult, PlanSettings, _Clock, _Planner, auto_views, plan_lights
+from hlr_lab.planning.planner import (
+    PlanResult,
+    PlanSettings,
+    _Candidates,
+    _Clock,
+    _Planner,
+    auto_views,
+    plan_lights,
+)
 from hlr_lab.planning.samples import sub_triangle_centroids
 
 
@@ -181,6 +190,20 @@ def test_diffuse_counts_are_exact_where_they_can_decide_a_light(placed_pebble, p
         below, above = below + int(exact.sum()), above + int((~exact).sum())
     assert below  # both ways were exercised
     assert above
+
+
+@pytest.mark.parametrize("gather", [None, 0.4])
+def test_a_candidate_cell_is_the_dense_points_nearest_to_it(placed_pebble, rig, gather):
+    """A coarse candidate's cell, found near it, is every reachable dense point whose nearest reachable
+    coarse point it is; also when the cells reach past where they are looked for (the whole grid then)."""
+    sphere = light_sphere(rig.gantry, placed_pebble.vertices, None)
+    cands = _Candidates(sphere, rig, 0.5, 5.0 / 3)
+    if gather is not None:  # look within 0.4 coarse spacings: most cells reach past 3/4 of that
+        cands._gather = gather * np.radians(5.0 / 3)
+    owner = KDTree(cands.coarse).query(cands.fine)[1]  # every dense point's nearest, the whole grid's
+    for q in range(0, len(cands.coarse), 13):
+        np.testing.assert_array_equal(cands.cell(q), np.flatnonzero(owner == q))
+    assert (cands._cells is not None) == (gather is not None)
 
 
 def test_regions_short_of_diffuse_samples_get_lights_of_their_own_and_say_so(

@@ -6,7 +6,9 @@ from hlr_lab.geometry.sphere import (
     azimuth_elevation,
     direction,
     directions_with_spacing,
+    fibonacci_band,
     fibonacci_directions,
+    lattice_size,
 )
 
 
@@ -26,6 +28,28 @@ def test_fibonacci_points_are_uniform():
         assert frac == pytest.approx((hi - lo) / 2, abs=2e-3)
     az = np.arctan2(d[:, 1], d[:, 0])
     assert np.mean(az > 0) == pytest.approx(0.5, abs=5e-3)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000, 222_246])
+def test_a_z_band_of_the_lattice_is_one_run_of_indices(n):
+    """Every point with z in the band is in the run, and the run holds at most one more at each end."""
+    z = fibonacci_directions(n)[:, 2]
+    rng = np.random.default_rng(n)
+    for lo, hi in [(-1.0, 1.0), (0.2, 0.21), (-1.5, -0.99), (0.999, 2.0), *rng.uniform(-1, 1, (20, 2))]:
+        lo, hi = min(lo, hi), max(lo, hi)
+        run = fibonacci_band(n, lo, hi)
+        inside = np.flatnonzero((z >= lo) & (z <= hi))
+        assert np.isin(inside, run).all()
+        assert np.all(np.diff(run) == 1)
+        assert len(run) <= len(inside) + 2
+
+
+def test_the_lattice_of_a_spacing_is_its_directions():
+    np.testing.assert_array_equal(directions_with_spacing(1.5), fibonacci_directions(lattice_size(1.5)))
+    index = np.array([0, 5, 17, lattice_size(1.5) - 1])
+    np.testing.assert_array_equal(
+        fibonacci_directions(lattice_size(1.5), index), directions_with_spacing(1.5)[index]
+    )
 
 
 def test_azimuth_elevation_round_trip():

@@ -16,9 +16,10 @@ _HEX_AREA = np.sqrt(3.0) / 2.0
 _SPACING_MARGIN = 1.08
 
 
-def fibonacci_directions(n: int) -> np.ndarray:
-    """(n, 3) unit vectors spread uniformly over the sphere (equal area per point)."""
-    i = np.arange(n, dtype=np.float64) + 0.5
+def fibonacci_directions(n: int, index: np.ndarray | None = None) -> np.ndarray:
+    """(n, 3) unit vectors spread uniformly over the sphere (equal area per point), in order of descending
+    z; (k, 3) only those of ``index`` (k,) when given."""
+    i = (np.arange(n) if index is None else np.asarray(index)).astype(np.float64) + 0.5
     z = 1.0 - 2.0 * i / n
     r = np.sqrt(1.0 - z * z)
     phi = _GOLDEN_ANGLE * i
@@ -26,9 +27,24 @@ def fibonacci_directions(n: int) -> np.ndarray:
 
 
 def directions_with_spacing(spacing_deg: float) -> np.ndarray:
-    """Uniform unit vectors whose nearest-neighbour spacing is at most ``spacing_deg``."""
+    """Uniform unit vectors whose nearest-neighbour spacing is at most ``spacing_deg``: the
+    :func:`fibonacci_directions` of :func:`lattice_size`."""
+    return fibonacci_directions(lattice_size(spacing_deg))
+
+
+def lattice_size(spacing_deg: float) -> int:
+    """How many :func:`fibonacci_directions` have a nearest-neighbour spacing of at most ``spacing_deg``."""
     s = np.radians(spacing_deg) / _SPACING_MARGIN
-    return fibonacci_directions(int(np.ceil(4.0 * np.pi / (_HEX_AREA * s * s))))
+    return int(np.ceil(4.0 * np.pi / (_HEX_AREA * s * s)))
+
+
+def fibonacci_band(n: int, z_low: float, z_high: float) -> np.ndarray:
+    """The indices (ascending) of the :func:`fibonacci_directions` of n whose z lies in [z_low, z_high] (and
+    at most one more at each end): one run, the lattice being ordered by z."""
+    # z_i = 1 − (2i + 1)/n  ⟺  i = ((1 − z) n − 1)/2
+    first = max(int(np.floor(((1.0 - z_high) * n - 1.0) / 2.0)), 0)
+    last = min(int(np.ceil(((1.0 - z_low) * n - 1.0) / 2.0)), n - 1)
+    return np.arange(first, last + 1)
 
 
 def direction(azimuth: np.ndarray, elevation: np.ndarray) -> np.ndarray:

@@ -23,7 +23,13 @@ import numpy as np
 from scipy.spatial import KDTree
 
 from hlr_lab.errors import InputError
-from hlr_lab.geometry.sphere import directions_with_spacing, rotation_z
+from hlr_lab.geometry.sphere import (
+    directions_with_spacing,
+    fibonacci_band,
+    fibonacci_directions,
+    lattice_size,
+    rotation_z,
+)
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster, facing
 from hlr_lab.object.segment import Segmentation
@@ -212,27 +218,52 @@ def auto_views(limits_deg: tuple[float, float], step_deg: float) -> list[float]:
 
 class _Candidates:
     """Reachable light directions (world, unit, from S's centre) at the dense and the coarse spacing, and
-    which dense points refine each coarse one (its Voronoi cell)."""
+    which dense points refine each coarse one (its Voronoi cell among the reachable coarse points)."""
 
     def __init__(self, sphere: LightSphere, rig: Rig, spacing_deg: float, coarse_deg: float):
-        def reachable(spacing: float) -> tuple[np.ndarray, int]:
-            d = directions_with_spacing(spacing)
-            return d[sphere.reachable(sphere.centre + sphere.radius * d, rig.camera)], len(d)
-
-        self.fine, self.total = reachable(spacing_deg)
-        self.coarse = reachable(coarse_deg)[0] if coarse_deg > spacing_deg else self.fine
+        self.total = lattice_size(spacing_deg)
+        self._dense = fibonacci_directions(self.total)  # (total, 3), in order of descending z
+        self._reachable = sphere.reachable(sphere.centre + sphere.radius * self._dense, rig.camera)
+        self.fine = self._dense[self._reachable]
+        self._fine_index = np.cumsum(self._reachable) - 1  # a dense point's index into fine, if reachable
+        self._refines = coarse_deg > spacing_deg
+        if self._refines:
+            coarse = fibonacci_directions(lattice_size(coarse_deg))
+            self.coarse = coarse[sphere.reachable(sphere.centre + sphere.radius * coarse, rig.camera)]
+        else:
+            self.coarse = self.fine
         self.coarse_tree = KDTree(self.coarse)
-        owner = (
-            np.asarray(self.coarse_tree.query(self.fine, workers=-1)[1])
-            if len(self.coarse)
-            else np.zeros(0, np.int64)
-        )
-        self._order = np.argsort(owner, kind="stable")
-        self._start = np.searchsorted(owner[self._order], np.arange(len(self.coarse) + 1))
+        # a cell is looked for within this chord of its coarse point: its farthest member lies ~0.6–0.9
+        # coarse spacings away on the lattices planned with (measured)
+        self._gather = 2.0 * np.radians(coarse_deg)
+        self._cells: np.ndarray | None = None  # every dense point's cell, if a cell ever reached far
 
     def cell(self, coarse_index: int) -> np.ndarray:
-        """Indices of the dense candidates whose nearest coarse candidate is ``coarse_index``."""
-        return self._order[self._start[coarse_index] : self._start[coarse_index + 1]]
+        """Indices (ascending) of the dense candidates whose nearest coarse candidate is ``coarse_index``.
+
+        Found among the dense points within two coarse spacings of it (a few hundred, of ~10⁵): a plan
+        asks for a few dozen cells. A cell that reaches past 3/4 of that (only where the reachable region
+        is thinner than a few coarse spacings) is taken from every dense point's nearest coarse point."""
+        if not self._refines:
+            return np.array([coarse_index])
+        if self._cells is not None:
+            return np.flatnonzero(self._cells == coarse_index)
+        centre, r = self.coarse[coarse_index], self._gather
+        band = fibonacci_band(self.total, centre[2] - r, centre[2] + r)  # a run: slices, not copies
+        start, stop = band[0], band[-1] + 1
+        # unit vectors a, b: |a − b| ≤ r ⟺ a·b ≥ 1 − r²/2
+        near = start + np.flatnonzero(
+            (self._dense[start:stop] @ centre >= 1 - r * r / 2) & self._reachable[start:stop]
+        )
+        near = self._fine_index[near]
+        # a point within r of the centre has its nearest coarse point within 2r of the centre
+        rivals = np.asarray(self.coarse_tree.query_ball_point(centre, 2 * r), dtype=np.int64)
+        nearest = rivals[np.argmax(self.fine[near] @ self.coarse[rivals].T, axis=1)]
+        members = near[nearest == coarse_index]
+        if np.any(self.fine[members] @ centre < 1 - (0.75 * r) ** 2 / 2):
+            self._cells = np.asarray(self.coarse_tree.query(self.fine, workers=-1)[1])
+            return np.flatnonzero(self._cells == coarse_index)
+        return members
 
 
 def plan_lights(
