@@ -1,9 +1,12 @@
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import trimesh
+from scipy.sparse.csgraph import connected_components
 
 from hlr_lab.errors import InputError
 from hlr_lab.geometry.colour import delta_e, srgb8_to_lab
+from hlr_lab.object.grouping import connected_groups
 from hlr_lab.object.mesh import ColouredMesh, load_mesh
 from hlr_lab.object.procedural import PALETTE, paint_patches
 from hlr_lab.object.segment import merge_fragments, segment, weighted_mode
@@ -136,3 +139,38 @@ def test_the_weighted_mode_of_few_columns_is_the_heaviest_label_of_their_votes(k
     weights = rng.integers(0, 3, (n, k)) * rng.choice([1.0, 0.1], size=(n, k))
     expected = heaviest_label(np.repeat(np.arange(n), k), labels.ravel(), weights.ravel(), n)
     assert np.array_equal(weighted_mode(labels, weights), expected)
+
+
+@pytest.mark.parametrize(
+    ("n", "e", "seed"),
+    [
+        (0, 0, 0),
+        (1, 3, 1),
+        (5, 0, 2),
+        (50, 20, 3),
+        (2_000, 1_500, 4),
+        (2_000, 6_000, 5),
+        (200_000, 150_000, 6),
+    ],
+)
+def test_connected_groups_are_scipys_components(n, e, seed):
+    """The union-find's components, numbered by their lowest node, are scipy's (which builds a float64
+    graph of the edges): random graphs from isolated nodes to one giant component, self-loops, repeated
+    edges, and only the edges a mask keeps."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.integers(0, max(n, 1), (2, e)).astype(np.int32)
+    keep = rng.random(e) < 0.7
+    for where in (None, keep):
+        chosen = np.ones(e, bool) if where is None else where
+        graph = sp.coo_matrix((np.ones(int(chosen.sum())), (u[chosen], v[chosen])), shape=(n, n))
+        expected = connected_components(graph, directed=False)[1]
+        got = connected_groups(n, u, v, where=where)
+        np.testing.assert_array_equal(got, expected)
+        assert got.dtype == np.int32
+
+
+def test_connected_groups_join_a_path_in_any_order():
+    """A path whose nodes are numbered at random (many rounds of hooking) is one component."""
+    order = np.random.default_rng(7).permutation(100_000)
+    got = connected_groups(len(order), order[:-1], order[1:])
+    assert (got == 0).all()

@@ -13,16 +13,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from hlr_lab.errors import InputError
 from hlr_lab.files import as_triple
 from hlr_lab.geometry.colour import linear_to_srgb8, srgb8_to_lab, srgb8_to_linear
-from hlr_lab.object.grouping import group_rows
+from hlr_lab.object.grouping import connected_groups, group_rows
 from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, sample_texture
 
 DEFAULT_DELTA_E = 10.0
+_EDGE_BLOCK = 1 << 20
 DEFAULT_MIN_FRAGMENT = 0.001  # fraction of the total surface area
 _LAB_BIN = 0.5  # ΔE; colours closer than this are one bin before clustering (speed only)
 _KMEANS_ITERATIONS = 20
@@ -108,6 +107,7 @@ def segment(
     node_material = node_label
     if split_connected:
         node_label = _components(node_label, edges)
+    del edges  # a scan's edges: 240 MB not needed from here on
 
     if on_faces:
         face_labels = node_label
@@ -267,7 +267,7 @@ def merge_fragments(
     label = label.copy()
     u, v = edges
     for _ in range(50):
-        same = label[u] == label[v]  # (E,): the few others are the borders between patches
+        same = _same_label(label, edges)  # (E,): the few others are the borders between patches
         comp = _components(label, edges, same)
         comp_w = np.bincount(comp, weights=weight)
         small = comp_w < min_weight
@@ -299,16 +299,25 @@ def _crossing(
     return np.concatenate([u[forward], v[backward]]), np.concatenate([v[forward], u[backward]])
 
 
+def _same_label(label: np.ndarray, edges: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(E,) bool: the edges' two nodes carry one label; a block of edges at a time (a scan's labels of
+    both ends at once were 2 × 240 MB of int64)."""
+    u, v = edges
+    same = np.empty(len(u), bool)
+    for start in range(0, len(u), _EDGE_BLOCK):
+        block = slice(start, start + _EDGE_BLOCK)
+        np.equal(label[u[block]], label[v[block]], out=same[block])
+    return same
+
+
 def _components(
     label: np.ndarray, edges: tuple[np.ndarray, np.ndarray], same: np.ndarray | None = None
 ) -> np.ndarray:
     """(N,) the connected same-label patch of each node (numbered from the lowest node up); ``same`` (E,)
     whether each edge joins two nodes of one label, when already known."""
     u, v = edges
-    joined = label[u] == label[v] if same is None else same
-    n = len(label)
-    g = sp.coo_matrix((np.ones(int(joined.sum()), bool), (u[joined], v[joined])), shape=(n, n))
-    return connected_components(g, directed=False)[1]
+    joined = _same_label(label, edges) if same is None else same
+    return connected_groups(len(label), u, v, where=joined)
 
 
 def _face_modes(mesh: ColouredMesh, vertex_labels: np.ndarray) -> np.ndarray:
@@ -346,7 +355,11 @@ def _summarise(
     split_connected,
     min_fragment,
 ) -> Segmentation:
-    used = np.unique(np.concatenate([vertex_labels, face_labels]))
+    # the labels in use, ascending (np.unique of both concatenated: a scan's 30 M labels copied and sorted)
+    size = int(max(vertex_labels.max(initial=-1), face_labels.max(initial=-1))) + 1
+    used = np.flatnonzero(
+        (np.bincount(vertex_labels, minlength=size) > 0) | (np.bincount(face_labels, minlength=size) > 0)
+    )
     area = np.bincount(face_labels, weights=mesh.face_areas, minlength=used.max() + 1)
     order = used[np.lexsort((used, -area[used]))]  # largest area first, ties by old id
     new_id = np.full(used.max() + 1, -1, dtype=np.int32)  # int32: a scan's labels at half the memory
