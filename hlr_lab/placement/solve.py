@@ -89,7 +89,7 @@ _UNDER_A_PIXEL = 0.85  # px: a face this long at most spans neighbouring pixels 
 # chosen within (the bunny split to 2.2 M vertices, docs/placement.md), and the rounds cost what a coarse
 # mesh's do
 STAND_IN_BELOW_PX, STAND_IN_CELL_PX = 1.0, 3.0
-_EDGES_SIZED = 100_000  # edges whose median length sizes a mesh (spread evenly over its edges)
+_EDGES_SIZED = 100_000  # faces whose edges' median length sizes a mesh (spread evenly over it)
 MIN_SEEN = 0.8  # a placement whose outline is less than this share on the photographed one is no match
 AMBIGUOUS_SE_DEG = 1.0  # a yaw less certain than this is not measured
 # a candidate whose cost after two rounds is this many times the best's is refined no further: the rounds
@@ -156,8 +156,18 @@ class Outlines:
         ]
 
     def _use(self, mesh: ColouredMesh) -> None:
-        """Take ``mesh`` (in its own frame) as the one whose outlines are drawn: the arrays every round reads."""
+        """Take ``mesh`` (in its own frame) as the one whose outlines are drawn. The arrays every round reads
+        are made when a round first needs them (:meth:`_build`): a scan's (~1 GB at 10 M vertices) need not
+        exist while its stand-in is made and solved."""
         self.mesh = mesh
+        self._built_for: ColouredMesh | None = None
+
+    def _build(self) -> None:
+        """The arrays every round reads, for ``self.mesh`` (once)."""
+        mesh = self.mesh
+        if self._built_for is mesh:
+            return
+        self._built_for = mesh
         # (E, 2) vertices of the edges two faces share, (E, 2) those faces; (R, 2) the edges of one face (an
         # open mesh's rims are outlines too), (R,) that face
         self._shared_edges, self._adjacent_faces, self._rim_edges, self._rim_faces = mesh.edge_faces()
@@ -193,11 +203,11 @@ class Outlines:
         px_per_m = (
             max(cam.matrix[0, 0], cam.matrix[1, 1]) * scale / np.linalg.norm(cam.centre - self.frame.centre)
         )
-        sized = self._shared_edges[:: max(1, len(self._shared_edges) // _EDGES_SIZED)]  # (≤ 2 × 100 000, 2)
-        ends = mesh.vertices[sized]  # (n, 2, 3)
-        edge_px = (
-            np.median(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)) * px_per_m if len(ends) else np.inf
-        )
+        # the edges of faces spread evenly over the mesh (each inner edge is two faces' edge: the lengths of
+        # the edges themselves, alike)
+        corners = mesh.vertices[mesh.faces[:: max(1, len(mesh.faces) // _EDGES_SIZED)]]  # (n, 3, 3)
+        sides = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).ravel()  # (3n,)
+        edge_px = np.median(sides) * px_per_m if len(sides) else np.inf
         if edge_px >= STAND_IN_BELOW_PX:
             return None
         normals = mesh.normals if mesh.normals is not None else mesh.area_weighted_normals()
@@ -217,14 +227,17 @@ class Outlines:
         m = self.frame.matrix(params)
         inverse = np.linalg.inv(m)
         chosen = []
+        self._build()
         lit = self._lit_faces(m)
         for cam in self.cameras:
-            eye = inverse[:3, :3] @ cam.centre + inverse[:3, 3]  # the camera centre in the mesh frame
-            toward = self._normals @ eye.astype(np.float32) > self._plane_offset  # (F,)
-            a, b = toward[self._adjacent_faces[:, 0]], toward[self._adjacent_faces[:, 1]]
+            eye = (inverse[:3, :3] @ cam.centre + inverse[:3, 3]).astype(np.float32)  # camera, mesh frame
+            toward = np.empty(len(self._normals), bool)  # (F,) a block at a time: a scan's temporaries
+            for block in self.mesh.face_blocks():
+                toward[block] = self._normals[block] @ eye > self._plane_offset[block]
+            first, second = self._adjacent_faces[:, 0], self._adjacent_faces[:, 1]
+            a, b = toward[first], toward[second]
             # the face of a contour edge that the camera sees must not face down (UNDERSIDE_NZ)
-            front = np.where(a, self._adjacent_faces[:, 0], self._adjacent_faces[:, 1])
-            contour = self._shared_edges[(a != b) & lit[front]]
+            contour = self._shared_edges[(a != b) & np.where(a, lit[first], lit[second])]
             rims = self._rim_edges[lit[self._rim_faces]]
             points = self._along(np.concatenate([contour, rims]), cam, m)
             pixels = self._project(cam, m, points)
@@ -237,8 +250,12 @@ class Outlines:
         """(F,) bool: the faces that do not face down, the mesh lying as ``m`` (4, 4) says (the underside,
         which no registration lamp lights head on, is left out: :data:`UNDERSIDE_NZ`)."""
         # m may scale (uniformly): the direction is what counts
-        up = self._normals @ m[2, :3].astype(np.float32)  # (F,) the turned normals' z
-        return up >= UNDERSIDE_NZ * np.linalg.norm(m[2, :3]) * self._normal_length
+        self._build()
+        turned_z, least = m[2, :3].astype(np.float32), UNDERSIDE_NZ * np.linalg.norm(m[2, :3])
+        lit = np.empty(len(self._normals), bool)
+        for block in self.mesh.face_blocks():  # the turned normals' z, a block of faces at a time
+            lit[block] = self._normals[block] @ turned_z >= least * self._normal_length[block]
+        return lit
 
     def _along(self, edges: np.ndarray, cam: Camera, m: np.ndarray) -> np.ndarray:
         """(N, 3) mesh-frame points along ``edges`` (E, 2), about a pixel apart in ``cam``'s image (each
@@ -334,6 +351,7 @@ class Outlines:
         (the only pixels of a face whose corners lie within :data:`_SMALL_FACE_PX` of each other — a scan's
         faces — that are not looked at one by one), so the mask holds the ray-cast one and at most a pixel
         more along its border."""
+        self._build()
         uv, depth = cam.project(self.mesh.vertices @ m[:3, :3].T + m[:3, 3])
         valid = np.asarray(np.isfinite(uv).all(axis=1) & (np.abs(uv) < 1e5).all(axis=1))  # (V,)
         fixed = np.zeros(uv.shape, np.int64)
