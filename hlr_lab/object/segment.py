@@ -21,10 +21,10 @@ from hlr_lab.object.grouping import connected_groups, group_rows
 from hlr_lab.object.mesh import FACE_SAMPLES, ColouredMesh, sample_texture
 
 DEFAULT_DELTA_E = 10.0
-_EDGE_BLOCK = 1 << 20
 DEFAULT_MIN_FRAGMENT = 0.001  # fraction of the total surface area
 _LAB_BIN = 0.5  # ΔE; colours closer than this are one bin before clustering (speed only)
 _KMEANS_ITERATIONS = 20
+_EDGE_BLOCK = 1 << 20  # edges whose two labels are compared at a time
 _FACE_BLOCK = 1 << 20  # faces' labels a block at a time: a scan's (F, 3) labels and weights are ~1 GB
 
 
