@@ -8,7 +8,6 @@ from hlr_lab.geometry.sphere import (
     directions_with_spacing,
     fibonacci_band,
     fibonacci_directions,
-    lattice_size,
 )
 
 
@@ -42,14 +41,6 @@ def test_a_z_band_of_the_lattice_is_one_run_of_indices(n):
         assert np.isin(inside, run).all()
         assert np.all(np.diff(run) == 1)
         assert len(run) <= len(inside) + 2
-
-
-def test_the_lattice_of_a_spacing_is_its_directions():
-    np.testing.assert_array_equal(directions_with_spacing(1.5), fibonacci_directions(lattice_size(1.5)))
-    index = np.array([0, 5, 17, lattice_size(1.5) - 1])
-    np.testing.assert_array_equal(
-        fibonacci_directions(lattice_size(1.5), index), directions_with_spacing(1.5)[index]
-    )
 
 
 def test_azimuth_elevation_round_trip():

@@ -16,10 +16,9 @@ _HEX_AREA = np.sqrt(3.0) / 2.0
 _SPACING_MARGIN = 1.08
 
 
-def fibonacci_directions(n: int, index: np.ndarray | None = None) -> np.ndarray:
-    """(n, 3) unit vectors spread uniformly over the sphere (equal area per point), in order of descending
-    z; (k, 3) only those of ``index`` (k,) when given."""
-    i = (np.arange(n) if index is None else np.asarray(index)).astype(np.float64) + 0.5
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread uniformly over the sphere (equal area per point), in order of descending z."""
+    i = np.arange(n, dtype=np.float64) + 0.5
     z = 1.0 - 2.0 * i / n
     r = np.sqrt(1.0 - z * z)
     phi = _GOLDEN_ANGLE * i
@@ -27,15 +26,10 @@ def fibonacci_directions(n: int, index: np.ndarray | None = None) -> np.ndarray:
 
 
 def directions_with_spacing(spacing_deg: float) -> np.ndarray:
-    """Uniform unit vectors whose nearest-neighbour spacing is at most ``spacing_deg``: the
-    :func:`fibonacci_directions` of :func:`lattice_size`."""
-    return fibonacci_directions(lattice_size(spacing_deg))
-
-
-def lattice_size(spacing_deg: float) -> int:
-    """How many :func:`fibonacci_directions` have a nearest-neighbour spacing of at most ``spacing_deg``."""
+    """Uniform unit vectors whose nearest-neighbour spacing is at most ``spacing_deg``: a
+    :func:`fibonacci_directions` lattice (so a band of z is one run of them, :func:`fibonacci_band`)."""
     s = np.radians(spacing_deg) / _SPACING_MARGIN
-    return int(np.ceil(4.0 * np.pi / (_HEX_AREA * s * s)))
+    return fibonacci_directions(int(np.ceil(4.0 * np.pi / (_HEX_AREA * s * s))))
 
 
 def fibonacci_band(n: int, z_low: float, z_high: float) -> np.ndarray:

@@ -23,13 +23,7 @@ import numpy as np
 from scipy.spatial import KDTree
 
 from hlr_lab.errors import InputError
-from hlr_lab.geometry.sphere import (
-    directions_with_spacing,
-    fibonacci_band,
-    fibonacci_directions,
-    lattice_size,
-    rotation_z,
-)
+from hlr_lab.geometry.sphere import directions_with_spacing, fibonacci_band, rotation_z
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster, facing
 from hlr_lab.object.segment import Segmentation
@@ -221,14 +215,14 @@ class _Candidates:
     which dense points refine each coarse one (its Voronoi cell among the reachable coarse points)."""
 
     def __init__(self, sphere: LightSphere, rig: Rig, spacing_deg: float, coarse_deg: float):
-        self.total = lattice_size(spacing_deg)
-        self._dense = fibonacci_directions(self.total)  # (total, 3), in order of descending z
+        self._dense = directions_with_spacing(spacing_deg)  # (total, 3), in order of descending z
+        self.total = len(self._dense)
         self._reachable = sphere.reachable(sphere.centre + sphere.radius * self._dense, rig.camera)
         self.fine = self._dense[self._reachable]
         self._fine_index = np.cumsum(self._reachable) - 1  # a dense point's index into fine, if reachable
         self._refines = coarse_deg > spacing_deg
         if self._refines:
-            coarse = fibonacci_directions(lattice_size(coarse_deg))
+            coarse = directions_with_spacing(coarse_deg)
             self.coarse = coarse[sphere.reachable(sphere.centre + sphere.radius * coarse, rig.camera)]
         else:
             self.coarse = self.fine
