@@ -12,7 +12,7 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.procedural import pebble
 from hlr_lab.object.segment import segment
 from hlr_lab.planning.geometry import placement
-from hlr_lab.planning.samples import merged_vertices, surface_samples
+from hlr_lab.planning.samples import faces_towards, merged_vertices, surface_samples
 
 
 def thin_plate() -> ColouredMesh:
@@ -108,7 +108,7 @@ def test_faces_no_view_can_see_the_front_of_give_no_samples_and_no_facing_sample
     seg = segment(placed)
     eye = rig.camera.centre
     every = surface_samples(placed, seg, rig.camera, "pixels")
-    kept = surface_samples(placed, seg, rig.camera, "pixels", eyes=eye[None])
+    kept = surface_samples(placed, seg, rig.camera, "pixels", towards=faces_towards(placed, eye[None]))
     assert len(every) > len(placed.faces)  # faces were split: the filter is what this tests
     assert len(kept) < 0.7 * len(every)
 
@@ -129,5 +129,6 @@ def test_a_surface_no_eye_sees_the_front_of_gives_no_samples(rig):
     mesh = ColouredMesh(np.asarray(v, np.float64), np.asarray(f, np.int64), grey)
     seg = segment(mesh)
     assert len(surface_samples(mesh, seg, rig.camera, "pixels", target_px=1e-3)) > 0
-    none = surface_samples(mesh, seg, rig.camera, "pixels", target_px=1e-3, eyes=np.array([[0, 0, 0.5]]))
+    away = faces_towards(mesh, np.array([[0, 0, 0.5]]))
+    none = surface_samples(mesh, seg, rig.camera, "pixels", target_px=1e-3, towards=away)
     assert len(none) == 0

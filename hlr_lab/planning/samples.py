@@ -62,16 +62,14 @@ def surface_samples(
     count: str,
     *,
     target_px: float = TARGET_PX,
-    eyes: np.ndarray | None = None,
     towards: np.ndarray | None = None,
 ) -> SurfaceSamples:
     """Samples for the count unit, each standing for about ``target_px`` pixels at most (``"pixels"``: the
     vertices when they are already that fine); ``camera`` (in the mesh's frame) sets the pixel scale.
 
-    ``eyes`` (E, 3): where the camera stands in each view (mesh frame). Faces split into samples are then
-    only those whose front some view may see (:func:`faces_towards`): the others' samples would never
-    count (one view: half the surface). ``towards`` (F,) bool: that test already made for the eyes (a plan
-    samples its mesh twice). Both None: every face. Vertices as samples are all kept."""
+    ``towards`` (F,) bool, :func:`faces_towards` of the views' eyes: faces split into samples are then only
+    those whose front some view may see (the others' samples would never count; one view: half the
+    surface). None: every face. Vertices as samples are all kept."""
     if count == "vertices":
         return vertex_samples(mesh, seg)
     px_per_m2 = pixels_per_m2(mesh.vertices, camera)
@@ -83,8 +81,6 @@ def surface_samples(
     # a face's footprint when facing the camera, from its nearest corner
     face_px = mesh.face_areas * px_per_m2[mesh.faces].max(axis=1)
     level = np.clip(np.ceil(np.sqrt(face_px / target_px)), 1, MAX_LEVEL).astype(np.int64)
-    if towards is None and eyes is not None:
-        towards = faces_towards(mesh, eyes)
     if towards is not None:
         level[~towards] = 0
     parts = [_split_faces(mesh, seg, np.flatnonzero(level == lv), lv) for lv in np.unique(level) if lv]
