@@ -115,6 +115,7 @@ def plan_settings(plan: PlanFile) -> PlanSettings:
     """The settings ``plan`` was made with, as its parameters record them (another tool's plan: the
     defaults where it leaves one out)."""
     p, default = plan.parameters, PlanSettings()
+    min_diffuse = default.min_diffuse if p.min_diffuse is None else p.min_diffuse
     return PlanSettings(
         theta_c_deg=p.theta_c_deg,
         min_samples=p.min_samples,
@@ -125,13 +126,17 @@ def plan_settings(plan: PlanFile) -> PlanSettings:
         max_lights=p.max_lights or default.max_lights,
         shadows=default.shadows if p.shadows is None else p.shadows,
         criterion=p.criterion,
-        min_diffuse=default.min_diffuse if p.min_diffuse is None else p.min_diffuse,
-        region_theta_c_deg=(
-            None
-            if p.region_theta_c_deg is None
-            else tuple(p.region_theta_c_deg.get(str(r.id), p.theta_c_deg) for r in plan.object.regions)
-        ),
+        min_diffuse=min_diffuse,
+        region_theta_c_deg=_per_region(plan, p.region_theta_c_deg, p.theta_c_deg),
+        region_min_samples=_per_region(plan, p.region_min_samples, p.min_samples),
+        region_min_diffuse=_per_region(plan, p.region_min_diffuse, min_diffuse),
     )
+
+
+def _per_region(plan: PlanFile, own: dict[str, float] | None, default: float) -> tuple[float, ...] | None:
+    """A per-region setting the plan records by region id, in its regions' order (``default`` where it
+    leaves a region out); None where it records none."""
+    return None if own is None else tuple(own.get(str(r.id), default) for r in plan.object.regions)
 
 
 def replan_placed(

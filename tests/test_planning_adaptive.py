@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from hlr_lab.adaptive.pilot import PILOT_SAMPLES, cut_to, pilot_poses
+from hlr_lab.adaptive.precision import DARK_RD, region_needs
 from hlr_lab.errors import InputError
+from hlr_lab.formats.materials import MaterialEntry, PixelCounts, materials_file
 from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.object.procedural import pebble
 from hlr_lab.object.segment import segment
@@ -135,3 +137,90 @@ def test_a_plan_without_a_highlight_has_no_pilot_and_is_refused_before_anything_
     with pytest.raises(InputError, match="no pose of the plan puts a highlight on any region"):
         acquire_adaptive(tmp_path / "plan.json", sim_rig(), tmp_path / "session")
     assert not (tmp_path / "session").exists()
+
+
+def test_sample_factors_raise_each_regions_needs_to_that_many_times_what_the_taken_lights_give(
+    placed, tmp_path
+):
+    """A precision asked (an adaptive run): region r needs max(M, fᵣ × its taken samples) highlight samples
+    and likewise diffuse-only ones; the plan is made for those needs, records them per region (parameters and
+    coverage), and its settings read back are the resolved needs, not the factors."""
+    mesh, seg = placed
+    rig = sim_rig()
+    settings = replace(FAST, min_diffuse=10.0)
+    first = plan_lights(mesh, seg, rig, settings)
+    taken = [TakenLight(lt.turntable_deg, lt.light_world) for lt in first.lights[:1]]
+    lit = int(np.argmax(first.lights[0].expected))  # the region the first light serves most
+    spread = int(np.argmax(first.lights[0].diffuse))
+    factors = tuple(
+        3 * settings.min_samples / first.lights[0].expected[lit] if r == lit else 0.5 for r in range(4)
+    )
+    diffuse_factors = tuple(4.0 if r == spread else 0.0 for r in range(4))
+    asked = replace(settings, highlight_factor=factors, diffuse_factor=diffuse_factors)
+    result = plan_lights(mesh, seg, rig, asked, taken=taken)
+    had, had_diffuse = result.lights[0].expected, result.lights[0].diffuse
+    np.testing.assert_allclose(result.lights[0].expected, first.lights[0].expected)
+    want = np.maximum(settings.min_samples, np.array(factors) * had)
+    want_diffuse = np.maximum(settings.min_diffuse, np.array(diffuse_factors) * had_diffuse)
+    assert result.settings.highlight_factor is None
+    assert result.settings.diffuse_factor is None
+    np.testing.assert_allclose(result.settings.needed(4), want)
+    np.testing.assert_allclose(result.settings.diffuse_needed(4), want_diffuse)
+    assert want[lit] == pytest.approx(3 * settings.min_samples)  # the factors asked more than M
+    assert want_diffuse[spread] > settings.min_diffuse
+    met = (result.coverage >= want - 1e-9) & (result.diffuse >= want_diffuse - 1e-9)
+    np.testing.assert_array_equal(result.satisfied, met)
+    assert np.all(result.satisfied | np.isin(np.arange(4), list(result.uncovered)))
+    plan, _ = plan_object(
+        mesh, seg, rig, asked, mesh_spec="builtin:pebble", plan_folder=tmp_path, taken=taken
+    )
+    write_plan(tmp_path / "plan.json", plan)
+    back = read_plan(tmp_path / "plan.json")
+    assert back.coverage[str(lit)].needed == pytest.approx(want[lit], rel=1e-6)
+    assert back.coverage[str(spread)].diffuse_needed == pytest.approx(want_diffuse[spread], rel=1e-6)
+    np.testing.assert_allclose(plan_settings(back).needed(4), want, rtol=1e-6)
+    np.testing.assert_allclose(plan_settings(back).diffuse_needed(4), want_diffuse, rtol=1e-6)
+
+
+def test_per_region_needs_and_factors_are_refused_unless_one_per_region_and_not_negative(placed):
+    mesh, seg = placed
+    with pytest.raises(InputError, match="a region's M must be above 0"):
+        PlanSettings(region_min_samples=(5.0, 0.0))
+    with pytest.raises(InputError, match="must be 0 or more"):
+        PlanSettings(highlight_factor=(1.0, -1.0))
+    with pytest.raises(InputError, match="2 regions' M given for 4 regions"):
+        plan_lights(mesh, seg, sim_rig(), replace(FAST, region_min_samples=(5.0, 6.0)))
+
+
+def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_precision_squared(tmp_path):
+    """Rs's worst channel or n, whichever is less certain, sets the highlight factor; Rd's worst channel the
+    diffuse one, a channel darker than DARK_RD held to p % of DARK_RD; a region whose highlight the pilot did
+    not measure keeps the plan's highlight samples (factor 0, said why), one the pilot did not fit both."""
+    mesh = pebble(subdivisions=3).mesh
+    plan, _ = plan_object(
+        mesh, segment(mesh), sim_rig(), FAST, mesh_spec="builtin:pebble", plan_folder=tmp_path
+    )
+    regions = plan.object.regions
+
+    def entry(i: int, **kw) -> MaterialEntry:
+        base = dict(id=regions[i].id, color=regions[i].color, vertices=10, rd=[0.5, 0.4, 0.01],
+                    rd_se=[0.0005, 0.0002, 0.0001], specular="unmeasured", reason="no highlight", theta_c_deg=35.0,
+                    pixels=PixelCounts(diffuse=1000, highlight=0), residual_rms=0.01, estimator="robust")  # fmt: skip
+        return MaterialEntry(**(base | kw))
+
+    lobe = dict(specular="measured", reason=None, rs=[0.2, 0.25, 0.2], rs_se=[0.002, 0.001, 0.001], n=100.0)
+    pilot = materials_file([entry(0, **lobe, n_se=0.5), entry(1, **lobe, n_se=2.0), entry(2)])
+    needs = region_needs(plan, pilot, precision_pct=0.5)
+    assert [n.region for n in needs] == [r.id for r in regions]
+    # Rd: 0.0005/0.5 = 0.1 %, 0.0002/0.4 = 0.05 %, the dark channel 0.0001 of DARK_RD 0.02 = 0.5 %
+    assert DARK_RD == 0.02
+    assert all(n.diffuse_se_pct == pytest.approx(0.5) for n in needs[:3])
+    assert needs[0].diffuse_factor == pytest.approx(1.0)
+    assert needs[0].highlight_se_pct == pytest.approx(1.0)  # Rs's red channel 0.002/0.2 beats n's 0.5 %
+    assert needs[0].highlight_factor == pytest.approx(4.0)
+    assert needs[1].highlight_se_pct == pytest.approx(2.0)  # n's 2/100 beats Rs's 1 %
+    assert needs[1].highlight_factor == pytest.approx(16.0)
+    assert needs[2].highlight_factor == 0
+    assert "highlight was not measured" in (needs[2].reason or "")
+    assert needs[3].highlight_factor == needs[3].diffuse_factor == 0
+    assert "not fitted" in (needs[3].reason or "")

@@ -19,6 +19,7 @@ again (seconds to a minute), the lamp is off and the axes are left safe, as afte
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -29,6 +30,7 @@ import numpy as np
 from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.acquisition.run import PLANNED_ONLY
 from hlr_lab.adaptive.pilot import cut_to, pilot_poses
+from hlr_lab.adaptive.precision import RegionNeed, region_needs
 from hlr_lab.adaptive.theta_c import RegionCone, region_cones
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose, read_plan
@@ -47,29 +49,34 @@ from hlr_lab.session.lamp import UNWATCHED, LampWatch
 from hlr_lab.session.metadata import read_record, session_plan
 from hlr_lab.session.stages import keep_stage_plan, stage_file, stage_lines, stage_plan
 
+MAX_PRECISION_PCT = 100.0  # a standard error, per cent of the value
+
 
 @dataclass(frozen=True)
 class Replanned:
     """What the re-plan made of the pilot: each region's θc, the plan it runs (the pilot's poses first),
-    the poses it added, and the regions it leaves short (id → why)."""
+    the poses it added, the regions it leaves short (id → why), and each region's samples when a precision
+    was asked."""
 
     cones: list[RegionCone]
     plan: PlanFile
     added: list[str]
     short: dict[int, str]
+    needs: list[RegionNeed] | None = None
 
 
 @dataclass
 class AdaptiveOutcome:
     """An adaptive run: the pilot's poses, its run (None when a resumed run found it done), the re-plan,
-    the re-plan's run (the pilot's, when the re-plan added nothing), and how many poses the plan it
-    started from had."""
+    the re-plan's run (the pilot's, when the re-plan added nothing), how many poses the plan it started
+    from had, and the precision it was asked (per cent, or None)."""
 
     pilot: list[str]
     pilot_run: Outcome | None
     replanned: Replanned
     run: Outcome
     planned_poses: int
+    precision_pct: float | None = None
 
     @property
     def photographed_poses(self) -> int:
@@ -89,12 +96,16 @@ def acquire_adaptive(
     on_start: Callable[[bool], None] = lambda _resumed: None,
     lamp: LampWatch = UNWATCHED,
     on_stage: Callable[[str], None] = lambda _: None,
+    precision_pct: float | None = None,
 ) -> AdaptiveOutcome:
     """Run the plan at ``plan_path`` adaptively into ``session`` (created, or resumed at its stage); see
-    the module's docstring. ``on_stage`` hears each stage begin, in a sentence; the other arguments are
-    :func:`hlr_lab.pipeline.acquire_plan`'s."""
+    the module's docstring. ``precision_pct``: the standard error (per cent) asked of every region's Rd, Rs
+    and n; the re-plan gives each region the samples its pilot's standard errors say that takes
+    (:mod:`~hlr_lab.adaptive.precision`; None: the plan's M). ``on_stage`` hears each stage begin, in a
+    sentence; the other arguments are :func:`hlr_lab.pipeline.acquire_plan`'s."""
     original = read_plan(plan_path)
     lines = _stage_lines(session)
+    precision_pct = _precision(original, plan_path, lines, precision_pct)
     run = functools.partial(acquire_plan, plan_path, rig, session, links=links, bracket=bracket, force=force,
                             progress=progress, lamp=lamp)  # fmt: skip
     pilot_run, announced = None, False
@@ -113,21 +124,21 @@ def acquire_adaptive(
         def started(resumed: bool) -> None:
             on_start(resumed)
             if "pilot" not in lines:
-                _journal_pilot(session, pilot)
+                _journal_pilot(session, pilot, precision_pct)
 
         on_stage(
             f"pilot: {len(pilot)} of the plan's {len(original.poses)} poses, a highlight on every region"
         )
         pilot_run, announced = run(on_start=started, stage=stage), True
         on_stage("fitting the pilot's photographs for each region's lobe")
-        _replan(session, rig, pilot, on_stage)
+        _replan(session, rig, pilot, on_stage, precision_pct)
     replanned = _replanned(session)
     on_stage(f"the re-plan: {len(replanned.added)} pose(s) added to the pilot's {len(pilot)}")
     if pilot_run is not None and not replanned.added:  # the pilot's photographs are the whole run
-        return AdaptiveOutcome(pilot, pilot_run, replanned, pilot_run, len(original.poses))
+        return AdaptiveOutcome(pilot, pilot_run, replanned, pilot_run, len(original.poses), precision_pct)
     stage = (replanned.plan, session / stage_file("replan"))
     rest = run(on_start=(lambda _resumed: None) if announced else on_start, stage=stage)
-    return AdaptiveOutcome(pilot, pilot_run, replanned, rest, len(original.poses))
+    return AdaptiveOutcome(pilot, pilot_run, replanned, rest, len(original.poses), precision_pct)
 
 
 def _stage_lines(session: Path) -> dict[str, JournalLine]:
@@ -154,17 +165,53 @@ def _stage_lines(session: Path) -> dict[str, JournalLine]:
     return lines
 
 
-def _journal_pilot(session: Path, pilot: list[str]) -> None:
+def _precision(
+    plan: PlanFile, plan_path: Path, lines: dict[str, JournalLine], asked: float | None
+) -> float | None:
+    """The precision the run goes by: the one its pilot line recorded when resumed (a different one
+    asked is refused: the pilot was photographed for it), else ``asked``, checked."""
+    if "pilot" in lines:
+        recorded = lines["pilot"].get("precision_pct")
+        if asked is not None and asked != recorded:
+            was = "none" if recorded is None else f"{recorded:g} %"
+            raise InputError(
+                f"this adaptive session was started with precision {was}, not {asked:g} %: resume it without "
+                "--precision (or with the same), or give a new --out",
+                field="--precision",
+            )
+        return recorded if isinstance(recorded, float | int) else None
+    if asked is None:
+        return None
+    if not (math.isfinite(asked) and 0 < asked <= MAX_PRECISION_PCT):
+        raise InputError(f"the precision must be above 0 and at most {MAX_PRECISION_PCT:g} %, got {asked:g}",
+                         field="--precision")  # fmt: skip
+    if plan.parameters.count != "pixels":
+        raise InputError(
+            "a precision can only be asked of a plan that counts pixels (the pilot's standard errors are "
+            "of pixels); plan again without --count vertices",
+            path=plan_path,
+            field="--precision",
+        )
+    return float(asked)
+
+
+def _journal_pilot(session: Path, pilot: list[str], precision_pct: float | None) -> None:
     """Keep the pilot's plan in the session (its object's files named as the kept plan names them) and
     journal it, before its first frame."""
     kept, _ = session_plan(session, read_record(session))
     stage = keep_stage_plan(session, "pilot", cut_to(kept, pilot))
+    line = PilotLine(event="pilot", at=time.time(), poses=pilot, plan=stage)
+    if precision_pct is not None:
+        line["precision_pct"] = precision_pct
     with Journal(session / JOURNAL) as journal:
-        journal.append(PilotLine(event="pilot", at=time.time(), poses=pilot, plan=stage))
+        journal.append(line)
 
 
-def _replan(session: Path, rig: Rig, pilot: list[str], on_stage: Callable[[str], None]) -> None:
-    """Fit the pilot, plan the rest with each region's θc, keep the re-plan and journal it."""
+def _replan(
+    session: Path, rig: Rig, pilot: list[str], on_stage: Callable[[str], None], precision_pct: float | None
+) -> None:
+    """Fit the pilot, plan the rest with each region's θc (and, with a precision asked, its samples), keep
+    the re-plan and journal it."""
     fitted = fit_session(open_session(session), systematic=False).materials
     kept, kept_path = session_plan(session, read_record(session))
     cones = region_cones(kept, fitted)
@@ -176,6 +223,14 @@ def _replan(session: Path, rig: Rig, pilot: list[str], on_stage: Callable[[str],
     settings = replace(
         plan_settings(kept), region_theta_c_deg=tuple(by_id[r.id] for r in kept.object.regions)
     )
+    needs = None if precision_pct is None else region_needs(kept, fitted, precision_pct)
+    if needs is not None:
+        settings = replace(settings, highlight_factor=tuple(n.highlight_factor for n in needs),
+                           diffuse_factor=tuple(n.diffuse_factor for n in needs))  # fmt: skip
+        on_stage(
+            f"samples for ±{precision_pct:g} %, times the pilot's (highlight/diffuse-only): "
+            + ", ".join(f"{n.region} {n.highlight_factor:.2g}/{n.diffuse_factor:.2g}" for n in needs)
+        )
     poses = {p.id: p for p in kept.poses}
     taken = [TakenLight(poses[i].turntable_deg, np.array(poses[i].light.position_m)) for i in pilot]
     ref = kept.object.mesh
@@ -187,9 +242,12 @@ def _replan(session: Path, rig: Rig, pilot: list[str], on_stage: Callable[[str],
     stage = keep_stage_plan(session, "replan", planned)
     added = [p.id for p in planned.poses[len(pilot) :]]
     short = {str(u.region): u.reason for u in planned.uncovered}
+    line = ReplanLine(event="replan", at=time.time(), regions={str(c.region): c.as_line() for c in cones},
+                      added=added, short=short, plan=stage)  # fmt: skip
+    if needs is not None:
+        line["needs"] = {str(n.region): n.as_line() for n in needs}
     with Journal(session / JOURNAL) as journal:
-        journal.append(ReplanLine(event="replan", at=time.time(), regions={str(c.region): c.as_line() for c in cones},
-                                  added=added, short=short, plan=stage))  # fmt: skip
+        journal.append(line)
 
 
 def _named(planned: PlanFile, kept: PlanFile, pilot: list[str]) -> PlanFile:
@@ -217,4 +275,17 @@ def _replanned(session: Path) -> Replanned:
         RegionCone(int(rid), float(c["theta_c_deg"]), c["source"], n=c.get("n"), reason=c.get("reason"))
         for rid, c in line["regions"].items()
     ]
-    return Replanned(cones, plan, list(line["added"]), {int(k): v for k, v in line["short"].items()})
+    needs = None
+    if "needs" in line:
+        needs = [
+            RegionNeed(
+                int(rid),
+                float(n["highlight_factor"]),
+                float(n["diffuse_factor"]),
+                n.get("highlight_se_pct"),
+                n.get("diffuse_se_pct"),
+                n.get("reason"),
+            )
+            for rid, n in line["needs"].items()
+        ]
+    return Replanned(cones, plan, list(line["added"]), {int(k): v for k, v in line["short"].items()}, needs)

@@ -27,7 +27,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.cli.plan_cmd import EXIT_UNCOVERED
 from hlr_lab.cli.register_cmd import show_registered
 from hlr_lab.display.acquire import motion_table, pose_progress, run_table
-from hlr_lab.display.adaptive import adaptive_lines, cones_table
+from hlr_lab.display.adaptive import adaptive_lines, cones_table, needs_table
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, read_plan
 from hlr_lab.formats.planned_object import load_planned_mesh, placement_line
@@ -94,11 +94,22 @@ from hlr_lab.session.lamp import LampWatch
     "region's θc from its lobe, plan the rest again with those θc and take what the re-plan adds "
     "(docs/planning.md). Exit status 3 when the re-plan leaves a region short.",
 )
+@click.option(
+    "--precision",
+    "precision_pct",
+    type=float,
+    default=None,
+    metavar="PCT",
+    help="With --adaptive: the standard error asked of every region's Rd, Rs and n, per cent of the value; "
+    "the re-plan gives each region the samples its pilot's standard errors say that takes (at least the "
+    "plan's M). A region the rig cannot give them is named (exit status 3). Default: the plan's M.",
+)
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
 def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every,
-                warm_up_min, warm_up_within, register_first, adaptive, dry_run, force, speed_factor):  # fmt: skip
+                warm_up_min, warm_up_within, register_first, adaptive, precision_pct, dry_run, force,
+                speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
     A frame counts once its file and its journal line are on disk; killing the run loses at most the
@@ -119,10 +130,17 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
       hlr-lab acquire --plan plan.json --rig rig.toml --warm-up 30 --lamp-every 5   # overnight
       hlr-lab acquire --plan plan.json --rig rig.toml --register --out sessions/bunny-2   # placed by hand
       hlr-lab acquire --plan plan.json --rig rig.toml --adaptive   # θc measured on a pilot, then re-planned
+      hlr-lab acquire --plan plan.json --rig rig.toml --adaptive --precision 0.5   # every parameter to ±0.5 %
     """
     for given, option in ((scene_path, "--scene"), (object_offset, "--object-offset")):
         if given is not None and not sim:
             raise InputError("describes the simulated world: use it with --sim", field=option)
+    if precision_pct is not None and not adaptive:
+        raise InputError(
+            "is what an adaptive run re-plans for: use it with --adaptive (a plan's own samples are its M: "
+            "plan again with a larger --min-samples)",
+            field="--precision",
+        )
     if register_first and dry_run:
         raise InputError(
             "a dry run moves nothing, so it cannot register: leave out one of them", field="--register"
@@ -170,7 +188,12 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
         )
         short = {}
         if adaptive:
-            done = _adaptive(functools.partial(acquire_adaptive, plan_path, rig, session, **options), plan)
+            done = _adaptive(
+                functools.partial(
+                    acquire_adaptive, plan_path, rig, session, precision_pct=precision_pct, **options
+                ),
+                plan,
+            )
             outcome, short = done.run, done.replanned.short
         else:
             with pose_progress(console, len(targets)) as show:
@@ -211,6 +234,8 @@ def _adaptive(run: Callable[..., AdaptiveOutcome], plan: PlanFile) -> AdaptiveOu
     prior = plan.parameters.region_theta_c_deg or {}
     console.print(cones_table(done, {r.id: prior.get(str(r.id), plan.parameters.theta_c_deg)
                                      for r in plan.object.regions}))  # fmt: skip
+    if (needs := needs_table(done)) is not None:
+        console.print(needs)
     for line in adaptive_lines(done):
         console.print(line, soft_wrap=True)
     return done

@@ -32,3 +32,33 @@ def adaptive_lines(outcome: AdaptiveOutcome) -> list[str]:
     ]
     lines += [f"[yellow]region {k}: {escape(why)}[/]" for k, why in sorted(r.short.items())]
     return lines
+
+
+def needs_table(outcome: AdaptiveOutcome) -> Table | None:
+    """With a precision asked: one row per region, the pilot's largest relative standard errors of Rs/n and
+    of Rd, and the highlight and diffuse-only samples the re-plan asked for them (None without one)."""
+    needs, precision = outcome.replanned.needs, outcome.precision_pct
+    if needs is None or precision is None:
+        return None
+    t = Table(title=f"samples for ±{precision:g} % (the pilot's standard errors)", title_justify="left")
+    for column in (
+        "region",
+        "Rs, n SE (pilot)",
+        "highlight samples",
+        "Rd SE (pilot)",
+        "diffuse-only samples",
+    ):
+        t.add_column(column, justify="right")
+    t.add_column("note")
+
+    def pct(x: float | None) -> str:
+        return "—" if x is None else f"{x:.2f} %"
+
+    coverage = outcome.replanned.plan.coverage
+    for n in needs:
+        c = coverage.get(str(n.region))
+        highlight = "—" if c is None or c.needed is None else f"{c.needed:.0f}"
+        diffuse = "—" if c is None or c.diffuse_needed is None else f"{c.diffuse_needed:.0f}"
+        t.add_row(str(n.region), pct(n.highlight_se_pct), highlight, pct(n.diffuse_se_pct), diffuse,
+                  escape(n.reason or ""))  # fmt: skip
+    return t

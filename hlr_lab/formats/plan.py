@@ -106,6 +106,10 @@ class PlanParameters(OpenModel):
     # each region's own θc where it was measured (an adaptive run's re-plan), by region id; the others
     # theta_c_deg
     region_theta_c_deg: dict[str, Annotated[float, Field(gt=0, lt=90)]] | None = None
+    # each region's own M and diffuse-only need where the precision asked of it set them (an adaptive
+    # run's re-plan), by region id; the others min_samples, min_diffuse
+    region_min_samples: dict[str, Annotated[float, Field(gt=0)]] | None = None
+    region_min_diffuse: dict[str, Annotated[float, Field(ge=0)]] | None = None
     sphere_source: SphereSource = "rig"  # "scale": an analysis plan (--sphere-scale), for no rig
     # what hlr-lab's planner was run with, for the record (another tool's plan may leave them out)
     sphere_centre_m: Vec3 | None = None
@@ -253,6 +257,7 @@ def build_plan(
     """
     mesh_from_tt = np.linalg.inv(mesh_to_turntable)
     s = result.settings
+    needed, diffuse_needed = s.needed(seg.n_regions), s.diffuse_needed(seg.n_regions)
 
     def to_mesh(p: np.ndarray) -> list[float]:
         return _r(mesh_from_tt[:3, :3] @ p + mesh_from_tt[:3, 3])
@@ -296,11 +301,9 @@ def build_plan(
             count=s.count,
             criterion=s.criterion,
             min_diffuse=s.min_diffuse,
-            region_theta_c_deg=(
-                None
-                if s.region_theta_c_deg is None
-                else {str(r): round(t, 3) for r, t in enumerate(s.region_theta_c_deg)}
-            ),
+            region_theta_c_deg=_by_region(s.region_theta_c_deg, 3),
+            region_min_samples=_by_region(s.region_min_samples, 3),
+            region_min_diffuse=_by_region(s.region_min_diffuse, 3),
             sphere_centre_m=_r(result.sphere.centre),
             sphere_source=result.sphere.source,
             cone="half-angle theta_c about the mirror direction",
@@ -315,9 +318,9 @@ def build_plan(
             str(r): RegionCoverage(
                 samples=round(float(result.coverage[r]), 1),
                 satisfied=bool(result.satisfied[r]),
-                needed=s.min_samples,
+                needed=float(needed[r]),
                 diffuse_samples=round(float(result.diffuse[r]), 1),
-                diffuse_needed=s.min_diffuse,
+                diffuse_needed=float(diffuse_needed[r]),
             )
             for r in range(seg.n_regions)
         },
@@ -350,6 +353,11 @@ def read_plan(path: str | Path) -> PlanFile:
     """Read and validate a plan; an unknown format or version, or a malformed field, is one InputError."""
     path = Path(path)
     return read_format(path, PLAN_FORMAT, PlanFile)
+
+
+def _by_region(values: tuple[float, ...] | None, digits: int) -> dict[str, float] | None:
+    """A per-region setting (the segmentation's order) by region id, as a plan records it."""
+    return None if values is None else {str(r): round(v, digits) for r, v in enumerate(values)}
 
 
 def _r(v, digits: int = 6) -> list[float]:

@@ -68,12 +68,13 @@ def diffuse_counts_of_light(
     theta_c: np.ndarray,
     max_light_angle: float,
     shadows: bool,
-    min_diffuse: float,
+    min_diffuse: float | np.ndarray,
     regions: np.ndarray | None = None,
 ) -> np.ndarray:
     """(R,) diffuse-only samples per region one light (3,) (the view's frame) gives: :func:`diffuse_counts`
     on the ``coarse`` samples of the view, and again on its ``fine`` ones for each region that came out
-    under ``max(COARSE_COUNT_FROM_PX, 2 min_diffuse)`` there; ``regions`` (R,) bool as in
+    under ``max(COARSE_COUNT_FROM_PX, 2 min_diffuse)`` there (``min_diffuse`` a float or (R,) each
+    region's); ``regions`` (R,) bool as in
     :func:`diffuse_counts`. Above that, the count cannot decide whether the region has ``min_diffuse``."""
 
     def count(view: ViewSamples, which: np.ndarray | None) -> np.ndarray:
@@ -90,7 +91,7 @@ def diffuse_counts_of_light(
     counts = count(coarse, regions)
     if coarse is fine:
         return counts
-    recount = counts < max(COARSE_COUNT_FROM_PX, 2 * min_diffuse)
+    recount = counts < np.maximum(COARSE_COUNT_FROM_PX, 2 * np.asarray(min_diffuse))
     if regions is not None:
         recount &= regions
     if recount.any():

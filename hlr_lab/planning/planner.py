@@ -83,6 +83,15 @@ class PlanSettings:
     # each region's θc (degrees, in the segmentation's order) where it is known (an adaptive run measures
     # it: docs/planning.md); None: theta_c_deg for every region
     region_theta_c_deg: tuple[float, ...] | None = None
+    # each region's own M and diffuse-only need (count unit, the segmentation's order) where the precision
+    # asked of it sets them (an adaptive run's re-plan: docs/planning.md); None: min_samples, min_diffuse
+    region_min_samples: tuple[float, ...] | None = None
+    region_min_diffuse: tuple[float, ...] | None = None
+    # each region needs at least this many times the highlight (diffuse-only) samples the taken lights give
+    # it, if more than its M (diffuse need): the precision asked of an adaptive run (docs/planning.md); the
+    # plan's result holds the needs so resolved in region_min_samples, region_min_diffuse
+    highlight_factor: tuple[float, ...] | None = None
+    diffuse_factor: tuple[float, ...] | None = None
 
     def __post_init__(self):
         if not (math.isfinite(self.min_diffuse) and self.min_diffuse >= 0):
@@ -98,16 +107,67 @@ class PlanSettings:
         for theta in (self.theta_c_deg, *(self.region_theta_c_deg or ())):
             if not (math.isfinite(theta) and 0 < theta < 90):
                 raise InputError(f"θc must lie in (0, 90) degrees, got {theta}", field="--theta-c")
+        for m in self.region_min_samples or ():
+            if not (math.isfinite(m) and m > 0):
+                raise InputError(f"a region's M must be above 0, got {m}", field="region_min_samples")
+        for m in (
+            *(self.region_min_diffuse or ()),
+            *(self.highlight_factor or ()),
+            *(self.diffuse_factor or ()),
+        ):
+            if not (math.isfinite(m) and m >= 0):
+                raise InputError(
+                    f"a region's diffuse-only need or sample factor must be 0 or more, got {m}",
+                    field="region_min_diffuse",
+                )
 
     def theta_c_rad(self, n_regions: int) -> np.ndarray:
         """(R,) each region's θc in radians."""
-        theta = self.region_theta_c_deg or (self.theta_c_deg,) * n_regions
-        if len(theta) != n_regions:
-            raise InputError(
-                f"{len(theta)} regions' θc given for {n_regions} regions: give one per region",
-                field="region_theta_c_deg",
-            )
-        return np.radians(np.asarray(theta, dtype=np.float64))
+        return np.radians(
+            _per_region(self.region_theta_c_deg, self.theta_c_deg, n_regions, "region_theta_c_deg", "θc")
+        )
+
+    def needed(self, n_regions: int) -> np.ndarray:
+        """(R,) the highlight samples each region needs (count unit): its own M, or min_samples."""
+        return _per_region(self.region_min_samples, self.min_samples, n_regions, "region_min_samples", "M")
+
+    def diffuse_needed(self, n_regions: int) -> np.ndarray:
+        """(R,) the diffuse-only samples each region needs (count unit): its own, or min_diffuse."""
+        return _per_region(
+            self.region_min_diffuse, self.min_diffuse, n_regions, "region_min_diffuse", "diffuse-only needs"
+        )
+
+
+def _resolved(settings: PlanSettings, given: list[PlannedLight], n_regions: int) -> PlanSettings:
+    """``settings`` with each region's needs raised to its factors times what the taken lights ``given``
+    give it (:attr:`PlanSettings.highlight_factor`), the factors then dropped: the plan's own needs."""
+    if settings.highlight_factor is None and settings.diffuse_factor is None:
+        return settings
+    had = np.sum([light.expected for light in given], axis=0) + np.zeros(n_regions)
+    had_diffuse = np.sum([light.diffuse for light in given], axis=0) + np.zeros(n_regions)
+    highlight = _per_region(settings.highlight_factor, 0.0, n_regions, "highlight_factor", "factors")
+    diffuse = _per_region(settings.diffuse_factor, 0.0, n_regions, "diffuse_factor", "factors")
+    return replace(
+        settings,
+        region_min_samples=tuple(float(x) for x in np.maximum(settings.needed(n_regions), highlight * had)),
+        region_min_diffuse=tuple(
+            float(x) for x in np.maximum(settings.diffuse_needed(n_regions), diffuse * had_diffuse)
+        ),
+        highlight_factor=None,
+        diffuse_factor=None,
+    )
+
+
+def _per_region(
+    own: tuple[float, ...] | None, default: float, n_regions: int, field: str, what: str
+) -> np.ndarray:
+    """(R,) float64: ``own`` (one per region) or ``default`` for every region."""
+    values = own if own is not None else (default,) * n_regions
+    if len(values) != n_regions:
+        raise InputError(
+            f"{len(values)} regions' {what} given for {n_regions} regions: give one per region", field=field
+        )
+    return np.asarray(values, dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -296,7 +356,12 @@ def plan_lights(
     planner = _Planner(placed, segmentation, rig, settings, caster, clock, taken)
     given = [planner.taken_light(i, t) for i, t in enumerate(taken)]
     had = np.sum([light.expected for light in given], axis=0) + np.zeros(segmentation.n_regions)
-    need = np.maximum(float(settings.min_samples) - had, 0.0)
+    settings = planner.settings = _resolved(settings, given, segmentation.n_regions)
+    needed, diffuse_needed = (
+        settings.needed(segmentation.n_regions),
+        settings.diffuse_needed(segmentation.n_regions),
+    )
+    need = np.maximum(needed - had, 0.0)
     planner.estimates_of(0)
     clock.lap("cones")
     capped = settings.criterion == "capped"
@@ -315,12 +380,12 @@ def plan_lights(
     clock.lap("diffuse")
     coverage = np.sum([light.expected for light in lights], axis=0) + np.zeros(len(need))
     diffuse = np.sum([light.diffuse for light in lights], axis=0) + np.zeros(len(need))
-    highlights_met = coverage >= settings.min_samples - 1e-9
-    diffuse_met = diffuse >= settings.min_diffuse - 1e-9
+    highlights_met = coverage >= needed - 1e-9
+    diffuse_met = diffuse >= diffuse_needed - 1e-9
     uncovered = planner.reasons(highlights_met, coverage, best.selection, had)
     for r in np.flatnonzero(highlights_met & ~diffuse_met):
         uncovered[int(r)] = (
-            f"only {diffuse[r]:.0f} of {settings.min_diffuse:g} diffuse-only samples (Rd): its lit side "
+            f"only {diffuse[r]:.0f} of {diffuse_needed[r]:g} diffuse-only samples (Rd): its lit side "
             "lies within the highlight cones or is shadowed from every reachable light"
         )
     clock.lap("report")
@@ -653,7 +718,7 @@ class _Planner:
             theta_c=self.theta_c,
             max_light_angle=self.max_light_angle,
             shadows=self.settings.shadows,
-            min_diffuse=self.settings.min_diffuse,
+            min_diffuse=self.settings.diffuse_needed(self.n_regions),
             regions=regions,
         )
 
@@ -679,11 +744,7 @@ class _Planner:
         samples: each the candidate (every DIFFUSE_SPACING_DEG, every view, the views already used first
         on ties) whose exact diffuse samples serve the short regions best, until none is short or none
         helps; a candidate's estimate (no shadows, the estimates' samples) picks the few counted exactly."""
-        need = (
-            self.settings.min_diffuse
-            - np.sum([lt.diffuse for lt in lights], axis=0)
-            + np.zeros(self.n_regions)
-        )
+        need = self.settings.diffuse_needed(self.n_regions) - np.sum([lt.diffuse for lt in lights], axis=0)
         if not (need > 0).any():
             return []
         seen = np.sum([self.view_samples(v).region_weight() for v in range(len(self.views))], axis=0) > 0
@@ -745,7 +806,7 @@ class _Planner:
         views = range(len(self.views))
         seen = np.sum([self.view_samples(v).region_weight() for v in views], axis=0)
         reach = np.sum([self.estimates_of(v).max(axis=0) for v in views], axis=0) + had
-        m, reasons = self.settings.min_samples, {}
+        m, reasons = self.settings.needed(self.n_regions), {}
         for r in short:
             if seen[r] <= 0:
                 reasons[int(r)] = "not visible from any view (or only at grazing angles)"
@@ -753,10 +814,10 @@ class _Planner:
                 reasons[int(r)] = "highlight unreachable: no reachable light position puts a highlight on it"
             elif selection.hit_light_limit:
                 limit = self.settings.max_lights
-                reasons[int(r)] = f"only {coverage[r]:.0f} of {m:g} samples within --max-lights {limit}"
+                reasons[int(r)] = f"only {coverage[r]:.0f} of {m[r]:g} samples within --max-lights {limit}"
             else:
                 reasons[int(r)] = (
-                    f"only {coverage[r]:.0f} of {m:g} samples: its remaining highlights are "
+                    f"only {coverage[r]:.0f} of {m[r]:g} samples: its remaining highlights are "
                     "shadowed or at grazing light"
                 )
         return reasons

@@ -190,13 +190,14 @@ class StagePlan(TypedDict):
 
 
 class PilotLine(TypedDict):
-    """An adaptive run's pilot: the poses of the plan it photographs first (one highlight per region), and
-    its plan (the plan's poses cut to those)."""
+    """An adaptive run's pilot: the poses of the plan it photographs first (one highlight per region), its
+    plan (the plan's poses cut to those), and the precision asked of the run (per cent), if any."""
 
     event: Literal["pilot"]
     at: float
     poses: list[str]
     plan: StagePlan
+    precision_pct: NotRequired[float]
 
 
 class RegionThetaC(TypedDict):
@@ -209,13 +210,26 @@ class RegionThetaC(TypedDict):
     reason: NotRequired[str]
 
 
+class RegionNeedLine(TypedDict):
+    """A region's samples for the re-plan when a precision was asked: highlight (Rs, n) and diffuse-only
+    (Rd) samples as multiples of what the pilot gave it, the pilot's largest relative standard errors (%)
+    of the parameters each serves, and why the plan's own were kept."""
+
+    highlight_factor: float
+    diffuse_factor: float
+    highlight_se_pct: NotRequired[float]
+    diffuse_se_pct: NotRequired[float]
+    reason: NotRequired[str]
+
+
 class ReplanLine(TypedDict):
-    """An adaptive run's re-plan: each region's θc, the poses it adds after the pilot's, the regions it
-    leaves short (id → why), and its plan (the pilot's poses first)."""
+    """An adaptive run's re-plan: each region's θc (and, with a precision asked, its samples), the poses it
+    adds after the pilot's, the regions it leaves short (id → why), and its plan (the pilot's poses first)."""
 
     event: Literal["replan"]
     at: float
     regions: dict[str, RegionThetaC]
+    needs: NotRequired[dict[str, RegionNeedLine]]
     added: list[str]
     short: dict[str, str]
     plan: StagePlan
