@@ -75,9 +75,9 @@ def case_lobes(case: str, regions: int, rng: np.random.Generator) -> list[Materi
 
 
 def run_case(folder: Path, case: str, name: str, rig: Rig, *, assets: Path | None, settings: PlanSettings,
-             seed: int, speed_factor: float = 1000.0) -> CaseFigures:  # fmt: skip
+             seed: int, precision_pct: float | None = None, speed_factor: float = 1000.0) -> CaseFigures:  # fmt: skip
     """``case`` on the object ``name`` (:data:`benchmarks.materials.BENCH_OBJECTS`), in ``folder`` (new):
-    the plan, its truth, and the two sessions (``planned``, ``adaptive``)."""
+    the plan, its truth, and the two sessions (``planned``, ``adaptive``: for ``precision_pct`` if given)."""
     folder.mkdir(parents=True)
     obj = BENCH_OBJECTS[name]
     mesh, spec = bench_mesh(name, assets, folder, seed=seed)
@@ -102,7 +102,8 @@ def run_case(folder: Path, case: str, name: str, rig: Rig, *, assets: Path | Non
                 acquire_plan(plan_path, rig, session, links=world_links(sim))
                 poses = len(plan.poses)
             else:
-                adaptive = acquire_adaptive(plan_path, rig, session, links=world_links(sim))
+                adaptive = acquire_adaptive(plan_path, rig, session, links=world_links(sim),
+                                            precision_pct=precision_pct)  # fmt: skip
                 poses = adaptive.photographed_poses
         fitted = fit_into(session).materials
         result = scene_result(0, name, fitted, by_id)
@@ -121,7 +122,7 @@ def _worst(result: SceneResult) -> dict[str, float]:
 
 
 def adaptive_bench(folder: Path, rig: Rig, *, cases: tuple[str, ...], objects: tuple[str, ...],
-                   assets: Path | None, settings: PlanSettings, seed: int = 0,
+                   assets: Path | None, settings: PlanSettings, seed: int = 0, precision_pct: float | None = None,
                    progress: Callable[[str], None] = lambda _: None,
                    done: Callable[[CaseFigures], None] = lambda _: None) -> list[CaseFigures]:  # fmt: skip
     """Every case on every object; ``done`` hears each as it ends."""
@@ -131,7 +132,7 @@ def adaptive_bench(folder: Path, rig: Rig, *, cases: tuple[str, ...], objects: t
             progress(f"{name}, {case}: the plan as made, then adaptively…")
             slug = case.replace(" ", "").replace("/", "-")
             results.append(run_case(folder / f"{name}-{slug}", case, name, rig, assets=assets, settings=settings,
-                                    seed=seed + k))  # fmt: skip
+                                    seed=seed + k, precision_pct=precision_pct))  # fmt: skip
             done(results[-1])
     return results
 

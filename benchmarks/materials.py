@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hlr_lab.adaptive.run import acquire_adaptive
 from hlr_lab.errors import InputError
 from hlr_lab.files import atomic_write_text
 from hlr_lab.formats.materials import MaterialsFile
@@ -94,6 +95,7 @@ class SceneResult:
     unmeasured: list[int]  # regions fitted without a specular (Rd only), with their reasons in notes
     unfitted: list[int]  # regions without an entry
     notes: list[str]
+    poses: int | None = None  # the poses photographed
 
 
 def held_out_materials(count: int, rng: np.random.Generator) -> list[Material]:
@@ -138,11 +140,13 @@ def run_scene(
     assets: Path | None,
     true_rig: str | None,
     seed: int,
+    precision_pct: float | None = None,
     speed_factor: float = 1000.0,
 ) -> SceneResult:
     """Scene ``scene``: ``name``'s object with held-out materials (seeded by ``seed`` and ``scene``),
-    planned on ``believed``, acquired in the world built as ``true_rig`` (default: as ``believed``),
-    fitted; every fitted parameter against its truth. ``folder`` (new) keeps the plan and the session."""
+    planned on ``believed``, acquired in the world built as ``true_rig`` (default: as ``believed``) —
+    adaptively for ``precision_pct`` when given (``acquire --adaptive --precision``) —, fitted; every fitted
+    parameter against its truth. ``folder`` (new) keeps the plan and the session."""
     folder.mkdir(parents=True)
     rng = np.random.default_rng([seed, scene])
     obj = BENCH_OBJECTS[name]
@@ -159,9 +163,14 @@ def run_scene(
     atomic_write_text(folder / "truth.json", true_json)
     geometry = world_geometry(believed, true_rig)
     with SimRig(scene=world, speed_factor=speed_factor, seed=seed * 1000 + scene, **geometry) as sim:
-        acquire_plan(plan_path, believed, folder / "session", links=world_links(sim))
+        if precision_pct is None:
+            acquire_plan(plan_path, believed, folder / "session", links=world_links(sim))
+            poses = len(plan.poses)
+        else:
+            poses = acquire_adaptive(plan_path, believed, folder / "session", links=world_links(sim),
+                                     precision_pct=precision_pct).photographed_poses  # fmt: skip
     fitted = fit_into(folder / "session").materials
-    return scene_result(scene, name, fitted, dict(zip(ids, truth, strict=True)))
+    return replace(scene_result(scene, name, fitted, dict(zip(ids, truth, strict=True))), poses=poses)
 
 
 def scene_result(scene: int, name: str, fitted: MaterialsFile, truth: dict[int, Material]) -> SceneResult:
@@ -195,16 +204,18 @@ def materials_bench(
     assets: Path | None,
     true_rig: str | None = None,
     seed: int = 0,
+    precision_pct: float | None = None,
     progress: Callable[[str], None] = lambda _: None,
     done: Callable[[SceneResult], None] = lambda _: None,
 ) -> list[SceneResult]:
-    """``scenes`` scenes, the objects taken in turn; ``done`` hears each scene's result as it ends."""
+    """``scenes`` scenes, the objects taken in turn (each as :func:`run_scene`); ``done`` hears each
+    scene's result as it ends."""
     results = []
     for k in range(scenes):
         name = objects[k % len(objects)]
         progress(f"scene {k + 1}/{scenes}: {name}…")
         results.append(run_scene(folder / f"scene-{k:03d}-{name}", k, name, believed, assets=assets,
-                                 true_rig=true_rig, seed=seed))  # fmt: skip
+                                 true_rig=true_rig, seed=seed, precision_pct=precision_pct))  # fmt: skip
         done(results[-1])
     return results
 
@@ -227,6 +238,8 @@ def scene_line(r: SceneResult) -> str:
     z = np.array([x.z for x in r.parameters])
     zc = np.array([x.z_combined for x in r.parameters])
     line = f"scene {r.scene:3d} {r.object:7}: worst " + ", ".join(cells)
+    if r.poses is not None:
+        line += f"; {r.poses} poses"
     line += f"; within 2σ {np.mean(z <= 2):4.0%} of {len(z)} (combined {np.mean(zc <= 2):4.0%})"
     if r.unmeasured:
         line += f"; specular unmeasured: {r.unmeasured}"

@@ -226,10 +226,13 @@ def bench_image_formation(session: Path, sub: int) -> None:
               help="The rig file hlr-lab believes (default: the built-in simulated rig).")  # fmt: skip
 @true_rig_option
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--precision", "precision_pct", type=click.FloatRange(0, 100, min_open=True), metavar="PCT",
+              help="Acquire each scene adaptively for this standard error of every parameter, per cent "
+              "(acquire --adaptive --precision); default: the plan as made.")  # fmt: skip
 @click.option("--out", "out_dir", type=FOLDER,
               help="Keep every scene's plan, truth and session here, and the results as materials-bench.json "
               "(a new folder; default: a scratch folder).")  # fmt: skip
-def bench_materials(scenes, objects, assets, rig_path, true_rig, seed, out_dir) -> None:
+def bench_materials(scenes, objects, assets, rig_path, true_rig, seed, precision_pct, out_dir) -> None:
     """Do the fitted materials and their standard errors tell the truth? Each scene is an object with seeded
     random materials (n log-uniform 8–500, Rd per channel 0.02–0.9, a grey Rs with Rd + Rs ≤ 1), planned
     on the rig hlr-lab believes, acquired on the simulated rig (built as --true-rig when given) and fitted:
@@ -241,6 +244,7 @@ def bench_materials(scenes, objects, assets, rig_path, true_rig, seed, out_dir) 
     Examples:
       hlr-lab bench materials --scenes 30 --objects pebble,bunny,spot --assets ../shared/assets
       hlr-lab bench materials --rig calibrated.toml --true-rig builtin:bench-offsets --scenes 6
+      hlr-lab bench materials --scenes 8 --objects bunny,spot --assets ../shared/assets --precision 0.5
     """
     from benchmarks.calibration import bench_folder  # the simulator: CLI only
     from benchmarks.materials import coverage_lines, materials_bench, save_results, scene_line
@@ -249,7 +253,7 @@ def bench_materials(scenes, objects, assets, rig_path, true_rig, seed, out_dir) 
     believed = load_rig(rig_path) if rig_path is not None else sim_rig()
     with bench_folder(out_dir) as folder, console.status("") as status:
         results = materials_bench(folder, believed, scenes=scenes, objects=names, assets=assets,
-                                  true_rig=true_rig, seed=seed, progress=status.update,
+                                  true_rig=true_rig, seed=seed, precision_pct=precision_pct, progress=status.update,
                                   done=lambda r: _print([scene_line(r)]))  # fmt: skip
         if out_dir is not None:
             save_results(folder / "materials-bench.json", results)
@@ -265,10 +269,13 @@ def bench_materials(scenes, objects, assets, rig_path, true_rig, seed, out_dir) 
               help="A folder with stanford-bunny.obj and spot/ (spot_triangulated.obj, spot_texture.png).")  # fmt: skip
 @click.option("--min-samples", type=Finite(1, 1e7), default=PlanSettings().min_samples, show_default=True,
               help="M of the plan each case starts from.")  # fmt: skip
+@click.option("--precision", "precision_pct", type=click.FloatRange(0, 100, min_open=True), metavar="PCT",
+              help="The adaptive runs' standard error asked of every parameter, per cent (acquire --adaptive "
+              "--precision); default: none, the plan's M.")  # fmt: skip
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option("--out", "out_dir", type=FOLDER,
               help="Keep every case's plan, truth and both sessions here (a new folder).")  # fmt: skip
-def bench_adaptive(cases, objects, assets, min_samples, seed, out_dir) -> None:
+def bench_adaptive(cases, objects, assets, min_samples, precision_pct, seed, out_dir) -> None:
     """The closed loop against the plan as made: each case's object planned with the default θc, then
     photographed on the simulated rig twice in the same world — the plan as it is, and adaptively (a
     pilot, each region's θc measured, the rest planned again) — and both fitted. Prints per case the poses
@@ -278,6 +285,7 @@ def bench_adaptive(cases, objects, assets, min_samples, seed, out_dir) -> None:
     Examples:
       hlr-lab bench adaptive
       hlr-lab bench adaptive --min-samples 400 --objects pebble,bunny --assets ../shared/assets
+      hlr-lab bench adaptive --min-samples 400 --precision 0.25
     """
     from benchmarks.adaptive import CASES, adaptive_bench, case_line, header
     from benchmarks.calibration import bench_folder  # the simulator: CLI only
@@ -292,7 +300,7 @@ def bench_adaptive(cases, objects, assets, min_samples, seed, out_dir) -> None:
     with bench_folder(out_dir) as folder, console.status("") as status:
         _print(header())
         adaptive_bench(folder, sim_rig(), cases=chosen, objects=_bench_objects(objects), assets=assets,
-                       settings=settings, seed=seed, progress=status.update,
+                       settings=settings, seed=seed, precision_pct=precision_pct, progress=status.update,
                        done=lambda f: _print([case_line(f)]))  # fmt: skip
 
 
