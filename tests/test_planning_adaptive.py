@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hlr_lab.adaptive.pilot import PILOT_SAMPLES, cut_to, pilot_poses
-from hlr_lab.adaptive.precision import DARK_RD, region_needs
+from hlr_lab.adaptive.precision import DARK_RD, MAX_FACTOR, region_needs
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import MaterialEntry, PixelCounts, materials_file
 from hlr_lab.formats.plan import read_plan, write_plan
@@ -195,7 +195,8 @@ def test_per_region_needs_and_factors_are_refused_unless_one_per_region_and_not_
 def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_precision_squared(tmp_path):
     """Rs's worst channel or n, whichever is less certain, sets the highlight factor; Rd's worst channel the
     diffuse one, a channel darker than DARK_RD held to p % of DARK_RD; a region whose highlight the pilot did
-    not measure keeps the plan's highlight samples (factor 0, said why), one the pilot did not fit both."""
+    not measure keeps the plan's highlight samples (factor 0, said why), one the pilot did not fit both; a
+    factor over MAX_FACTOR is held there, and said."""
     mesh = pebble(subdivisions=3).mesh
     plan, _ = plan_object(
         mesh, segment(mesh), sim_rig(), FAST, mesh_spec="builtin:pebble", plan_folder=tmp_path
@@ -209,7 +210,10 @@ def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_preci
         return MaterialEntry(**(base | kw))
 
     lobe = dict(specular="measured", reason=None, rs=[0.2, 0.25, 0.2], rs_se=[0.002, 0.001, 0.001], n=100.0)
-    pilot = materials_file([entry(0, **lobe, n_se=0.5), entry(1, **lobe, n_se=2.0), entry(2)])
+    dim = lobe | dict(rs=[0.05, 0.05, 0.05], rs_se=[0.005, 0.001, 0.001])  # ±10 %: 400× asked, held at 16×
+    pilot = materials_file(
+        [entry(0, **lobe, n_se=0.5), entry(1, **lobe, n_se=2.0), entry(2), entry(3, **dim, n_se=1)]
+    )
     needs = region_needs(plan, pilot, precision_pct=0.5)
     assert [n.region for n in needs] == [r.id for r in regions]
     # Rd: 0.0005/0.5 = 0.1 %, 0.0002/0.4 = 0.05 %, the dark channel 0.0001 of DARK_RD 0.02 = 0.5 %
@@ -222,5 +226,10 @@ def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_preci
     assert needs[1].highlight_factor == pytest.approx(16.0)
     assert needs[2].highlight_factor == 0
     assert "highlight was not measured" in (needs[2].reason or "")
-    assert needs[3].highlight_factor == needs[3].diffuse_factor == 0
-    assert "not fitted" in (needs[3].reason or "")
+    assert needs[3].highlight_factor == MAX_FACTOR == 16
+    assert needs[3].highlight_se_pct == pytest.approx(10.0)
+    assert "at most 16× its samples asked, for about ±2.5 %" in (needs[3].reason or "")
+    assert needs[0].reason is None
+    alone = region_needs(plan, materials_file([entry(0, **lobe, n_se=0.5)]), precision_pct=0.5)
+    assert alone[3].highlight_factor == alone[3].diffuse_factor == 0
+    assert "not fitted" in (alone[3].reason or "")

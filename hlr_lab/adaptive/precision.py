@@ -18,6 +18,13 @@ from hlr_lab.formats.materials import MaterialEntry, MaterialsFile
 from hlr_lab.formats.plan import PlanFile
 from hlr_lab.session.events import RegionNeedLine
 
+# No region is asked for more than this many times its pilot's samples (its standard error a quarter of the
+# pilot's). Further the square-root law is extrapolated too far to trust (a small region's error counts its
+# few surface patches, and a dim lobe's θc comes from the pilot's few pixels), and a region asked for
+# hundreds of times its samples takes every light the greedy has for itself: on the built-in pebble with
+# four dim n = 1500 lobes, uncapped factors of 57–950 gave 61 added lights to one region and none to the
+# other three (docs/planning.md, "A precision asked").
+MAX_FACTOR = 16.0
 # Rd below this is held to an absolute precision (p % of it) rather than a relative one: a near-black
 # channel's relative error grows without bound as it darkens, and no number of photographs would meet it
 DARK_RD = 0.02
@@ -28,7 +35,7 @@ class RegionNeed:
     """A region's samples for the re-plan, as multiples of what the pilot gave it: ``highlight_factor`` (for
     Rs and n) and ``diffuse_factor`` (Rd), each (s / p)² for the pilot's largest relative standard error s
     (``*_se_pct``, None where the pilot did not measure it: factor 0, the plan's own samples) and the
-    precision p asked; ``reason`` why a factor is 0."""
+    precision p asked, at most MAX_FACTOR; ``reason`` why a factor is 0 or held at MAX_FACTOR."""
 
     region: int
     highlight_factor: float
@@ -64,15 +71,34 @@ def region_needs(plan: PlanFile, pilot: MaterialsFile, precision_pct: float) -> 
             )
             continue
         rd_se = _rd_se_pct(e)
-        diffuse = (rd_se / precision_pct) ** 2
+        diffuse = _factor(rd_se, precision_pct)
         if e.specular != "measured" or e.rs is None or e.rs_se is None or e.n is None or e.n_se is None:
             why = "its highlight was not measured on the pilot: the plan's own highlight samples"
-            needs.append(RegionNeed(region.id, 0.0, diffuse, diffuse_se_pct=rd_se, reason=why))
+            needs.append(
+                RegionNeed(
+                    region.id, 0.0, diffuse, diffuse_se_pct=rd_se, reason=_capped(why, rd_se, precision_pct)
+                )
+            )
             continue
         rs, rs_se = np.asarray(e.rs), np.asarray(e.rs_se)
         lobe_se = max(float(np.max(100 * rs_se / np.maximum(rs, 1e-12))), 100 * e.n_se / e.n)
-        needs.append(RegionNeed(region.id, (lobe_se / precision_pct) ** 2, diffuse, lobe_se, rd_se))
+        why = _capped(None, max(lobe_se, rd_se), precision_pct)
+        needs.append(RegionNeed(region.id, _factor(lobe_se, precision_pct), diffuse, lobe_se, rd_se, why))
     return needs
+
+
+def _factor(se_pct: float, precision_pct: float) -> float:
+    """The samples' multiple that brings ``se_pct`` down to ``precision_pct``, at most MAX_FACTOR."""
+    return min((se_pct / precision_pct) ** 2, MAX_FACTOR)
+
+
+def _capped(why: str | None, se_pct: float, precision_pct: float) -> str | None:
+    """``why``, and that the precision is out of reach when ``se_pct`` needs more than MAX_FACTOR."""
+    if (se_pct / precision_pct) ** 2 <= MAX_FACTOR:
+        return why
+    reach = se_pct / MAX_FACTOR**0.5
+    cap = f"±{se_pct:.2g} % on the pilot: at most {MAX_FACTOR:g}× its samples asked, for about ±{reach:.2g} %"
+    return cap if why is None else f"{why}; {cap}"
 
 
 def _rd_se_pct(e: MaterialEntry) -> float:
