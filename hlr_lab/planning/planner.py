@@ -110,16 +110,10 @@ class PlanSettings:
         for m in self.region_min_samples or ():
             if not (math.isfinite(m) and m > 0):
                 raise InputError(f"a region's M must be above 0, got {m}", field="region_min_samples")
-        for m in (
-            *(self.region_min_diffuse or ()),
-            *(self.highlight_factor or ()),
-            *(self.diffuse_factor or ()),
-        ):
-            if not (math.isfinite(m) and m >= 0):
-                raise InputError(
-                    f"a region's diffuse-only need or sample factor must be 0 or more, got {m}",
-                    field="region_min_diffuse",
-                )
+        for name in ("region_min_diffuse", "highlight_factor", "diffuse_factor"):
+            for m in getattr(self, name) or ():
+                if not (math.isfinite(m) and m >= 0):
+                    raise InputError(f"each region's {name} must be 0 or more, got {m}", field=name)
 
     def theta_c_rad(self, n_regions: int) -> np.ndarray:
         """(R,) each region's θc in radians."""
@@ -356,6 +350,7 @@ def plan_lights(
     planner = _Planner(placed, segmentation, rig, settings, caster, clock, taken)
     given = [planner.taken_light(i, t) for i, t in enumerate(taken)]
     had = np.sum([light.expected for light in given], axis=0) + np.zeros(segmentation.n_regions)
+    # a precision's needs are multiples of what the taken lights give, which only the planner can count
     settings = planner.settings = _resolved(settings, given, segmentation.n_regions)
     needed, diffuse_needed = (
         settings.needed(segmentation.n_regions),
