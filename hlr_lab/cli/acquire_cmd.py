@@ -102,7 +102,8 @@ from hlr_lab.session.lamp import LampWatch
     metavar="PCT",
     help="With --adaptive: the standard error asked of every region's Rd, Rs and n, per cent of the value; "
     "the re-plan gives each region the samples its pilot's standard errors say that takes (at least the "
-    "plan's M). A region the rig cannot give them is named (exit status 3). Default: the plan's M.",
+    "plan's M, at most 16× what the pilot gave it; plan --max-lights bounds the photographs). A region the "
+    "rig cannot give them is named (exit status 3). Default: the plan's M.",
 )
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
