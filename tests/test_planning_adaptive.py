@@ -230,6 +230,10 @@ def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_preci
     assert needs[3].highlight_se_pct == pytest.approx(10.0)
     assert "at most 16× its samples asked, for about ±2.5 %" in (needs[3].reason or "")
     assert needs[0].reason is None
+    held = lobe | dict(rs=[0.0, 0.25, 0.2], rs_se=[0.0002, 0.001, 0.001])  # a channel held at 0: of DARK_RD
+    assert region_needs(plan, materials_file([entry(0, **held, n_se=0.5)]), 0.5)[
+        0
+    ].highlight_se_pct == pytest.approx(1.0)
     alone = region_needs(plan, materials_file([entry(0, **lobe, n_se=0.5)]), precision_pct=0.5)
     assert alone[3].highlight_factor == alone[3].diffuse_factor == 0
     assert "not fitted" in (alone[3].reason or "")

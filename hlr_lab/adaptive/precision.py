@@ -25,8 +25,9 @@ from hlr_lab.session.events import RegionNeedLine
 # four dim n = 1500 lobes, uncapped factors of 57–950 gave 61 added lights to one region and none to the
 # other three (docs/planning.md, "A precision asked").
 MAX_FACTOR = 16.0
-# Rd below this is held to an absolute precision (p % of it) rather than a relative one: a near-black
-# channel's relative error grows without bound as it darkens, and no number of photographs would meet it
+# Rd (or Rs) below this is held to an absolute precision (p % of it) rather than a relative one: a
+# near-black channel's relative error grows without bound as it darkens, and no number of photographs
+# would meet it
 DARK_RD = 0.02
 
 
@@ -81,7 +82,7 @@ def region_needs(plan: PlanFile, pilot: MaterialsFile, precision_pct: float) -> 
             )
             continue
         rs, rs_se = np.asarray(e.rs), np.asarray(e.rs_se)
-        lobe_se = max(float(np.max(100 * rs_se / np.maximum(rs, 1e-12))), 100 * e.n_se / e.n)
+        lobe_se = max(float(np.max(100 * rs_se / np.maximum(rs, DARK_RD))), 100 * e.n_se / e.n)
         why = _capped(None, max(lobe_se, rd_se), precision_pct)
         needs.append(RegionNeed(region.id, _factor(lobe_se, precision_pct), diffuse, lobe_se, rd_se, why))
     return needs
