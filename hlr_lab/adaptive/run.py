@@ -179,7 +179,7 @@ def _precision(
                 "--precision (or with the same), or give a new --out",
                 field="--precision",
             )
-        return recorded if isinstance(recorded, float | int) else None
+        return None if recorded is None else float(recorded)
     if asked is None:
         return None
     if not (math.isfinite(asked) and 0 < asked <= MAX_PRECISION_PCT):

@@ -192,7 +192,8 @@ def _auto_theta_c(s: Samples, estimator, refit: bool) -> tuple[float, Estimate]:
     L·Rs·cosⁿβ falls to AUTO_NOISE_LEVELS noise σ, refit; stop when θc moves less than the tolerance.
 
     ``refit=False`` for an estimator that uses every pixel whatever θc (robust): θc then only splits the
-    pixels for the counts, and one fit serves every iteration.
+    pixels for the counts and chooses the fit's start, and one fit serves every iteration; a second start
+    from the θc so found is kept when it fits better (docs/fitting.md, "θc from the data").
     """
     # start wide, but not so wide that too few pixels are left beyond θc to tell the diffuse part (a
     # small region seen only near its highlight)

@@ -213,7 +213,7 @@ class RegionThetaC(TypedDict):
 class RegionNeedLine(TypedDict):
     """A region's samples for the re-plan when a precision was asked: highlight (Rs, n) and diffuse-only
     (Rd) samples as multiples of what the pilot gave it, the pilot's largest relative standard errors (%)
-    of the parameters each serves, and why the plan's own were kept."""
+    of the parameters each serves, and why a factor is 0 (the plan's own samples) or held at its cap."""
 
     highlight_factor: float
     diffuse_factor: float
