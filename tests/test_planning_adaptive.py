@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hlr_lab.adaptive.pilot import PILOT_SAMPLES, cut_to, pilot_poses
-from hlr_lab.adaptive.precision import DARK_RD, MAX_FACTOR, region_needs
+from hlr_lab.adaptive.precision import DARK_RD, MAX_FACTOR, RegionNeed, region_needs
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import MaterialEntry, PixelCounts, materials_file
 from hlr_lab.formats.plan import read_plan, write_plan
@@ -192,6 +192,14 @@ def test_per_region_needs_and_factors_are_refused_unless_one_per_region_and_not_
         plan_lights(mesh, seg, sim_rig(), replace(FAST, region_min_samples=(5.0, 6.0)))
 
 
+def _entry(region, **kw) -> MaterialEntry:
+    """A fitted region's entry: Rd only by default, ``kw`` replacing any field."""
+    base = dict(id=region.id, color=region.color, vertices=10, rd=[0.5, 0.4, 0.01],
+                rd_se=[0.0005, 0.0002, 0.0001], specular="unmeasured", reason="no highlight", theta_c_deg=35.0,
+                pixels=PixelCounts(diffuse=1000, highlight=0), residual_rms=0.01, estimator="robust")  # fmt: skip
+    return MaterialEntry(**(base | kw))
+
+
 def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_precision_squared(tmp_path):
     """Rs's worst channel or n, whichever is less certain, sets the highlight factor; Rd's worst channel the
     diffuse one, a channel darker than DARK_RD held to p % of DARK_RD; a region whose highlight the pilot did
@@ -204,10 +212,7 @@ def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_preci
     regions = plan.object.regions
 
     def entry(i: int, **kw) -> MaterialEntry:
-        base = dict(id=regions[i].id, color=regions[i].color, vertices=10, rd=[0.5, 0.4, 0.01],
-                    rd_se=[0.0005, 0.0002, 0.0001], specular="unmeasured", reason="no highlight", theta_c_deg=35.0,
-                    pixels=PixelCounts(diffuse=1000, highlight=0), residual_rms=0.01, estimator="robust")  # fmt: skip
-        return MaterialEntry(**(base | kw))
+        return _entry(regions[i], **kw)
 
     lobe = dict(specular="measured", reason=None, rs=[0.2, 0.25, 0.2], rs_se=[0.002, 0.001, 0.001], n=100.0)
     dim = lobe | dict(rs=[0.05, 0.05, 0.05], rs_se=[0.005, 0.001, 0.001])  # ±10 %: 400× asked, held at 16×
@@ -237,3 +242,45 @@ def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_preci
     alone = region_needs(plan, materials_file([entry(0, **lobe, n_se=0.5)]), precision_pct=0.5)
     assert alone[3].highlight_factor == alone[3].diffuse_factor == 0
     assert "not fitted" in (alone[3].reason or "")
+
+
+def test_a_later_round_asks_nothing_more_of_a_region_whose_error_stopped_following_its_pixels(tmp_path):
+    """Round 2 against round 1's needs: a region whose highlight pixels grew 6× while its Rs standard error
+    stayed ±1.2 % (Spot's small region, counted by its few surface patches) is asked for no more samples,
+    and says why; one whose error fell as the square-root law says (4× the pixels, half the error) is asked
+    (s/p)² as in round 1; so is one whose pixels grew too little to tell (1.2×); Rd is judged alike, from
+    the diffuse-only pixels."""
+    mesh = pebble(subdivisions=3).mesh
+    plan, _ = plan_object(
+        mesh, segment(mesh), sim_rig(), FAST, mesh_spec="builtin:pebble", plan_folder=tmp_path
+    )
+    r = plan.object.regions
+    lobe = dict(specular="measured", reason=None, rs=[0.2, 0.2, 0.2], n=100.0, n_se=0.1)
+    at_1_2 = lobe | dict(rs_se=[0.0024] * 3)  # Rs ±1.2 %
+    at_0_6 = lobe | dict(rs_se=[0.0012] * 3)  # ±0.6 %
+    fitted = materials_file([
+        _entry(r[0], **at_1_2, pixels=PixelCounts(diffuse=1000, highlight=600)),
+        _entry(r[1], **at_0_6, pixels=PixelCounts(diffuse=1000, highlight=400)),
+        _entry(r[2], **at_1_2, pixels=PixelCounts(diffuse=1000, highlight=120)),
+        _entry(r[3], rd_se=[0.005, 0.002, 0.0001], pixels=PixelCounts(diffuse=6000, highlight=0)),
+    ])  # fmt: skip
+    previous = {
+        r[0].id: RegionNeed(r[0].id, 16.0, 1.0, 1.22, 0.1, highlight_pixels=100, diffuse_pixels=1000),
+        r[1].id: RegionNeed(r[1].id, 16.0, 1.0, 1.2, 0.1, highlight_pixels=100, diffuse_pixels=1000),
+        r[2].id: RegionNeed(r[2].id, 16.0, 1.0, 1.25, 0.1, highlight_pixels=100, diffuse_pixels=1000),
+        r[3].id: RegionNeed(r[3].id, 0.0, 16.0, None, 1.0, diffuse_pixels=1000),  # Rd ±1 % then, ±1 % now
+    }
+    needs = region_needs(plan, fitted, 0.5, previous)
+    assert needs[0].highlight_factor == 0
+    assert "went ±1.2 → ±1.2 % while its pixels grew 6.0×" in (needs[0].reason or "")
+    assert "no more samples asked" in (needs[0].reason or "")
+    assert needs[0].highlight_pixels == 600
+    assert needs[1].highlight_factor == pytest.approx((0.6 / 0.5) ** 2)
+    assert needs[1].reason is None
+    assert needs[2].highlight_factor == pytest.approx((1.2 / 0.5) ** 2)
+    assert needs[3].diffuse_factor == 0
+    assert "its Rd standard error went ±1 → ±1 % while its pixels grew 6.0×" in (needs[3].reason or "")
+    assert needs[3].highlight_factor == 0
+    alone = region_needs(plan, fitted, 0.5)  # round 1: nothing to compare with
+    assert alone[0].highlight_factor == pytest.approx((1.2 / 0.5) ** 2)
+    assert alone[3].diffuse_factor == pytest.approx(4.0)

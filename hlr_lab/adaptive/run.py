@@ -1,19 +1,25 @@
-"""The adaptive run as one function (see the package's docstring): pilot, fit, re-plan, the rest.
+"""The adaptive run as one function (see the package's docstring): pilot, fit, re-plan, the rest — in
+rounds when a precision is asked.
 
 Stages, each journaled before the next begins, so that a stopped run resumes where it stopped:
 
 1. the pilot: the plan cut to :func:`~hlr_lab.adaptive.pilot.pilot_poses`, kept in the session as
    ``object/plan-pilot.json`` and named by a ``pilot`` line, then photographed as any plan is;
-2. the pilot's photographs fitted (``theta_c_deg="auto"``, in memory: the session's materials.json is the
-   whole run's), each region's θc taken from its fit (:func:`~hlr_lab.adaptive.theta_c.region_cones`);
-3. the re-plan: the plan's settings with those θc, the pilot's lights counted as taken, kept as
-   ``object/plan-replan.json`` and named by a ``replan`` line (the θc per region, the poses added, the
-   regions left short);
-4. the re-plan photographed: the pilot's poses are in the session already, only the added ones move (and
-   when it adds none, the rig is not opened again).
+2. the photographs so far fitted (``theta_c_deg="auto"``, in memory: the session's materials.json is the
+   whole run's), each region's θc taken from its fit (:func:`~hlr_lab.adaptive.theta_c.region_cones`) and,
+   with a precision asked, its samples from its standard errors (:mod:`~hlr_lab.adaptive.precision`);
+3. the re-plan: the plan's settings with those θc, the poses photographed counted as taken, kept as
+   ``object/plan-replan.json`` (round 2 on: ``plan-replan-2.json`` …) and named by a ``replan`` line (the
+   round, the θc per region, the poses added, the regions left short);
+4. the re-plan photographed: the poses taken are in the session already, only the added ones move (and
+   when it adds none, the rig is not opened again);
+5. with rounds left (``rounds``: by default :data:`PRECISION_ROUNDS` with a precision asked, one without)
+   and poses added, back to 2 with every photograph so far: a region the first re-plan left short of its
+   precision (a lobe the pilot did not see, a factor held at its cap) is asked again from what the added
+   poses measured, and one whose standard error stopped following its pixels is asked for nothing more.
 
-The rig is opened for the pilot and again for the rest: while the pilot is fitted and the object planned
-again (seconds to a minute), the lamp is off and the axes are left safe, as after any run.
+The rig is opened for the pilot and again for each round: while the photographs are fitted and the object
+planned again (seconds to a minute), the lamp is off and the axes are left safe, as after any run.
 """
 
 from __future__ import annotations
@@ -47,29 +53,35 @@ from hlr_lab.session.folder import check_session_folder
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
 from hlr_lab.session.lamp import UNWATCHED, LampWatch
 from hlr_lab.session.metadata import read_record, session_plan
-from hlr_lab.session.stages import keep_stage_plan, stage_file, stage_lines, stage_plan
+from hlr_lab.session.stages import keep_stage_plan, stage_file, stage_lines, stage_plan, stage_round
 
 MAX_PRECISION_PCT = 100.0  # a standard error, per cent of the value
+# Re-plans a run with a precision asked makes by default: the first from the pilot, a second from what the
+# first's poses measured (a lobe the pilot did not see, a factor held at MAX_FACTOR), a third to see which
+# regions the second helped. On Spot (docs/planning.md, "A precision asked") ...
+PRECISION_ROUNDS = 3
+MAX_ROUNDS = 10
 
 
 @dataclass(frozen=True)
 class Replanned:
-    """What the re-plan made of the pilot: each region's θc, the plan it runs (the pilot's poses first),
-    the poses it added, the regions it leaves short (id → why), and each region's samples when a precision
-    was asked."""
+    """What a re-plan made of the photographs before it: its round (1: from the pilot's), each region's θc,
+    the plan it runs (the poses taken first), the poses it added, the regions it leaves short (id → why),
+    and each region's samples when a precision was asked."""
 
     cones: list[RegionCone]
     plan: PlanFile
     added: list[str]
     short: dict[int, str]
     needs: list[RegionNeed] | None = None
+    round: int = 1
 
 
 @dataclass
 class AdaptiveOutcome:
-    """An adaptive run: the pilot's poses, its run (None when a resumed run found it done), the re-plan,
-    the re-plan's run (the pilot's, when the re-plan added nothing), how many poses the plan it started
-    from had, and the precision it was asked (per cent, or None)."""
+    """An adaptive run: the pilot's poses, its run (None when a resumed run found it done), the last
+    re-plan, the last run (the pilot's, when the first re-plan added nothing), how many poses the plan it
+    started from had, the precision it was asked (per cent, or None), and the poses each round added."""
 
     pilot: list[str]
     pilot_run: Outcome | None
@@ -77,10 +89,11 @@ class AdaptiveOutcome:
     run: Outcome
     planned_poses: int
     precision_pct: float | None = None
+    added_per_round: tuple[int, ...] = ()
 
     @property
     def photographed_poses(self) -> int:
-        """The poses the session holds: the pilot's and those the re-plan added."""
+        """The poses the session holds: the pilot's and those the re-plans added."""
         return len(self.replanned.plan.poses)
 
 
@@ -97,18 +110,21 @@ def acquire_adaptive(
     lamp: LampWatch = UNWATCHED,
     on_stage: Callable[[str], None] = lambda _: None,
     precision_pct: float | None = None,
+    rounds: int | None = None,
 ) -> AdaptiveOutcome:
     """Run the plan at ``plan_path`` adaptively into ``session`` (created, or resumed at its stage); see
     the module's docstring. ``precision_pct``: the standard error (per cent) asked of every region's Rd, Rs
-    and n; the re-plan gives each region the samples its pilot's standard errors say that takes
-    (:mod:`~hlr_lab.adaptive.precision`; None: the plan's M). ``on_stage`` hears each stage begin, in a
-    sentence; the other arguments are :func:`hlr_lab.pipeline.acquire_plan`'s."""
+    and n; each re-plan gives each region the samples its standard errors so far say that takes
+    (:mod:`~hlr_lab.adaptive.precision`; None: the plan's M). ``rounds``: the most re-plans the session
+    holds (default PRECISION_ROUNDS with a precision, else 1; a resumed run may be given more). ``on_stage``
+    hears each stage begin, in a sentence; the other arguments are :func:`hlr_lab.pipeline.acquire_plan`'s."""
     original = read_plan(plan_path)
     lines = _stage_lines(session)
     precision_pct = _precision(original, plan_path, lines, precision_pct)
+    rounds = _rounds(rounds, precision_pct)
     run = functools.partial(acquire_plan, plan_path, rig, session, links=links, bracket=bracket, force=force,
                             progress=progress, lamp=lamp)  # fmt: skip
-    pilot_run, announced = None, False
+    last_run, announced = None, False
     pilot = list(lines["pilot"]["poses"]) if "pilot" in lines else pilot_poses(original)
     if not pilot:
         raise InputError(
@@ -129,16 +145,38 @@ def acquire_adaptive(
         on_stage(
             f"pilot: {len(pilot)} of the plan's {len(original.poses)} poses, a highlight on every region"
         )
-        pilot_run, announced = run(on_start=started, stage=stage), True
+        last_run, announced = run(on_start=started, stage=stage), True
         on_stage("fitting the pilot's photographs for each region's lobe")
-        _replan(session, rig, pilot, on_stage, precision_pct)
-    replanned = _replanned(session)
-    on_stage(f"the re-plan: {len(replanned.added)} pose(s) added to the pilot's {len(pilot)}")
-    if pilot_run is not None and not replanned.added:  # the pilot's photographs are the whole run
-        return AdaptiveOutcome(pilot, pilot_run, replanned, pilot_run, len(original.poses), precision_pct)
-    stage = (replanned.plan, session / stage_file("replan"))
-    rest = run(on_start=(lambda _resumed: None) if announced else on_start, stage=stage)
-    return AdaptiveOutcome(pilot, pilot_run, replanned, rest, len(original.poses), precision_pct)
+        _replan(session, rig, on_stage, precision_pct, round_=1)
+    pilot_run = last_run
+    while True:
+        replanned = _replanned(session)
+        taken = len(replanned.plan.poses) - len(replanned.added)
+        n, r = len(replanned.added), replanned.round
+        on_stage(f"the re-plan: {n} pose(s) added to the pilot's {taken}" if r == 1
+                 else f"re-plan {r}: {n} pose(s) added to the {taken} taken")  # fmt: skip
+        if replanned.added:
+            stage = (replanned.plan, session / stage_file("replan", replanned.round))
+            last_run = run(on_start=(lambda _resumed: None) if announced else on_start, stage=stage)
+            announced = True
+        if not replanned.added or replanned.round >= rounds:
+            break
+        on_stage(f"fitting all {len(replanned.plan.poses)} poses' photographs for each region's lobe")
+        _replan(session, rig, on_stage, precision_pct, round_=replanned.round + 1, previous=replanned.needs)
+    if last_run is None:  # a finished session resumed, whose last re-plan added nothing: nothing to take
+        stage = (replanned.plan, session / stage_file("replan", replanned.round))
+        last_run = run(on_start=on_start, stage=stage)
+    added = tuple(len(line["added"]) for line in _replan_lines(session))
+    return AdaptiveOutcome(pilot, pilot_run, replanned, last_run, len(original.poses), precision_pct, added)
+
+
+def _rounds(asked: int | None, precision_pct: float | None) -> int:
+    """The most re-plans a run makes: ``asked``, checked, or the default for its precision."""
+    if asked is None:
+        return PRECISION_ROUNDS if precision_pct is not None else 1
+    if not 1 <= asked <= MAX_ROUNDS:
+        raise InputError(f"the rounds must be 1 to {MAX_ROUNDS}, got {asked}", field="--rounds")
+    return asked
 
 
 def _stage_lines(session: Path) -> dict[str, JournalLine]:
@@ -208,12 +246,21 @@ def _journal_pilot(session: Path, pilot: list[str], precision_pct: float | None)
 
 
 def _replan(
-    session: Path, rig: Rig, pilot: list[str], on_stage: Callable[[str], None], precision_pct: float | None
+    session: Path,
+    rig: Rig,
+    on_stage: Callable[[str], None],
+    precision_pct: float | None,
+    *,
+    round_: int,
+    previous: list[RegionNeed] | None = None,
 ) -> None:
-    """Fit the pilot, plan the rest with each region's θc (and, with a precision asked, its samples), keep
-    the re-plan and journal it."""
+    """Fit every photograph so far (the pilot's for ``round_`` 1), plan the rest with each region's θc
+    (and, with a precision asked, its samples; ``previous`` the last round's), keep the re-plan and journal
+    it."""
     fitted = fit_session(open_session(session), systematic=False).materials
     kept, kept_path = session_plan(session, read_record(session))
+    lines = _stage_lines(session)
+    taken_plan, _ = stage_plan(session, lines["replan" if "replan" in lines else "pilot"])
     cones = region_cones(kept, fitted)
     on_stage(
         "re-planning with each region's θc: " + ", ".join(f"{c.region} {c.theta_c_deg:.1f}°" for c in cones)
@@ -223,44 +270,44 @@ def _replan(
     settings = replace(
         plan_settings(kept), region_theta_c_deg=tuple(by_id[r.id] for r in kept.object.regions)
     )
-    needs = None if precision_pct is None else region_needs(kept, fitted, precision_pct)
-    if needs is not None:
+    needs = None
+    if precision_pct is not None:
+        needs = region_needs(kept, fitted, precision_pct, {n.region: n for n in previous or []})
         settings = replace(settings, highlight_factor=tuple(n.highlight_factor for n in needs),
                            diffuse_factor=tuple(n.diffuse_factor for n in needs))  # fmt: skip
         on_stage(
-            f"samples for ±{precision_pct:g} %, times the pilot's (highlight/diffuse-only): "
+            f"samples for ±{precision_pct:g} %, times those so far (highlight/diffuse-only): "
             + ", ".join(f"{n.region} {n.highlight_factor:.2g}/{n.diffuse_factor:.2g}" for n in needs)
         )
-    poses = {p.id: p for p in kept.poses}
-    taken = [TakenLight(poses[i].turntable_deg, np.array(poses[i].light.position_m)) for i in pilot]
+    taken = [TakenLight(p.turntable_deg, np.array(p.light.position_m)) for p in taken_plan.poses]
     ref = kept.object.mesh
     spec = ref if ref.startswith(BUILTIN_PREFIX) else str(kept_path.parent / ref)
     planned, _ = plan_object(mesh, planned_segmentation(kept, mesh), rig, settings, mesh_spec=spec,
                              plan_folder=kept_path.parent, up=kept.object.up, scale=kept.object.scale,
                              to_turntable=mesh_to_turntable(kept), taken=taken)  # fmt: skip
-    planned = _named(planned, kept, pilot)
-    stage = keep_stage_plan(session, "replan", planned)
-    added = [p.id for p in planned.poses[len(pilot) :]]
+    planned = _named(planned, kept, taken_plan)
+    stage = keep_stage_plan(session, "replan", planned, round_)
+    added = [p.id for p in planned.poses[len(taken) :]]
     short = {str(u.region): u.reason for u in planned.uncovered}
-    line = ReplanLine(event="replan", at=time.time(), regions={str(c.region): c.as_line() for c in cones},
-                      added=added, short=short, plan=stage)  # fmt: skip
+    line = ReplanLine(event="replan", at=time.time(), round=round_,
+                      regions={str(c.region): c.as_line() for c in cones}, added=added, short=short,
+                      plan=stage)  # fmt: skip
     if needs is not None:
         line["needs"] = {str(n.region): n.as_line() for n in needs}
     with Journal(session / JOURNAL) as journal:
         journal.append(line)
 
 
-def _named(planned: PlanFile, kept: PlanFile, pilot: list[str]) -> PlanFile:
-    """The re-plan with the pilot's poses under their own ids and exposures (their frames are in the
-    session), the added ones under ids the plan does not use, and the object as the kept plan has it (its
-    placement record too)."""
-    used = {p.id for p in kept.poses}
+def _named(planned: PlanFile, kept: PlanFile, taken: PlanFile) -> PlanFile:
+    """The re-plan with the poses ``taken`` (the pilot's, or the last re-plan's) under their own ids and
+    exposures (their frames are in the session), the added ones under ids neither the plan nor they use,
+    and the object as the kept plan has it (its placement record too)."""
+    used = {p.id for p in kept.poses} | {p.id for p in taken.poses}
     fresh = (f"p{k:03d}" for k in range(len(kept.poses), 10**6) if f"p{k:03d}" not in used)
     poses: list[PlanPose] = []
-    originals = {p.id: p for p in kept.poses}
     for i, pose in enumerate(planned.poses):
-        if i < len(pilot):
-            was = originals[pilot[i]]
+        if i < len(taken.poses):
+            was = taken.poses[i]
             poses.append(pose.model_copy(update={"id": was.id, "exposures_s": was.exposures_s}))
         else:
             poses.append(pose.model_copy(update={"id": next(fresh)}))
@@ -268,7 +315,7 @@ def _named(planned: PlanFile, kept: PlanFile, pilot: list[str]) -> PlanFile:
 
 
 def _replanned(session: Path) -> Replanned:
-    """The re-plan as the journal and the session's files record it."""
+    """The last re-plan as the journal and the session's files record it."""
     line = _stage_lines(session)["replan"]
     plan, _ = stage_plan(session, line)
     cones = [
@@ -285,7 +332,15 @@ def _replanned(session: Path) -> Replanned:
                 n.get("highlight_se_pct"),
                 n.get("diffuse_se_pct"),
                 n.get("reason"),
+                n.get("highlight_pixels"),
+                n.get("diffuse_pixels"),
             )
             for rid, n in line["needs"].items()
         ]
-    return Replanned(cones, plan, list(line["added"]), {int(k): v for k, v in line["short"].items()}, needs)
+    short = {int(k): v for k, v in line["short"].items()}
+    return Replanned(cones, plan, list(line["added"]), short, needs, stage_round(line))
+
+
+def _replan_lines(session: Path) -> list[ReplanLine]:
+    """The session's re-plan lines, a round each, in order."""
+    return [e for e in read_journal(session / JOURNAL) if e.get("event") == "replan"]  # type: ignore[misc]

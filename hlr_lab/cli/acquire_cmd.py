@@ -13,7 +13,7 @@ from rich.markup import escape
 
 from hlr_lab.acquisition.poses import Bracketing, Step
 from hlr_lab.adaptive.pilot import pilot_poses
-from hlr_lab.adaptive.run import AdaptiveOutcome, acquire_adaptive
+from hlr_lab.adaptive.run import MAX_ROUNDS, PRECISION_ROUNDS, AdaptiveOutcome, acquire_adaptive
 from hlr_lab.cli.common import (
     FILE,
     FOLDER,
@@ -105,11 +105,19 @@ from hlr_lab.session.lamp import LampWatch
     "plan's M, at most 16× what the pilot gave it; plan --max-lights bounds the photographs). A region the "
     "rig cannot give them is named (exit status 3). Default: the plan's M.",
 )
+@click.option(
+    "--rounds",
+    type=click.IntRange(1, MAX_ROUNDS),
+    default=None,
+    help="With --adaptive: the most re-plans, each from every photograph so far (a lobe the pilot missed, a "
+    "precision not yet reached); the run ends sooner when one adds nothing. Default: "
+    f"{PRECISION_ROUNDS} with --precision, else 1. A session whose rounds ran out goes on when resumed with more.",
+)
 @click.option("--dry-run", is_flag=True, help="Check the plan against the rig, print the motions, stop.")
 @click.option("--force", is_flag=True, help="Resume a session although the plan or rig file changed.")
 @speed_factor_option("With --sim: simulated")
 def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, out, dark_frames, lamp_every,
-                warm_up_min, warm_up_within, register_first, adaptive, precision_pct, dry_run, force,
+                warm_up_min, warm_up_within, register_first, adaptive, precision_pct, rounds, dry_run, force,
                 speed_factor):  # fmt: skip
     """Move to every pose of the plan, capture its exposure bracket, and journal every frame.
 
@@ -142,6 +150,8 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
             "plan again with a larger --min-samples)",
             field="--precision",
         )
+    if rounds is not None and not adaptive:
+        raise InputError("counts an adaptive run's re-plans: use it with --adaptive", field="--rounds")
     if register_first and dry_run:
         raise InputError(
             "a dry run moves nothing, so it cannot register: leave out one of them", field="--register"
@@ -191,7 +201,13 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
         if adaptive:
             done = _adaptive(
                 functools.partial(
-                    acquire_adaptive, plan_path, rig, session, precision_pct=precision_pct, **options
+                    acquire_adaptive,
+                    plan_path,
+                    rig,
+                    session,
+                    precision_pct=precision_pct,
+                    rounds=rounds,
+                    **options,
                 ),
                 plan,
             )

@@ -9,10 +9,14 @@ from hlr_lab.adaptive.run import AdaptiveOutcome
 
 
 def cones_table(outcome: AdaptiveOutcome, prior_deg: dict[int, float]) -> Table:
-    """One row per region: the plan's θc (``prior_deg``: region id → degrees), the θc the re-plan used,
-    the pilot's fitted n, and where the θc came from (why, when not measured or held)."""
-    t = Table(title="θc measured on the pilot", title_justify="left")
-    for column in ("region", "planned θc", "measured θc", "n (pilot)"):
+    """One row per region: the plan's θc (``prior_deg``: region id → degrees), the θc the last re-plan used,
+    the n fitted to the photographs it was made from (the pilot's for the first), and where the θc came from
+    (why, when not measured or held)."""
+    r = outcome.replanned.round
+    t = Table(
+        title="θc measured on the pilot" if r == 1 else f"θc measured (re-plan {r})", title_justify="left"
+    )
+    for column in ("region", "planned θc", "measured θc", "n fitted"):
         t.add_column(column, justify="right")
     t.add_column("from")
     for c in outcome.replanned.cones:
@@ -25,27 +29,39 @@ def cones_table(outcome: AdaptiveOutcome, prior_deg: dict[int, float]) -> Table:
 
 def adaptive_lines(outcome: AdaptiveOutcome) -> list[str]:
     """The poses the run took against the plan's, and the regions the re-plan leaves short."""
-    r = outcome.replanned
+    r, rounds = outcome.replanned, outcome.added_per_round
+    added, made = (
+        outcome.photographed_poses - len(outcome.pilot),
+        f"the plan as made: {outcome.planned_poses}",
+    )
+    by = f"the re-plan added ({made})"
+    if len(rounds) > 1:
+        by = f"{len(rounds)} re-plans added ({' + '.join(map(str, rounds))}; {made})"
     lines = [
-        f"photographed {outcome.photographed_poses} poses: the pilot's {len(outcome.pilot)} and "
-        f"{len(r.added)} the re-plan added (the plan as made: {outcome.planned_poses})"
+        f"photographed {outcome.photographed_poses} poses: the pilot's {len(outcome.pilot)} and {added} {by}"
     ]
     lines += [f"[yellow]region {k}: {escape(why)}[/]" for k, why in sorted(r.short.items())]
     return lines
 
 
 def needs_table(outcome: AdaptiveOutcome) -> Table | None:
-    """With a precision asked: one row per region, the pilot's largest relative standard errors of Rs/n and
-    of Rd, and the highlight and diffuse-only samples the re-plan asked for them (None without one)."""
+    """With a precision asked: one row per region, the largest relative standard errors of Rs/n and of Rd
+    that the last re-plan was made from, and the highlight and diffuse-only samples it asked for them (None
+    without one)."""
     needs, precision = outcome.replanned.needs, outcome.precision_pct
     if needs is None or precision is None:
         return None
-    t = Table(title=f"samples for ±{precision:g} % (the pilot's standard errors)", title_justify="left")
+    r = outcome.replanned.round
+    before = (
+        "the pilot's" if r == 1 else f"all {outcome.photographed_poses - len(outcome.replanned.added)} poses'"
+    )
+    title = f"samples for ±{precision:g} % (re-plan {r}, from {before} standard errors)"
+    t = Table(title=title, title_justify="left")
     for column in (
         "region",
-        "Rs, n SE (pilot)",
+        "Rs, n SE",
         "highlight samples",
-        "Rd SE (pilot)",
+        "Rd SE",
         "diffuse-only samples",
     ):
         t.add_column(column, justify="right")

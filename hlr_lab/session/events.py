@@ -212,22 +212,27 @@ class RegionThetaC(TypedDict):
 
 class RegionNeedLine(TypedDict):
     """A region's samples for the re-plan when a precision was asked: highlight (Rs, n) and diffuse-only
-    (Rd) samples as multiples of what the pilot gave it, the pilot's largest relative standard errors (%)
-    of the parameters each serves, and why a factor is 0 (the plan's own samples) or held at its cap."""
+    (Rd) samples as multiples of what the photographs so far gave it, their fit's largest relative standard
+    errors (%) of the parameters each serves and the pixels behind them, and why a factor is 0 (no more
+    samples asked) or held at its cap."""
 
     highlight_factor: float
     diffuse_factor: float
     highlight_se_pct: NotRequired[float]
     diffuse_se_pct: NotRequired[float]
+    highlight_pixels: NotRequired[int]
+    diffuse_pixels: NotRequired[int]
     reason: NotRequired[str]
 
 
 class ReplanLine(TypedDict):
-    """An adaptive run's re-plan: each region's θc (and, with a precision asked, its samples), the poses it
-    adds after the pilot's, the regions it leaves short (id → why), and its plan (the pilot's poses first)."""
+    """An adaptive run's re-plan (``round`` 1 from the pilot's photographs, each later one from all the
+    photographs before it): each region's θc (and, with a precision asked, its samples), the poses it adds
+    after those taken, the regions it leaves short (id → why), and its plan (the poses taken first)."""
 
     event: Literal["replan"]
     at: float
+    round: NotRequired[int]
     regions: dict[str, RegionThetaC]
     needs: NotRequired[dict[str, RegionNeedLine]]
     added: list[str]
