@@ -52,7 +52,7 @@ class RunFigures:
 
 @dataclass(frozen=True)
 class CaseFigures:
-    """A case: the plan as made, and adaptively (its pilot's poses and those the re-plan added)."""
+    """A case: the plan as made, and adaptively (its pilot's poses and those the re-plans added)."""
 
     case: str
     object: str
@@ -111,7 +111,7 @@ def run_case(folder: Path, case: str, name: str, rig: Rig, *, assets: Path | Non
                                {e.id: round(e.theta_c_deg, 2) for e in fitted.regions})  # fmt: skip
     assert adaptive is not None
     return CaseFigures(case, name, runs["planned"], runs["adaptive"], len(adaptive.pilot),
-                       len(adaptive.replanned.added), adaptive.replanned.short)  # fmt: skip
+                       adaptive.photographed_poses - len(adaptive.pilot), adaptive.replanned.short)  # fmt: skip
 
 
 def _worst(result: SceneResult) -> dict[str, float]:

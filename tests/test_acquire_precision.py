@@ -1,110 +1,173 @@
-"""``hlr-lab acquire --adaptive --precision``: every region's parameters to a standard error asked, on the
-simulated rig (the built-in pebble and world), then the fit's own standard errors held against it."""
+"""``hlr-lab acquire --adaptive --precision``: every region's parameters to a standard error asked, in
+rounds, on the simulated rig — the pebble with a dim narrow lobe (n 1500, Rs 0.05) whose pilot states it to
+±1.4 %, asked for ±0.3 %. The first re-plan asks each region for (s/p)² times its pilot's samples, at most
+16×; a second round, fitted from every photograph, asks for what is still missing; stopped during the
+second round's poses and resumed from the command line."""
 
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 
-import numpy as np
 import pytest
+import trimesh
 
-from hlr_lab.adaptive.precision import DARK_RD, MAX_FACTOR
+from hlr_lab.adaptive.precision import MAX_FACTOR
+from hlr_lab.adaptive.run import acquire_adaptive
 from hlr_lab.cli.main import main
-from hlr_lab.formats.materials import read_materials
 from hlr_lab.formats.plan import read_plan
+from hlr_lab.instrument.control import RunStopped
+from hlr_lab.object.procedural import pebble
+from hlr_lab.rig.file import sim_rig
+from sim.rig import SimRig
 from tests.renderer_guard import require_renderer
+from worlds.plan_world import sim_scene, world_geometry, world_links
 
 require_renderer(module_level=True)
 pytestmark = pytest.mark.renderer
 
-PRECISION_PCT = 0.1  # the pebble's pilot states 0.09–0.24 %: every region needs more than the pilot gave it
+PRECISION_PCT = 0.3
+MAX_LIGHTS = 20  # room for a second round after the first's ~15 added poses, too little for a third
+# by the pebble's region order (n, Rs): no highlight, a wide lobe, the dim narrow one, a sharp one
+LOBES = ((8.0, 0.0), (40.0, 0.25), (1500.0, 0.05), (400.0, 0.25))
+DIM = "2"
 
 
 def journal(session: Path) -> list[dict]:
-    """The session's journal lines."""
     return [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines() if line.strip()]
 
 
+def replans(session: Path) -> list[dict]:
+    return [e for e in journal(session) if e["event"] == "replan"]
+
+
 @pytest.fixture(scope="module")
-def precise(tmp_path_factory):
-    """The pebble planned as `plan` does by default, acquired adaptively for ±0.1 % and fitted: (folder,
-    the acquire's and the fit's exit status)."""
-    folder = tmp_path_factory.mktemp("precision")
-    assert main(["plan", "--mesh", "builtin:pebble", "--sim", "-o", str(folder / "plan.json")]) == 0
-    session = folder / "session"
-    acquired = main(["acquire", "--plan", str(folder / "plan.json"), "--sim", "--adaptive", "--precision",
-                     str(PRECISION_PCT), "--out", str(session)])  # fmt: skip
-    return folder, acquired, main(["fit", str(session)])
+def rounds(tmp_path_factory):
+    """The plan (the greedy alone: the same on any machine), the run stopped at the second round's first
+    added pose, then resumed: (folder, the resumed run's exit status, the stages the first run announced)."""
+    folder = tmp_path_factory.mktemp("rounds")
+    m = pebble().mesh
+    ply = folder / "pebble.ply"
+    trimesh.Trimesh(m.vertices, m.faces, vertex_colors=m.vertex_colours, process=False).export(ply)
+    command = ["plan", "--mesh", str(ply), "--sim", "--optimum-budget", "0", "--max-lights", str(MAX_LIGHTS),
+               "-o", str(folder / "plan.json")]  # fmt: skip
+    assert main(command) == 0
+    plan = read_plan(folder / "plan.json")
+    scene = ["[object]", f'mesh = "{ply}"', "", "[light]", 'type = "point"', "power = 1.0"]
+    for region, (n, rs) in zip(plan.object.regions, LOBES, strict=True):
+        scene += ["", "[[region]]", f"color = {list(region.color)}", "rd = [0.3, 0.2, 0.1]",
+                  f"rs = [{rs}, {rs}, {rs}]", f"n = {n}"]  # fmt: skip
+    (folder / "scene.toml").write_text("\n".join(scene) + "\n")
+    rig, session = sim_rig(), folder / "session"
+    stages: list[str] = []
+
+    def stop_in_the_second_round(step) -> None:
+        if stages and stages[-1].startswith("re-plan 2") and step.pose in replans(session)[-1]["added"]:
+            raise KeyboardInterrupt
+
+    world = sim_scene(plan, folder / "plan.json", folder / "scene.toml")
+    with (
+        SimRig(scene=world, speed_factor=1000.0, seed=5, **world_geometry(rig, None)) as sim,
+        pytest.raises(RunStopped),
+    ):
+        acquire_adaptive(folder / "plan.json", rig, session, links=world_links(sim), on_stage=stages.append,
+                         progress=stop_in_the_second_round, precision_pct=PRECISION_PCT)  # fmt: skip
+    return folder, main(_resume(folder)), stages
+
+
+def _resume(folder: Path, out: str = "session") -> list[str]:
+    return ["acquire", "--plan", str(folder / "plan.json"), "--sim", "--scene", str(folder / "scene.toml"),
+            "--adaptive", "--out", str(folder / out)]  # fmt: skip
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(600)  # measured 25 s on two quiet cores
-def test_every_region_is_photographed_for_the_precision_asked_and_the_fit_states_it(precise):
-    """The first re-plan asks each region for (s/p)² times what the pilot gave it (s the pilot's largest
-    relative standard error), so the fitted standard errors come out at the precision asked: each within
-    1.5× of it (the square-root law holds for the pixel count, not exactly for the surface patches the errors
-    count; measured at most 0.97×). The second round, fitted from every photograph, finds every region
-    there (each factor at most 1, as the final fit's standard errors say) and adds nothing: the run ends."""
-    folder, acquired, fitted = precise
-    assert (acquired, fitted) == (0, 0)
+@pytest.mark.timeout(900)  # measured 95 s on two quiet cores, 135 s in a full suite
+def test_the_first_re_plan_asks_each_region_its_pilots_error_over_the_precision_squared(rounds):
+    """Each factor is (s/p)² for the pilot's largest relative standard error s, at most 16× (the dim lobe's
+    ±1.4 % asks 22×: held at 16, and said); each region's need is max(M, factor × what the pilot's poses
+    give it) under the re-plan's cones, and the re-plan meets it."""
+    folder, _, _ = rounds
     session = folder / "session"
-    lines = journal(session)
-    assert next(e for e in lines if e["event"] == "pilot")["precision_pct"] == PRECISION_PCT
-    first, last = (e for e in lines if e["event"] == "replan")
-    assert (first["round"], last["round"]) == (1, 2)
-    assert last["added"] == []
-    assert last["plan"]["file"] == "object/plan-replan-2.json"
-    needs = first["needs"]
+    first = replans(session)[0]
+    assert first["round"] == 1
     replan = read_plan(session / first["plan"]["file"])
     pilot = [p for p in replan.poses if p.purpose == "taken"]
-    assert len(replan.poses) > len(pilot)  # the precision took photographs the plan's M did not
-    for rid, need in needs.items():
+    assert len(replan.poses) > len(pilot)
+    for rid, need in first["needs"].items():
         for kind in ("highlight", "diffuse"):
+            if f"{kind}_se_pct" not in need:  # region 0 has no lobe: its highlight keeps the plan's M
+                assert need[f"{kind}_factor"] == 0
+                continue
             wanted = (need[f"{kind}_se_pct"] / PRECISION_PCT) ** 2
-            assert need[f"{kind}_factor"] == pytest.approx(min(wanted, MAX_FACTOR), rel=1e-3)
+            assert need[f"{kind}_factor"] == pytest.approx(
+                min(wanted, MAX_FACTOR), rel=1e-3, abs=1e-4
+            )  # as journaled
         had = sum(p.expected.get(rid, 0.0) for p in pilot)
         cover = replan.coverage[rid]
         assert cover.needed == pytest.approx(
             max(replan.parameters.min_samples, need["highlight_factor"] * had), rel=1e-3
         )
         assert cover.satisfied
+    assert first["needs"][DIM]["highlight_factor"] == MAX_FACTOR
+    assert "at most 16× its samples asked" in first["needs"][DIM]["reason"]
     assert replan.parameters.region_min_samples is not None
-    materials = read_materials(session / "materials.json")
-    for e in materials.regions:
-        assert e.specular == "measured"
-        assert e.rs is not None
-        assert e.rs_se is not None
-        assert e.n_se is not None
-        assert e.n is not None
-        worst = max(
-            float(np.max(np.asarray(e.rs_se) / np.asarray(e.rs))),
-            e.n_se / e.n,
-            float(np.max(np.asarray(e.rd_se) / np.maximum(e.rd, DARK_RD))),
-        )
-        assert 100 * worst <= 1.5 * PRECISION_PCT, (e.id, 100 * worst)
-        said = last["needs"][str(e.id)]  # the second round's fit is the final one
-        assert max(said["highlight_se_pct"], said["diffuse_se_pct"]) == pytest.approx(100 * worst, rel=1e-3)
-        assert max(said["highlight_factor"], said["diffuse_factor"]) <= 1
-    again = read_plan(session / last["plan"]["file"]).poses  # the same poses, every one now taken
-    assert [p.id for p in again] == [p.id for p in replan.poses]
-    moved = np.array([p.light.position_m for p in again]) - [p.light.position_m for p in replan.poses]
-    assert np.abs(moved).max() < 1e-5  # m: the file's rounding
-    assert {p.purpose for p in again} == {"taken"}
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(600)
-def test_a_precision_is_refused_without_adaptive_and_when_a_resumed_run_was_asked_another(precise, capsys):
-    folder, _, _ = precise
+@pytest.mark.timeout(900)
+def test_a_second_round_asks_for_what_the_first_left_and_resumes_across_rounds(rounds):
+    """Round 2, fitted from every photograph so far, finds the dim lobe still short of ±0.3 % and adds
+    poses, the first round's poses first under their own ids; the stop came during them and the resumed run
+    took the rest, every frame of the last plan once; a third round finds the plan's lights all used and
+    adds none, naming the dim region short (exit status 3). Every other region is within 1.5× the precision
+    in the last round's fit (the square-root law holds for the pixel count, not exactly for the surface
+    patches the errors count), and the dim one's fit counted the pixels the second round added."""
+    folder, status, stages = rounds
+    session = folder / "session"
+    assert status == 3
+    assert any(s.startswith("re-plan 2: ") for s in stages)
+    lines = replans(session)
+    assert [e["round"] for e in lines] == [1, 2, 3]
+    first, second, third = lines
+    assert second["needs"][DIM]["highlight_factor"] > 1
+    assert second["added"]
+    assert not set(second["added"]) & set(first["added"])
+    assert second["plan"]["file"] == "object/plan-replan-2.json"
+    assert third["added"] == []
+    assert f"--max-lights {MAX_LIGHTS}" in third["short"][DIM]
+    one = read_plan(session / first["plan"]["file"])
+    two = read_plan(session / second["plan"]["file"])
+    assert [p.id for p in two.poses[: len(one.poses)]] == [p.id for p in one.poses]
+    assert {p.purpose for p in two.poses[: len(one.poses)]} == {"taken"}
+    assert len(two.poses) == len(one.poses) + len(second["added"]) == MAX_LIGHTS
+    events = journal(session)
+    assert any(e["event"] == "stopped" for e in events)
+    frames = Counter((e["pose"], e["exposure_index"]) for e in events if e["event"] == "frame")
+    last = read_plan(session / third["plan"]["file"])
+    assert set(frames) == {(p.id, k) for p in last.poses for k in range(len(p.exposures_s))}
+    assert set(frames.values()) == {1}
+    for rid, need in third["needs"].items():
+        if rid != DIM:
+            assert max(need.get("highlight_se_pct", 0.0), need["diffuse_se_pct"]) <= 1.5 * PRECISION_PCT
+    assert third["needs"][DIM]["highlight_pixels"] > second["needs"][DIM]["highlight_pixels"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_a_precision_and_rounds_are_refused_where_they_mean_nothing(rounds, capsys):
+    """--precision or --rounds without --adaptive, another precision than the run started with, a precision
+    of 0 and 0 rounds: refused by name, nothing written."""
+    folder, _, _ = rounds
     plan = str(folder / "plan.json")
-    assert main(["acquire", "--plan", plan, "--sim", "--precision", "1", "--out", str(folder / "x")]) == 1
-    assert "--precision" in capsys.readouterr().err
-    assert not (folder / "x").exists()
-    again = ["acquire", "--plan", plan, "--sim", "--adaptive", "--out", str(folder / "session")]
-    assert main([*again, "--precision", "0.5"]) == 1
-    err = capsys.readouterr().err
-    assert "started with precision 0.1 %, not 0.5 %" in err
-    assert main([*again, "--out", str(folder / "y"), "--precision", "0"]) == 1
+    for option, value in (("--precision", "1"), ("--rounds", "2")):
+        assert main(["acquire", "--plan", plan, "--sim", option, value, "--out", str(folder / "x")]) == 1
+        assert option in capsys.readouterr().err
+        assert not (folder / "x").exists()
+    assert main([*_resume(folder), "--precision", "0.5"]) == 1
+    assert "started with precision 0.3 %, not 0.5 %" in capsys.readouterr().err
+    assert main([*_resume(folder, "y"), "--precision", "0"]) == 1
     assert "the precision must be above 0" in capsys.readouterr().err
+    assert main([*_resume(folder, "y"), "--rounds", "0"]) == 2  # click's range
+    assert "--rounds" in capsys.readouterr().err
     assert not (folder / "y").exists()  # refused before anything was written

@@ -182,6 +182,20 @@ def test_sample_factors_raise_each_regions_needs_to_that_many_times_what_the_tak
     np.testing.assert_allclose(plan_settings(back).diffuse_needed(4), want_diffuse, rtol=1e-6)
 
 
+def test_factors_of_at_most_one_against_every_light_taken_add_no_light(placed):
+    """A later round whose fit finds every region at its precision (each factor ≤ 1) against all the lights
+    taken so far, which met the plan's M: nothing is added, and that ends an adaptive run."""
+    mesh, seg = placed
+    rig = sim_rig()
+    first = plan_lights(mesh, seg, rig, FAST)
+    assert first.satisfied.all()
+    taken = [TakenLight(lt.turntable_deg, lt.light_world) for lt in first.lights]
+    met = replace(FAST, highlight_factor=(1.0, 0.9, 0.5, 0.0), diffuse_factor=(0.2, 1.0, 0.0, 0.7))
+    again = plan_lights(mesh, seg, rig, met, taken=taken)
+    assert len(again.lights) == len(taken)
+    assert again.satisfied.all()
+
+
 def test_per_region_needs_and_factors_are_refused_unless_one_per_region_and_not_negative(placed):
     mesh, seg = placed
     with pytest.raises(InputError, match="a region's M must be above 0"):

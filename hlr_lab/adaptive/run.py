@@ -57,8 +57,10 @@ from hlr_lab.session.stages import keep_stage_plan, stage_file, stage_lines, sta
 
 MAX_PRECISION_PCT = 100.0  # a standard error, per cent of the value
 # Re-plans a run with a precision asked makes by default: the first from the pilot, a second from what the
-# first's poses measured (a lobe the pilot did not see, a factor held at MAX_FACTOR), a third to see which
-# regions the second helped. On Spot (docs/planning.md, "A precision asked") ...
+# first's poses measured (a lobe the pilot did not see, a factor held at MAX_FACTOR, poses that served
+# several regions), a third from what the second's did. On Spot a dim lobe the pilot missed was measured
+# at ±10 % from the first re-plan's poses and asked 16× again by the second (docs/planning.md, "A
+# precision asked"); on the pebble the second round of ±0.1 % finds every region there and adds nothing
 PRECISION_ROUNDS = 3
 MAX_ROUNDS = 10
 

@@ -28,6 +28,13 @@ from hlr_lab.fitting import (
     fit_region,
     fit_shift,
 )
+from hlr_lab.fitting.diffuse_only import BETA_DEG as DIFFUSE_BETA_DEG
+from hlr_lab.fitting.diffuse_only import (
+    DiffuseCutoff,
+    diffuse_cutoff,
+    least_squares_rd,
+    rd_standard_error,
+)
 from hlr_lab.fitting.inputs import MIN_DIFFUSE, normal_mad
 from hlr_lab.formats.materials import (
     MaterialEntry,
@@ -68,7 +75,6 @@ from hlr_lab.session.stages import current_plan
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
 # fit --radiance: each pose's merged radiance as POSE.exr, in this folder beside materials.json
 RADIANCE = "radiance"
-DIFFUSE_ONLY_BETA_DEG = 35.0  # a region without a measurable highlight: Rd from pixels beyond this β
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
 CLEAR_OF_NOISE = 3.0  # pixels whose mean is below this many noise σ are too dark to say whether they are lit
 BELOW_BLACK = 3.0  # an Rd this many standard errors below 0 is no near-black surface: the pixels are wrong
@@ -622,15 +628,19 @@ def _fit_response(fit: RegionFit, *, rd_only: bool = False) -> Respond | None:
 def _diffuse_outcome(
     region: RegionEntry, p: _Pooled, patch: np.ndarray, reason: str, method: EstimatorName, diag: dict
 ) -> tuple[MaterialEntry | None, dict, Respond | None]:
-    """A region whose highlight was not measured: its diffuse colour from the pixels beyond
-    ``DIFFUSE_ONLY_BETA_DEG`` (``_diffuse_only``; ``patch`` (N,) each pixel's surface patch), or the note
-    why there is none; and how that Rd moves with the inputs (the same pixels' least squares again)."""
+    """A region whose highlight was not measured: its diffuse colour from the pixels beyond the lobe's tail
+    (``_diffuse_only``; ``patch`` (N,) each pixel's surface patch), or the note why there is none; and how
+    that Rd moves with the inputs (the same pixels' least squares again)."""
     inputs = p.inputs()
-    entry = _diffuse_only(region, inputs, reason, method, patch)
+    x = inputs.irradiance * inputs.cos_alpha
+    cutoff = diffuse_cutoff(x, inputs.intensity, inputs.cos_beta, patch, MIN_DIFFUSE)
+    entry = _diffuse_only(region, inputs, reason, method, patch, cutoff)
     if isinstance(entry, str):
         diag["note"] = entry
         return None, diag, None
-    far = inputs.cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    if cutoff.note():
+        diag["diffuse_cutoff"] = cutoff.note()
+    far = inputs.cos_beta < np.cos(np.radians(cutoff.beta_deg))
     base = _diffuse_rd(inputs, far)
 
     def respond(moved: _Inputs) -> np.ndarray:
@@ -649,8 +659,7 @@ def surface_patches(points: np.ndarray) -> np.ndarray:
 
 def _diffuse_rd(inputs: _Inputs, far: np.ndarray) -> np.ndarray:
     """(3,) Rd by least squares over the pixels ``far`` (I = L·Rd·cos α), not held at 0."""
-    x = inputs.irradiance[far] * inputs.cos_alpha[far]
-    return (x[:, None] * inputs.intensity[far]).sum(axis=0) / max(float(x @ x), 1e-300)
+    return least_squares_rd(inputs.irradiance[far] * inputs.cos_alpha[far], inputs.intensity[far])
 
 
 def _systematic_shifts(
@@ -799,7 +808,7 @@ def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
         )
     # only pixels outside the highlight can tell: inside it brightness follows β, not cos α (Spot's pupils,
     # seen only in their highlight, are anti-correlated with L·cos α, r = −0.96)
-    far = cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    far = cos_beta < np.cos(np.radians(DIFFUSE_BETA_DEG))
     x, y = irradiance[far] * cos_alpha[far], intensity[far].mean(axis=1)
     if len(x) < MIN_DIFFUSE or np.std(x) < SPREAD * np.mean(x):
         return None
@@ -838,20 +847,18 @@ def _unphysical(values: np.ndarray, name: str = "Rd") -> str | None:
 
 
 def _diffuse_only(
-    region, inputs: _Inputs, reason: str, method: EstimatorName, patch: np.ndarray
+    region, inputs: _Inputs, reason: str, method: EstimatorName, patch: np.ndarray, cutoff: DiffuseCutoff
 ) -> MaterialEntry | str:
-    """Rd by least squares over the pixels far from any highlight (I = L·Rd·cos α), with its SE — the
-    pixels', or the surface patches' (``patch``, (N,) int) where that is the larger, as the full fit's —;
-    or why there is none (too few such pixels, an Rd below 0)."""
-    far = inputs.cos_beta < np.cos(np.radians(DIFFUSE_ONLY_BETA_DEG))
+    """Rd by least squares over the pixels beyond ``cutoff`` (I = L·Rd·cos α; ``fitting.diffuse_only``), with
+    its SE — the pixels', or the surface patches' (``patch``, (N,) int) where that is the larger, as the full
+    fit's —; or why there is none (too few such pixels, an Rd below 0)."""
+    far = inputs.cos_beta < np.cos(np.radians(cutoff.beta_deg))
     x = inputs.irradiance[far] * inputs.cos_alpha[far]  # (M,)
     if len(x) < MIN_DIFFUSE:
-        return f"no pixel beyond β = {DIFFUSE_ONLY_BETA_DEG:g}° either: no diffuse colour"
+        return f"no pixel beyond β = {cutoff.beta_deg:g}° either: no diffuse colour"
     y = inputs.intensity[far]  # (M, C)
-    rd = _diffuse_rd(inputs, far)
-    resid = y - x[:, None] * rd
-    sigma2 = (resid**2).sum(axis=0) / max(len(x) - 1, 1)
-    rd_se = np.maximum(np.sqrt(sigma2 / (x @ x)), _patch_rd_se(x, resid, patch[far]))
+    rd = least_squares_rd(x, y)
+    rd_se = rd_standard_error(x, y - x[:, None] * rd, patch[far])
     if np.any(rd < -BELOW_BLACK * rd_se):
         shown = ", ".join(f"{v:.3g} ± {e:.1g}" for v, e in zip(rd, rd_se, strict=True))
         return f"the fit gave Rd = {shown}, below 0 by more than {BELOW_BLACK:g} σ: {_BELOW_BLACK_ADVICE}"
@@ -862,27 +869,17 @@ def _diffuse_only(
     if wrong:
         return wrong
     resid = y - x[:, None] * rd
+    tail = cutoff.note()
     return unmeasured_entry(
         region,
         rd,
         rd_se,
-        reason=reason,
-        theta_c_deg=DIFFUSE_ONLY_BETA_DEG,
+        reason=reason if tail is None else f"{reason}; {tail}",
+        theta_c_deg=cutoff.beta_deg,
         pixels=PixelCounts(diffuse=int(far.sum()), highlight=0),
         residual_rms=float(np.sqrt((resid**2).mean())),
         estimator=method,
     )
-
-
-def _patch_rd_se(x: np.ndarray, resid: np.ndarray, patch: np.ndarray) -> np.ndarray:
-    """(C,) the cluster-robust standard error of the least-squares Rd = Σ x·I / Σ x² (x (M,), its residuals
-    (M, C)), the pixels of a patch (``patch`` (M,) int) summed before squaring: (Σ_g (Σ_g x·r)²)^½ / Σ x²,
-    times √(G/(G − 1)); 0 with fewer than 2 patches (docs/fitting.md, "Standard errors")."""
-    groups, index = np.unique(patch, return_inverse=True)
-    if len(groups) < 2:
-        return np.zeros(resid.shape[1])
-    scores = np.stack([np.bincount(index, weights=x * r, minlength=len(groups)) for r in resid.T], axis=1)
-    return np.sqrt((scores**2).sum(axis=0) * len(groups) / (len(groups) - 1)) / (x @ x)
 
 
 def _beta_curve(fit: RegionFit, intensity, irradiance, cos_alpha, cos_beta, bins: int = 40) -> dict:
