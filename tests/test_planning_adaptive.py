@@ -260,7 +260,7 @@ def test_each_regions_factor_is_its_pilots_largest_relative_error_over_the_preci
 
 def test_a_later_round_asks_nothing_more_of_a_region_whose_error_stopped_following_its_pixels(tmp_path):
     """Round 2 against round 1's needs: a region whose highlight pixels grew 6× while its Rs standard error
-    stayed ±1.2 % (Spot's small region, counted by its few surface patches) is asked for no more samples,
+    stayed ±1.2 % (a small region, counted by its few surface patches) is asked for no more samples,
     and says why; one whose error fell as the square-root law says (4× the pixels, half the error) is asked
     (s/p)² as in round 1; so is one whose pixels grew too little to tell (1.2×); Rd is judged alike, from
     the diffuse-only pixels."""

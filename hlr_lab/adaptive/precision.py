@@ -37,8 +37,8 @@ MAX_FACTOR = 16.0
 DARK_RD = 0.02
 # A region whose pixels grew by at least GREW× since the last round, and whose standard error fell by less
 # than HELD of the square-root law's fall (on a log scale: 0.5 is a quarter-power law, where the law gives
-# a half), is limited by something photographs do not add to: on Spot a region of ~20 surface patches went
-# from 100 to 608 highlight pixels with its Rs standard error at 1.2 % both times
+# a half), is limited by something photographs do not add to: a small region's few surface patches, whose
+# shared misses the standard error counts (docs/fitting.md, "Standard errors: pixels and patches")
 GREW, HELD = 1.5, 0.5
 
 
