@@ -150,7 +150,7 @@ def _stopped_helping(
     """Why more samples would not bring ``what``'s standard error down (``se_pct`` from ``pixels``, against
     ``se_before`` from ``pixels_before`` a round earlier): its pixels grew GREW× or more and it fell by
     less than HELD of the square-root law's fall; or None."""
-    if se_before is None or not pixels_before or pixels < GREW * pixels_before:
+    if not se_before or not pixels_before or pixels < GREW * pixels_before:
         return None
     grew = pixels / pixels_before
     if math.log(se_before / se_pct) >= HELD * 0.5 * math.log(grew):

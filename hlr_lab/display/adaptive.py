@@ -30,10 +30,8 @@ def cones_table(outcome: AdaptiveOutcome, prior_deg: dict[int, float]) -> Table:
 def adaptive_lines(outcome: AdaptiveOutcome) -> list[str]:
     """The poses the run took against the plan's, and the regions the re-plan leaves short."""
     r, rounds = outcome.replanned, outcome.added_per_round
-    added, made = (
-        outcome.photographed_poses - len(outcome.pilot),
-        f"the plan as made: {outcome.planned_poses}",
-    )
+    added = outcome.photographed_poses - len(outcome.pilot)
+    made = f"the plan as made: {outcome.planned_poses}"
     by = f"the re-plan added ({made})"
     if len(rounds) > 1:
         by = f"{len(rounds)} re-plans added ({' + '.join(map(str, rounds))}; {made})"
