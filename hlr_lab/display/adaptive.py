@@ -32,12 +32,10 @@ def adaptive_lines(outcome: AdaptiveOutcome) -> list[str]:
     r, rounds = outcome.replanned, outcome.added_per_round
     added = outcome.photographed_poses - len(outcome.pilot)
     made = f"the plan as made: {outcome.planned_poses}"
-    by = f"the re-plan added ({made})"
+    by = f"{added} the re-plan added ({made})"
     if len(rounds) > 1:
-        by = f"{len(rounds)} re-plans added ({' + '.join(map(str, rounds))}; {made})"
-    lines = [
-        f"photographed {outcome.photographed_poses} poses: the pilot's {len(outcome.pilot)} and {added} {by}"
-    ]
+        by = f"{added} added by {len(rounds)} re-plans ({' + '.join(map(str, rounds))}; {made})"
+    lines = [f"photographed {outcome.photographed_poses} poses: the pilot's {len(outcome.pilot)} and {by}"]
     lines += [f"[yellow]region {k}: {escape(why)}[/]" for k, why in sorted(r.short.items())]
     return lines
 
