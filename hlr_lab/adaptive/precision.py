@@ -94,38 +94,40 @@ def region_needs(
         if e is None:
             needs.append(RegionNeed(region.id, 0.0, 0.0, reason="not fitted: the plan's own samples"))
             continue
-        last = before.get(region.id)
-        rd_se, diffuse_px = _rd_se_pct(e), e.pixels.diffuse
-        diffuse, held_d = _factor(rd_se, precision_pct), None
-        if last is not None and diffuse > 1:
-            held_d = _stopped_helping("Rd", last.diffuse_se_pct, last.diffuse_pixels, rd_se, diffuse_px)
-            diffuse = 0.0 if held_d else diffuse
+        last = before.get(region.id) or RegionNeed(region.id, 0.0, 0.0)  # no earlier round to compare with
+        rd_se, px = _rd_se_pct(e), e.pixels
+        diffuse, why_d = _asked(
+            "Rd", rd_se, px.diffuse, last.diffuse_se_pct, last.diffuse_pixels, precision_pct
+        )
         if e.specular != "measured" or e.rs is None or e.rs_se is None or e.n is None or e.n_se is None:
-            why = "its highlight was not measured: the plan's own highlight samples"
-            needs.append(
-                RegionNeed(
-                    region.id,
-                    0.0,
-                    diffuse,
-                    diffuse_se_pct=rd_se,
-                    diffuse_pixels=diffuse_px,
-                    reason=_joined(why, held_d or _capped("Rd", rd_se, precision_pct)),
-                )
-            )
+            why = _joined("its highlight was not measured: the plan's own highlight samples", why_d)
+            needs.append(RegionNeed(region.id, 0.0, diffuse, diffuse_se_pct=rd_se, diffuse_pixels=px.diffuse,
+                                    reason=why))  # fmt: skip
             continue
         rs, rs_se = np.asarray(e.rs), np.asarray(e.rs_se)
         lobe_se = max(float(np.max(100 * rs_se / np.maximum(rs, DARK_RD))), 100 * e.n_se / e.n)
-        highlight_px, highlight, held_h = e.pixels.highlight, _factor(lobe_se, precision_pct), None
-        if last is not None and highlight > 1:
-            held_h = _stopped_helping(
-                "Rs, n", last.highlight_se_pct, last.highlight_pixels, lobe_se, highlight_px
-            )
-            highlight = 0.0 if held_h else highlight
-        why = _joined(
-            held_h or _capped("Rs, n", lobe_se, precision_pct), held_d or _capped("Rd", rd_se, precision_pct)
-        )
-        needs.append(RegionNeed(region.id, highlight, diffuse, lobe_se, rd_se, why, highlight_px, diffuse_px))
+        highlight, why_h = _asked("Rs, n", lobe_se, px.highlight, last.highlight_se_pct, last.highlight_pixels,
+                                  precision_pct)  # fmt: skip
+        needs.append(RegionNeed(region.id, highlight, diffuse, lobe_se, rd_se, _joined(why_h, why_d),
+                                px.highlight, px.diffuse))  # fmt: skip
     return needs
+
+
+def _asked(
+    what: str,
+    se_pct: float,
+    pixels: int,
+    se_before: float | None,
+    pixels_before: int | None,
+    precision_pct: float,
+) -> tuple[float, str | None]:
+    """``what``'s factor for ``precision_pct`` from its standard error ``se_pct`` (per cent, from ``pixels``),
+    and why it is 0 — its error stopped following its pixels since the last round's ``se_before`` from
+    ``pixels_before`` — or held at MAX_FACTOR; None for a factor as the square-root law gives it."""
+    factor = _factor(se_pct, precision_pct)
+    if factor > 1 and (held := _stopped_helping(what, se_before, pixels_before, se_pct, pixels)):
+        return 0.0, held
+    return factor, _capped(what, se_pct, precision_pct)
 
 
 def _factor(se_pct: float, precision_pct: float) -> float:

@@ -77,13 +77,15 @@ def diffuse_cutoff(
     ``x`` (N,) L·cos α, ``intensity`` (N, C), ``cos_beta`` (N,), ``patch`` (N,) int; a cutoff keeps at least
     ``min_pixels`` pixels (BETA_DEG when even it does not)."""
     beta = np.degrees(np.arccos(np.clip(cos_beta, -1.0, 1.0)))
-    cuts, rds, ses, weights = [], [], [], []
+    cuts, rds, ses, weights, counted = [], [], [], [], -1
     for cut in np.arange(BETA_DEG, 90.0, STEP_DEG):
         far = beta > cut
-        if far.sum() < min_pixels:
+        count = int(far.sum())
+        if count < min_pixels:
             break
-        if cuts and far.sum() == int((beta > cuts[-1]).sum()):
+        if count == counted:
             continue  # the same pixels as the nearer cutoff: nothing to compare
+        counted = count
         rd = least_squares_rd(x[far], intensity[far])
         cuts.append(float(cut))
         rds.append(rd)
