@@ -15,7 +15,7 @@ from hlr_lab.object.raycast import RayCaster
 from hlr_lab.object.segment import segment
 from hlr_lab.planning.diffuse import COARSE_COUNT_FROM_PX, diffuse_counts
 from hlr_lab.planning.geometry import light_sphere, mirror_highlights, placement
-from hlr_lab.planning.greedy import select_lights
+from hlr_lab.planning.greedy import BEST_SHARE, MIN_GAIN, NEED_SHARE, select_lights
 from hlr_lab.planning.planner import (
     PlanResult,
     PlanSettings,
@@ -272,6 +272,34 @@ def test_greedy_never_accepts_an_overestimated_light():
     )
     assert sel.choices[0].candidate == 1
     assert sel.choices[0].counts[0] == 80.0
+
+
+def test_a_light_giving_a_region_a_few_of_the_hundreds_it_needs_is_not_taken():
+    """The chase along a border: once the good lights (90 samples each) are used, lights adding 3 to a
+    region that needs 450 (below both NEED_SHARE of its need and BEST_SHARE of its best light's) are left,
+    and the region stays short; a light that finishes a region is taken however little it adds; where a
+    region needs few samples, or no light gives it many (vertex counts), a sample is worth a light."""
+    few = np.array([[90.0, 0.0], [80.0, 0.0]] + [[3.0, 0.0]] * 40)
+    evaluate = lambda v, q, need: few[q]  # noqa: E731 - exact = estimate here
+    sel = select_lights(lambda v: few, 1, evaluate, np.array([450.0, 0.0]), capped=True, max_lights=64)
+    assert [c.candidate for c in sel.choices] == [0, 1]
+    assert not sel.hit_light_limit
+    assert min(NEED_SHARE * 450, BEST_SHARE * 90) > 3 >= MIN_GAIN
+    finishing = select_lights(lambda v: few, 1, evaluate, np.array([173.0, 0.0]), capped=True, max_lights=64)
+    assert [c.candidate for c in finishing.choices] == [0, 1, 2]
+    # the lights photographed before the plan count: 3 is below a tenth of a pilot's 90, and 2 % of 540
+    rest = few[2:]
+    sel = select_lights(lambda v: rest, 1, lambda v, q, need: rest[q], np.array([450.0, 0.0]), capped=True,
+                        max_lights=64, photographed=np.array([[90.0, 0.0]]))  # fmt: skip
+    assert sel.choices == []
+    for need, counts in (
+        (50.0, [[20.0, 0.0]] + [[1.0, 0.0]] * 30),
+        (400.0, [[5.0, 0.0]] * 8 + [[1.0, 0.0]] * 8),
+    ):
+        c = np.array(counts)
+        sel = select_lights(lambda v, c=c: c, 1, lambda v, q, n, c=c: c[q], np.array([need, 0.0]), capped=True,
+                            max_lights=64)  # fmt: skip
+        assert len(sel.choices) == len(c)  # a sample is worth a light here
 
 
 def test_auto_views_start_at_zero_and_respect_limits():

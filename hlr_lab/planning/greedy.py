@@ -19,6 +19,15 @@ import numpy as np
 
 # A light must add at least this much (count unit) to be worth a photograph, or all that is still needed.
 MIN_GAIN = 1.0
+# ... and give some short region a share of what it needs (or all it lacks): the smaller of NEED_SHARE of
+# what it needs in all (the lights photographed before the plan included) and BEST_SHARE of the most one
+# light gives it. A light adding 3
+# pixels to a region that needs 450 more, whose best light gave 90, is chasing the rest of a highlight
+# along the region's border, where the fit takes none (docs/planning.md, step 3). Where a region needs
+# few samples, or no light gives it many (vertex counts), the floor stays at MIN_GAIN: below M = 50
+# (NEED_SHARE × 50 = 1) always, so plans for the default M are what they were without it.
+NEED_SHARE = 0.02
+BEST_SHARE = 0.10
 # Accept the best exactly-scored light when no estimate beats it by more than this fraction: estimates
 # come from coarser samples than the exact counts, and chasing the last per cent costs many ray casts.
 TOLERANCE = 0.05
@@ -65,6 +74,7 @@ def select_lights(
     max_lights: int,
     first_views: Sequence[int] = (0,),
     taken: Sequence[Choice] = (),
+    photographed: np.ndarray | None = None,
 ) -> Selection:
     """Choose lights until every region's need is met, nothing more helps, or ``max_lights``.
 
@@ -72,9 +82,15 @@ def select_lights(
     exact counts overwrite them); ``evaluate(v, q, need)`` the exact (R,) counts (it may refine the
     candidate for the current need). Views beyond ``first_views`` are opened only when the open ones
     cannot help any more (each new view is a turntable move). ``taken``: lights already chosen (their
-    views open), which the selection goes on from.
+    views open), which the selection goes on from. ``photographed`` (K, R): the exact counts of the lights
+    photographed before this plan, which ``need`` already leaves out; with ``need`` they set the floor a
+    light must clear (what each region needs in all, and the most one light gives it).
     """
     need = need.astype(np.float64).copy()
+    before = np.zeros((0, len(need))) if photographed is None else np.asarray(photographed, dtype=np.float64)
+    share_of_need = NEED_SHARE * (np.maximum(need, 0.0) + before.sum(axis=0))  # (R,)
+    # (R,) the most one light gives each region: photographed, chosen, or estimated in the views opened
+    most = before.max(axis=0, initial=0.0)
     estimates: dict[int, np.ndarray] = {}
     exact: dict[int, np.ndarray] = {}
     used: list[int] = []
@@ -83,6 +99,7 @@ def select_lights(
         if v not in estimates:
             estimates[v] = np.array(estimates_of(v), dtype=np.float64, copy=True)
             exact[v] = np.zeros(len(estimates[v]), bool)
+            np.maximum(most, estimates[v].max(axis=0, initial=0.0), out=most)
 
     for v in dict.fromkeys([*first_views, *(c.view for c in taken)]):
         ensure(v)
@@ -90,9 +107,11 @@ def select_lights(
     choices: list[Choice] = list(taken)
     for c in taken:
         need -= c.counts
+        np.maximum(most, c.counts, out=most)
         estimates[c.view][c.candidate] = 0.0
     while (need > 0).any() and len(choices) < max_lights:
-        best = _best(estimates, exact, used, need, capped, evaluate)
+        floor = _gain_floor(share_of_need, most)
+        best = _best(estimates, exact, used, need, floor, capped, evaluate)
         if best is None:
             unopened = [v for v in range(n_views) if v not in used]
             if not unopened:
@@ -100,7 +119,8 @@ def select_lights(
             for v in unopened:
                 ensure(v)
             # open the view whose best estimate is highest (ties: the earlier view)
-            gains = {v: score(estimates[v], need, capped).max(initial=0.0) for v in unopened}
+            floor = _gain_floor(share_of_need, most)
+            gains = {v: _worth(estimates[v], need, floor, capped).max(initial=0.0) for v in unopened}
             v_best = max(unopened, key=lambda v: (gains[v], -v))
             if gains[v_best] < _min_gain(need):
                 break
@@ -110,6 +130,7 @@ def select_lights(
         counts = estimates[v][q].copy()
         choices.append(Choice(v, q, counts))
         need -= counts
+        np.maximum(most, counts, out=most)
         estimates[v][q] = 0.0  # the same light again would photograph the same pixels
     views_used = sorted({c.view for c in choices}, key=[c.view for c in choices].index)
     return Selection(
@@ -139,16 +160,35 @@ def prune(selection: Selection, min_samples: float | np.ndarray) -> Selection:
     return Selection(choices, views_used, selection.hit_light_limit)
 
 
+def _gain_floor(share_of_need: np.ndarray, most: np.ndarray) -> np.ndarray:
+    """(R,) what a light must give a region to count for it: the smaller of ``share_of_need`` (R,) and
+    BEST_SHARE of ``most`` (R,), at least MIN_GAIN (or all it lacks, :func:`_gives_a_share`)."""
+    return np.maximum(MIN_GAIN, np.minimum(share_of_need, BEST_SHARE * most))
+
+
 def _min_gain(need: np.ndarray) -> float:
     """What a light must add to be chosen: MIN_GAIN, or less when a region is short by less than that."""
     short = need[need > 0]
     return min(MIN_GAIN, float(short.min())) if len(short) else MIN_GAIN
 
 
-def _best(estimates, exact, used, need, capped, evaluate):
-    """The (view, candidate) to accept among the open views, or None when nothing gains MIN_GAIN."""
+def _gives_a_share(counts: np.ndarray, need: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """(Q,) bool: the lights with per-region ``counts`` (Q, R) that give some region still short (``need``
+    (R,) > 0) its ``floor`` (R,, :func:`_gain_floor`) or all it lacks."""
+    short = need > 0
+    given = np.minimum(counts[:, short], need[short])  # (Q, S) what each light gives the short regions
+    return np.any(given >= np.minimum(floor[short], need[short]) - 1e-9, axis=1)
+
+
+def _worth(estimates: np.ndarray, need: np.ndarray, floor: np.ndarray, capped: bool) -> np.ndarray:
+    """(Q,) each candidate's score, 0 where it gives no short region its share (:func:`_gives_a_share`)."""
+    return np.where(_gives_a_share(estimates, need, floor), score(estimates, need, capped), 0.0)
+
+
+def _best(estimates, exact, used, need, floor, capped, evaluate):
+    """The (view, candidate) to accept among the open views, or None when no light is worth taking."""
     for _ in range(MAX_EVALUATIONS):
-        best_exact, best_estimate = _top(estimates, exact, used, need, capped)
+        best_exact, best_estimate = _top(estimates, exact, used, need, floor, capped)
         if best_estimate is None or (
             best_exact is not None and best_exact[2] >= (1 - TOLERANCE) * best_estimate[2]
         ):
@@ -156,17 +196,17 @@ def _best(estimates, exact, used, need, capped, evaluate):
         v, q, _ = best_estimate
         estimates[v][q] = evaluate(v, q, need)
         exact[v][q] = True
-    best_exact, _ = _top(estimates, exact, used, need, capped)
+    best_exact, _ = _top(estimates, exact, used, need, floor, capped)
     return None if best_exact is None else best_exact[:2]
 
 
-def _top(estimates, exact, used, need, capped):
+def _top(estimates, exact, used, need, floor, capped):
     """Best (view, candidate, score) among exactly scored and among estimated candidates (None below the
     minimum gain)."""
     worth = _min_gain(need)
     best: dict[bool, tuple[int, int, float] | None] = {True: None, False: None}
     for v in used:
-        s = score(estimates[v], need, capped)
+        s = _worth(estimates[v], need, floor, capped)
         for is_exact in (True, False):
             masked = np.where(exact[v] == is_exact, s, -np.inf)
             q = int(np.argmax(masked)) if len(masked) else -1

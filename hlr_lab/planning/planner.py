@@ -350,6 +350,9 @@ def plan_lights(
     planner = _Planner(placed, segmentation, rig, settings, caster, clock, taken)
     given = [planner.taken_light(i, t) for i, t in enumerate(taken)]
     had = np.sum([light.expected for light in given], axis=0) + np.zeros(segmentation.n_regions)
+    planner.photographed = np.array([light.expected for light in given]).reshape(
+        len(given), segmentation.n_regions
+    )
     # a precision's needs are multiples of what the taken lights give, which only the planner can count
     settings = planner.settings = _resolved(settings, given, segmentation.n_regions)
     needed, diffuse_needed = (
@@ -435,6 +438,7 @@ class _Planner:
         self.rig, self.settings = rig, settings
         self.n_regions = segmentation.n_regions
         self.n_taken = len(taken)
+        self.photographed = np.zeros((0, self.n_regions))  # (K, R) the taken lights' exact counts
         self.theta_c = settings.theta_c_rad(self.n_regions)  # (R,)
         # the grid and the pools follow the narrowest cone: coarser ones would step over its highlights
         narrowest_deg = float(np.degrees(self.theta_c.min(initial=np.radians(settings.theta_c_deg))))
@@ -559,6 +563,7 @@ class _Planner:
             capped=capped,
             max_lights=self.settings.max_lights - self.n_taken,  # the plan's lights, taken ones included
             taken=taken,
+            photographed=self.photographed,
         )
         refined = {key: self._refined[key][0] for key in ((c.view, c.candidate) for c in selection.choices)}
         return _Run(name, selection, refined)
@@ -812,8 +817,9 @@ class _Planner:
                 reasons[int(r)] = f"only {coverage[r]:.0f} of {m[r]:g} samples within --max-lights {limit}"
             else:
                 reasons[int(r)] = (
-                    f"only {coverage[r]:.0f} of {m[r]:g} samples: its remaining highlights are "
-                    "shadowed or at grazing light"
+                    f"only {coverage[r]:.0f} of {m[r]:g} samples: no light left gives it enough to be worth a "
+                    "photograph (its remaining highlights are shadowed, at grazing light, or a few pixels along "
+                    "its border)"
                 )
         return reasons
 
