@@ -21,11 +21,11 @@ import numpy as np
 MIN_GAIN = 1.0
 # ... and give some short region a share of what it needs (or all it lacks): the smaller of NEED_SHARE of
 # what it needs in all (the lights photographed before the plan included) and BEST_SHARE of the most one
-# light gives it. A light adding 3
-# pixels to a region that needs 450 more, whose best light gave 90, is chasing the rest of a highlight
-# along the region's border, where the fit takes none (docs/planning.md, step 3). Where a region needs
-# few samples, or no light gives it many (vertex counts), the floor stays at MIN_GAIN: below M = 50
-# (NEED_SHARE × 50 = 1) always, so plans for the default M are what they were without it.
+# light gives it. A light adding 3 pixels to a region that needs 450 more, whose best light gave 90, is
+# chasing the rest of a highlight along the region's border, where the fit takes none (docs/planning.md,
+# "How lights are chosen", step 3). Where a region needs few samples, or no light gives it many (vertex
+# counts), the floor stays at MIN_GAIN: below M = 50 (NEED_SHARE × 50 = 1) always, so plans for the
+# default M are what they were without it.
 NEED_SHARE = 0.02
 BEST_SHARE = 0.10
 # Accept the best exactly-scored light when no estimate beats it by more than this fraction: estimates
