@@ -83,7 +83,7 @@ def _resume(folder: Path, out: str = "session") -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(900)  # measured 95 s on two quiet cores, 135 s in a full suite
+@pytest.mark.timeout(900)  # measured 55 s on two quiet cores, 124 s in a full suite (CI)
 def test_the_first_re_plan_asks_each_region_its_pilots_error_over_the_precision_squared(rounds):
     """Each factor is (s/p)² for the pilot's largest relative standard error s, at most 16× (the dim lobe's
     ±1.4 % asks 22×: held at 16, and said); each region's need is max(M, factor × what the pilot's poses
