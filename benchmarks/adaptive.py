@@ -42,12 +42,14 @@ CASES: dict[str, tuple[tuple[float, float], ...]] = {
 @dataclass(frozen=True)
 class RunFigures:
     """One way of photographing a case: the poses photographed, the worst |error| per parameter (%,
-    over every region and channel), the regions without a measured specular, and its θc per region."""
+    over every region and channel), the regions without a measured specular, its θc per region, and the
+    worst |error| in stated standard errors (over every parameter: whether the errors are the noise)."""
 
     poses: int
     worst_pct: dict[str, float]
     unmeasured: list[int]
     theta_c_deg: dict[int, float]
+    worst_z: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -108,7 +110,8 @@ def run_case(folder: Path, case: str, name: str, rig: Rig, *, assets: Path | Non
         fitted = fit_into(session).materials
         result = scene_result(0, name, fitted, by_id)
         runs[how] = RunFigures(poses, _worst(result), result.unmeasured,
-                               {e.id: round(e.theta_c_deg, 2) for e in fitted.regions})  # fmt: skip
+                               {e.id: round(e.theta_c_deg, 2) for e in fitted.regions},
+                               max((x.z for x in result.parameters), default=float("nan")))  # fmt: skip
     assert adaptive is not None
     return CaseFigures(case, name, runs["planned"], runs["adaptive"], len(adaptive.pilot),
                        adaptive.photographed_poses - len(adaptive.pilot), adaptive.replanned.short)  # fmt: skip
@@ -155,6 +158,7 @@ def case_line(f: CaseFigures) -> str:
             f"{f.adaptive.poses:6d} ({f.pilot}+{f.added})  {cells(f.adaptive)}")  # fmt: skip
     theta = sorted(set(f.adaptive.theta_c_deg.values()))
     line += f"; fitted θc {theta[0]:.1f}–{theta[-1]:.1f}°" if theta else ""
+    line += f"; worst |error|/σ {f.planned.worst_z:.1f} and {f.adaptive.worst_z:.1f}"
     for how, r in (("planned", f.planned), ("adaptive", f.adaptive)):
         if r.unmeasured:
             line += f"; {how}: specular unmeasured in {r.unmeasured}"

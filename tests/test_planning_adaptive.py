@@ -298,3 +298,15 @@ def test_a_later_round_asks_nothing_more_of_a_region_whose_error_stopped_followi
     alone = region_needs(plan, fitted, 0.5)  # round 1: nothing to compare with
     assert alone[0].highlight_factor == pytest.approx((1.2 / 0.5) ** 2)
     assert alone[3].diffuse_factor == pytest.approx(4.0)
+
+
+def test_the_adaptive_benchs_line_puts_each_runs_worst_error_in_standard_errors_beside_its_per_cent():
+    """``bench adaptive`` prints, per case, the poses and worst errors of both runs, and each run's worst
+    |error| in its stated standard errors: whether a difference between the two is the noise."""
+    from benchmarks.adaptive import CaseFigures, RunFigures, case_line
+
+    planned = RunFigures(5, {"rd": 0.02, "rs": 2.97, "n": 2.25}, [], {0: 5.0}, worst_z=1.96)
+    adaptive = RunFigures(12, {"rd": 0.01, "rs": 6.3, "n": 2.54}, [], {0: 2.6, 1: 4.7}, worst_z=2.71)
+    line = case_line(CaseFigures("narrow", "pebble", planned, adaptive, 3, 9, {}))
+    assert line.split()[:9] == ["narrow", "pebble", "5", "0.02", "2.97", "2.25", "12", "(3+9)", "0.01"]
+    assert "fitted θc 2.6–4.7°; worst |error|/σ 2.0 and 2.7" in line
