@@ -49,7 +49,7 @@ class RunFigures:
     worst_pct: dict[str, float]
     unmeasured: list[int]
     theta_c_deg: dict[int, float]
-    worst_z: float = float("nan")
+    worst_z: float
 
 
 @dataclass(frozen=True)

@@ -349,10 +349,8 @@ def plan_lights(
     clock.lap("proxy")
     planner = _Planner(placed, segmentation, rig, settings, caster, clock, taken)
     given = [planner.taken_light(i, t) for i, t in enumerate(taken)]
-    had = np.sum([light.expected for light in given], axis=0) + np.zeros(segmentation.n_regions)
-    planner.photographed = np.array([light.expected for light in given]).reshape(
-        len(given), segmentation.n_regions
-    )
+    planner.photographed = np.array([light.expected for light in given]).reshape(-1, segmentation.n_regions)
+    had = planner.photographed.sum(axis=0)  # (R,)
     # a precision's needs are multiples of what the taken lights give, which only the planner can count
     settings = planner.settings = _resolved(settings, given, segmentation.n_regions)
     needed, diffuse_needed = (
