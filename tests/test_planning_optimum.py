@@ -137,6 +137,40 @@ def test_a_bound_of_two_met_by_a_pair_is_proven_without_an_integer_programme(mon
     assert solved  # the rounded programme ran for the proof
 
 
+def test_a_proof_the_rounding_has_made_too_weak_to_say_anything_is_not_run(monkeypatch):
+    """Counts of a few samples each (vertex counts) rounded up to 10 % of M merge into a few kinds whose LP
+    relaxation is lights below the true one: the rounded programme could prove nothing new, so only the
+    search on the true counts runs, and the outcome is the same as with the proof."""
+    import hlr_lab.planning.optimum as optimum
+
+    solved = []
+    real_solve = optimum._solve
+
+    def counting_solve(kinds, *args):
+        solved.append(kinds)
+        return real_solve(kinds, *args)
+
+    monkeypatch.setattr(optimum, "_solve", counting_solve)
+    rng = np.random.default_rng(3)
+    counts = (rng.integers(0, 13, size=(4000, 8)) * (rng.random((4000, 8)) < 0.5)).astype(float)
+    target = np.full(8, 50.0)
+    found = minimum_cover(counts, target, incumbent=9, budget_s=30.0)  # 9: the greedy's lights
+    assert len(solved) == 1  # the true counts' search alone: its kinds are rows of the counts
+    assert np.isin(solved[0], np.arange(13)).all()
+    assert len(np.unique(solved[0])) == 13
+    assert found.cover is not None
+    assert np.all(np.minimum(counts[found.cover], target).sum(axis=0) >= target - 1e-6)
+    assert (found.lower_bound, len(found.cover), found.proven) == (7, 7, True)
+
+    solved.clear()
+    monkeypatch.setattr(optimum, "_may_raise", lambda *args: True)
+    with_proof = minimum_cover(counts, target, incumbent=9, budget_s=30.0)
+    assert len(solved) == 2
+    assert len(np.unique(solved[0])) <= 4
+    assert with_proof.cover is not None
+    assert (with_proof.lower_bound, len(with_proof.cover), with_proof.status) == (7, 7, found.status)
+
+
 def test_identical_candidates_may_each_be_taken():
     """Three copies of one light, each giving a third of what the region needs: a cover takes all three
     (merged into one variable bounded by 3, the programme must not take the kind once)."""
@@ -200,7 +234,8 @@ def test_paper_41_bunny_needs_the_papers_two_lights(bunny_path, rig):
 
 
 def test_bench_plan_reports_the_fewest_lights_of_a_case():
-    name, placed, settings = optimum_objects(None, "z", 1.0, None)[2]  # builtin:pebble on the simulated rig
+    cases = {case[0]: case for case in optimum_objects(None, "z", 1.0, None)}
+    name, placed, settings = cases["builtin:pebble, sim rig"]
     line = optimum_report(optimum_figures(name, placed, settings))
     assert "builtin:pebble" in line
     assert "lower bound" in line

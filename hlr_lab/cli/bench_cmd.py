@@ -59,9 +59,10 @@ def bench() -> None:
 @click.option("--fewest/--no-fewest", default=True, help="Also the fewest-lights cases (about a minute).")
 def bench_plan(mesh_path, up, scale, min_vertices, assets, fewest) -> None:
     """Planning time and peak memory: the paper's 4.1 set-up (8 regions in view, sphere 2× the bounding
-    sphere, θc = 5°, one view, candidate spacing 0.5°) on the mesh and on it split to ``--large`` vertices
-    (a scan's claims checked on the mesh itself). Then the fewest lights: each case's lights against the
-    greedy's and the lower bound.
+    sphere, θc = 5°, one view, candidate spacing 0.5°; counted in pixels, and on the mesh itself also in
+    vertices as the paper counts) on the mesh and on it split to ``--large`` vertices (a scan's claims
+    checked on the mesh itself). Then the fewest lights: each case's lights against the greedy's and the
+    lower bound.
 
     \b
     Example:
