@@ -331,8 +331,8 @@ class OptimumFigures:
 def optimum_objects(mesh_path: Path | None, up: str, scale: float, assets: Path | None) -> list[tuple]:
     """``bench plan``'s cases for the fewest lights: (name, placed mesh, settings). The paper's set-up
     on ``mesh_path`` (8 regions; counted in pixels, then in vertices as the paper counts) and the same mesh
-    in 12 patches, builtin:pebble and the pebble in 14
-    patches on the simulated rig, and Spot when ``assets`` holds it."""
+    in 12 patches, builtin:pebble and the pebble in 14 patches on the simulated rig, and Spot when
+    ``assets`` holds it."""
     rig = sim_rig()
     base = load_mesh(mesh_path) if mesh_path else pebble().mesh
     name = Path(mesh_path).stem if mesh_path else "builtin:pebble"

@@ -223,11 +223,12 @@ def _rounded_kinds(columns: np.ndarray, top: float) -> tuple[np.ndarray, np.ndar
 
 def _may_raise(kinds: np.ndarray, multiplicity: np.ndarray, need: np.ndarray, lower: int) -> bool:
     """Whether the rounded programme over ``kinds`` (K, R), each up to ``multiplicity`` (K,) times, can
-    plausibly prove more than ``lower`` lights: its LP relaxation (milliseconds) is within one light of
-    ``lower`` + 1. Rounding up makes covers cheaper, and where it makes them much cheaper (vertex counts of
-    a few tens, rounded to 10 % of M: LP 7.5 against the true 9.9) the programme's minimum would have to
-    exceed its relaxation by two lights or more to say anything new, and HiGHS spent 0.2–0.4 s finding
-    that it does not (docs/planning.md, "How far from the fewest")."""
+    plausibly prove more than ``lower`` lights: its LP relaxation (milliseconds) exceeds ``lower`` − 1, so
+    that a minimum less than two lights above the relaxation would reach ``lower`` + 1. Rounding up makes
+    covers cheaper, and where it makes them much cheaper (vertex counts of a few tens, rounded to 10 % of
+    M: LP 7.5 against the true 9.9) the programme's minimum would have to exceed its relaxation by two
+    lights or more to say anything new, and HiGHS spent 0.2–0.4 s finding that it does not
+    (docs/planning.md, "How far from the fewest")."""
     relaxed = linprog(
         np.ones(len(kinds)),
         A_ub=-sparse.csr_array(kinds.T),
