@@ -45,7 +45,7 @@ from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.rig.file import Rig
 from hlr_lab.session.frames import store_frame
 from hlr_lab.session.journal import JOURNAL, Journal
-from hlr_lab.session.lamp import UNWATCHED, LampWatch, WarmUp, warm_up
+from hlr_lab.session.lamp import UNWATCHED, LampWatch, WarmUp, short_of_warm, warm_up
 
 PROCEDURE = "calibrate radiometric"
 DEFAULT_POSITIONS, DEFAULT_LEVELS = 6, 8
@@ -266,6 +266,10 @@ class RadiometricCalibration:
     power: float  # the rig file's [light] power, kept: sensitivity = S·Φ / power
     lamp_drift: float = 0.0  # the lamp's change over the white frames (divided out), a fraction
     reflectance_se: float = 0.0  # the white reference's, relative (its certificate's)
+    # the lamp's change over the warm-up (its last reading over its first − 1) and how far short of warm it
+    # still was (hlr_lab.session.lamp.short_of_warm); None without a warm-up. A run on this rig warms its
+    # lamp up and watches it when the change is large, and states the rest (docs/sessions.md, "The lamp")
+    lamp_warm_up: tuple[float, float] | None = None
 
     @property
     def sensitivity(self) -> float:
@@ -286,6 +290,8 @@ class RadiometricCalibration:
                 "worst_nonlinearity": round(self.transfer.worst_nonlinearity, 5),
                 "inverse_square_residual": round(self.lamp.inverse_square_residual, 5),
                 "lamp_drift_over_white_frames": round(self.lamp_drift, 5),
+                **({} if self.lamp_warm_up is None else {"lamp_warm_up_change": round(self.lamp_warm_up[0], 5),
+                                                          "lamp_short_of_warm": round(self.lamp_warm_up[1], 5)}),
                 "follows_inverse_square": self.lamp.follows_inverse_square,
                 # what the fit's systematic uncertainty takes (docs/fitting.md, "Systematic uncertainty")
                 "sensitivity_se_rel": float(f"{self.lamp.relative_se(self.reflectance_se):.3g}"),
@@ -353,9 +359,23 @@ def solve_radiometric(frames: list[RadiometricFrame], rig: Rig) -> RadiometricCa
         dark,
     )
     drift = float(relative[-1] - 1)
-    return RadiometricCalibration(
-        dark, transfer, sensitivity, rig.file.light.power, drift, white.reflectance_se
-    )
+    return RadiometricCalibration(dark, transfer, sensitivity, rig.file.light.power, drift, white.reflectance_se,
+                                  _warm_up_change(of("warm_up"), in_ref, dark))  # fmt: skip
+
+
+def _warm_up_change(
+    warming: list[RadiometricFrame], in_ref: Callable[[RadiometricFrame], np.ndarray], dark: Dark
+) -> tuple[float, float] | None:
+    """The lamp's change over the warm-up (its last reading over its first − 1) and how far short of warm
+    it still was (:func:`~hlr_lab.session.lamp.short_of_warm`), each reading the reference's mean signal
+    above the black level (one exposure, one warm-up step apart); None without a warm-up."""
+    if len(warming) < 2:
+        return None
+    ordered = sorted(warming, key=lambda f: f.captured_at)
+    levels = np.array([in_ref(f).mean() for f in ordered]) - dark.black_level_dn.mean()
+    if levels[0] <= 0:
+        return None
+    return float(levels[-1] / levels[0] - 1), short_of_warm(levels)
 
 
 def _pairs(frames: list[RadiometricFrame]) -> list[tuple[RadiometricFrame, RadiometricFrame]]:

@@ -52,7 +52,7 @@ from hlr_lab.reflectance.session_fit import (
 from hlr_lab.rig.file import Rig
 from hlr_lab.session.folder import check_session_folder
 from hlr_lab.session.journal import JOURNAL, read_journal
-from hlr_lab.session.lamp import UNWATCHED, LampWatch
+from hlr_lab.session.lamp import LampWatch, lamp_watch_for
 from hlr_lab.session.outputs import check_outputs, mesh_files
 from hlr_lab.session.stages import stage_lines
 
@@ -171,12 +171,13 @@ def acquire_plan(
     force: bool = False,
     progress: Callable[[Step], None] = lambda _: None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
-    lamp: LampWatch = UNWATCHED,
+    lamp: LampWatch | None = None,
     stage: tuple[PlanFile, Path] | None = None,
 ) -> Outcome:
     """Run the plan at ``plan_path`` on ``rig`` into ``session`` (created, or resumed): the motions are
     checked against the rig's limits before anything moves; adaptive bracketing watches the object's
-    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.session.lamp`), and a white reference
+    own pixels; ``lamp`` says how the lamp is watched (:mod:`hlr_lab.session.lamp`; None: as the rig's
+    radiometric calibration says, :func:`~hlr_lab.session.lamp.lamp_watch_for`), and a white reference
     beside the object (the rig file's ``run_place_m``) measures it in every pose instead of a reference
     pose (:mod:`hlr_lab.acquisition.white_reference`). ``links`` replace the rig file's device addresses (the
     simulated rig's endpoints).
@@ -194,6 +195,7 @@ def acquire_plan(
     # where the object may appear at each turntable angle, computed once per angle
     windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
     reference = reference_meter(rig, vertices, windows)
+    lamp = lamp or lamp_watch_for(rig)[0]
     if reference is not None and lamp.every:
         raise InputError(
             "the rig file's white reference lies beside the object during runs: the lamp is measured on it in "

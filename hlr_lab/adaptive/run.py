@@ -51,7 +51,7 @@ from hlr_lab.rig.file import Rig
 from hlr_lab.session.events import JournalLine, PilotLine, ReplanLine
 from hlr_lab.session.folder import check_session_folder
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
-from hlr_lab.session.lamp import UNWATCHED, LampWatch
+from hlr_lab.session.lamp import LampWatch
 from hlr_lab.session.metadata import read_record, session_plan
 from hlr_lab.session.stages import keep_stage_plan, stage_file, stage_lines, stage_plan, stage_round
 
@@ -109,7 +109,7 @@ def acquire_adaptive(
     force: bool = False,
     progress: Callable[[Step], None] = lambda _: None,
     on_start: Callable[[bool], None] = lambda _resumed: None,
-    lamp: LampWatch = UNWATCHED,
+    lamp: LampWatch | None = None,
     on_stage: Callable[[str], None] = lambda _: None,
     precision_pct: float | None = None,
     rounds: int | None = None,

@@ -51,7 +51,7 @@ from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.rig.file import Rig, load_rig, sim_rig
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
-from hlr_lab.session.lamp import LampWatch
+from hlr_lab.session.lamp import lamp_watch_for
 from hlr_lab.session.outputs import check_outputs
 from hlr_lab.session.space import MARGIN_BYTES, frame_bytes
 
@@ -88,9 +88,10 @@ class AcquireJob(StrictModel):
     true_rig: str | None = None  # with sim: the world's rig file
     scene: FilePath | None = None  # with sim: the world's scene file
     speed_factor: float = Field(default=1.0, gt=0, le=10_000)
-    warm_up_min: float = Field(default=0.0, ge=0, le=600)
+    # None: as the rig's radiometric calibration says of its lamp (hlr_lab.session.lamp.lamp_watch_for)
+    warm_up_min: float | None = Field(default=None, ge=0, le=600)
     warm_up_within: float = Field(default=0.2, ge=0.01, le=10)  # per cent per minute
-    lamp_every: int = Field(default=0, ge=0, le=10_000)
+    lamp_every: int | None = Field(default=None, ge=0, le=10_000)
     # ``register = true``: first measure where the object lies and run the plan made for it (OUT-placed.json);
     # named otherwise here, as pydantic's models have a ``register`` of their own
     register_first: bool = Field(default=False, alias="register")
@@ -415,9 +416,11 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
     from hlr_lab.registration import register_for_session
 
     rig = job_rig(job)
-    watch = LampWatch(
-        every=job.lamp_every, warm_up_s=60 * job.warm_up_min, stable_per_min=job.warm_up_within / 100
-    )
+    warm_up_s = None if job.warm_up_min is None else 60 * job.warm_up_min
+    watch, why = lamp_watch_for(rig, every=job.lamp_every, warm_up_s=warm_up_s,
+                                stable_per_min=job.warm_up_within / 100)  # fmt: skip
+    if why:
+        say(why)
     with contextlib.ExitStack() as world:
         try:
             links = links_for(job, world)

@@ -38,7 +38,7 @@ from hlr_lab.placement.photographs import registration_lamps
 from hlr_lab.registration import register_for_session
 from hlr_lab.registration.capture import VIEWS
 from hlr_lab.rig.file import Rig
-from hlr_lab.session.lamp import LampWatch
+from hlr_lab.session.lamp import LampWatch, lamp_watch_for
 
 
 @click.command("acquire")
@@ -73,13 +73,15 @@ from hlr_lab.session.lamp import LampWatch
 @click.option(
     "--lamp-every",
     type=click.IntRange(min=0),
-    default=0,
+    default=None,
     metavar="N",
-    help="Watch the lamp: photograph the plan's first pose again before the first pose, every N poses and "
-    "at the end; fit divides each pose's light by the lamp's output then (0: do not watch). A rig whose "
-    "white reference lies beside the object (run_place_m) watches it in every pose without this.",
+    help="Watch the lamp: photograph the plan's best-lit pose again before the first pose, every N poses and "
+    "at the end; fit divides each pose's light by the lamp's output then (0: do not watch). Default: 5 where "
+    "the rig's radiometric calibration saw the lamp warm up or drift, else 0 (docs/sessions.md, \"The "
+    'lamp"). A rig whose white reference lies beside the object (run_place_m) watches it in every pose '
+    "without this.",
 )
-@warm_up_options("Before the first pose", "; a resumed run does not wait again")
+@warm_up_options("Before the first pose", "; a resumed run does not wait again", as_calibrated=True)
 @click.option(
     "--register",
     "register_first",
@@ -187,7 +189,10 @@ def acquire_cmd(plan_path, rig_path, sim, true_rig, scene_path, object_offset, o
                     f"adaptive: the pilot takes {', '.join(pilot_poses(plan))}; the rest is planned again"
                 )
             return 0
-        lamp = LampWatch(every=lamp_every, warm_up_s=60 * warm_up_min, stable_per_min=warm_up_within / 100)
+        lamp, why = lamp_watch_for(rig, every=lamp_every, stable_per_min=warm_up_within / 100,
+                                   warm_up_s=None if warm_up_min is None else 60 * warm_up_min)  # fmt: skip
+        if why:
+            console.print(escape(why), soft_wrap=True)
         options = _RunOptions(
             links=links,
             bracket=Bracketing(dark_frames=dark_frames),

@@ -136,19 +136,27 @@ def speed_factor_option(subject: str, default: float = 1.0):
     )
 
 
-def warm_up_options(before: str, note: str = ""):
+def warm_up_options(before: str, note: str = "", *, as_calibrated: bool = False):
     """``--warm-up MINUTES`` and ``--warm-up-within PERCENT``: keep the lamp on ``before`` until it is
-    stable (acquire and calibrate radiometric take the same figures; defaults: :class:`LampWatch`')."""
+    stable (acquire and calibrate radiometric take the same figures; defaults: :class:`LampWatch`', or with
+    ``as_calibrated`` no default: the run's :func:`~hlr_lab.session.lamp.lamp_watch_for` decides)."""
     within = click.option(
         "--warm-up-within", "warm_up_within", type=Finite(min=0.01, max=10), metavar="PERCENT",
         default=100 * LampWatch.stable_per_min,
         help="The warm-up ends when the lamp's output changes by less than this per minute; use one figure for "
         "acquire and calibrate radiometric (a tighter one waits longer and leaves the lamp nearer its warm output).",
     )  # fmt: skip
+    default = (
+        "; default: 30 where the rig's radiometric calibration saw the lamp change by 0.5 % or more while "
+        "warming up, else 0"
+        if as_calibrated
+        else ""
+    )
     minutes = click.option(
-        "--warm-up", "warm_up_min", type=Finite(min=0), metavar="MINUTES", default=LampWatch.warm_up_s / 60,
+        "--warm-up", "warm_up_min", type=Finite(min=0), metavar="MINUTES",
+        default=None if as_calibrated else LampWatch.warm_up_s / 60, show_default=not as_calibrated,
         help=f"{before}, keep the lamp on until its output is stable (--warm-up-within), for at most MINUTES "
-        f"(0: no wait){note}.",
+        f"(0: no wait){note}{default}.",
     )  # fmt: skip
     return lambda f: minutes(within(f))
 

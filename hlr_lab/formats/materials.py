@@ -79,11 +79,12 @@ class MaterialEntry(OpenModel):
 
 class SystematicTerm(OpenModel):
     """One independent one-σ move of the rig the fit believed: what it moves, by how much, and whether
-    its σ came from a calibration's covariance, its standard errors, or the uncalibrated default."""
+    its σ came from a calibration's covariance, its standard errors, the uncalibrated default, or what the
+    radiometric calibration saw of the lamp (a run that did not watch it)."""
 
     name: str
     size: str
-    source: Literal["covariance", "standard errors", "uncalibrated"]
+    source: Literal["covariance", "standard errors", "uncalibrated", "lamp record"]
 
 
 class Systematic(OpenModel):

@@ -53,7 +53,7 @@ from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.alignment import PoseAlignment, pose_alignment
 from hlr_lab.reflectance.hdr import BracketFrame, Radiance, exposure_agreement, merge_bracket
-from hlr_lab.reflectance.systematic import RigTerm, placement_note, placement_terms, rig_terms
+from hlr_lab.reflectance.systematic import RigTerm, lamp_terms, placement_note, placement_terms, rig_terms
 from hlr_lab.reflectance.views import (
     DEFAULT_SELECTION,
     PixelGeometry,
@@ -148,23 +148,29 @@ class LampRecord:
     times: np.ndarray
     outputs: np.ndarray
     on_white_reference: bool = False  # measured on the white reference in the poses' own frames
+    warmed: bool = False  # the run warmed the lamp up first (a ``warm_up`` line)
 
     @classmethod
-    def unwatched(cls) -> LampRecord:
+    def unwatched(cls, warmed: bool = False) -> LampRecord:
         """No measurement: every pose under the rig file's power."""
-        return cls(np.zeros(0), np.zeros(0))
+        return cls(np.zeros(0), np.zeros(0), warmed=warmed)
 
     @classmethod
     def of_journal(cls, events: list[dict]) -> LampRecord:
         """The ``lamp`` lines measured against the latest baseline (a resumed run whose baseline frame was
         lost starts another; the poses before it then take the nearest later measurement)."""
+        warmed = any(e.get("event") == "warm_up" for e in events)
         lines = [e for e in events if e.get("event") == "lamp"]
         if not lines:
-            return cls.unwatched()
+            return cls.unwatched(warmed)
         baseline = lines[-1].get("baseline")
         kept = sorted((e["at"], e["output"]) for e in lines if e.get("baseline") == baseline)
         times, outputs = (np.array(v, float) for v in zip(*kept, strict=True))
-        return cls(times, outputs, baseline == WHITE_REFERENCE)
+        return cls(times, outputs, baseline == WHITE_REFERENCE, warmed)
+
+    @property
+    def watched(self) -> bool:
+        return len(self.times) > 0
 
     def at(self, t: float) -> float:
         return lamp_at(self.times, self.outputs, t)
@@ -478,7 +484,9 @@ def fit_session(
     if systematic and responds:
         with times("systematic"):
             placement = plan.object.placement
-            terms = [*rig_terms(rig, mesh.vertices), *placement_terms(placement, mesh.vertices.mean(axis=0))]
+            terms = [*rig_terms(rig, mesh.vertices), *placement_terms(placement, mesh.vertices.mean(axis=0)),
+                     *lamp_terms(rig, watched=session.lamp.watched, warmed=session.lamp.warmed,
+                                absolute=session.lamp.on_white_reference)]  # fmt: skip
             shifts = _systematic_shifts(session, caster, pooled, responds, terms, progress)
         entries = [_with_systematic(e, shifts.get(e.id), terms) for e in entries]
         record = _systematic_record(terms, shifts, diagnostics, method, placement_note(placement))

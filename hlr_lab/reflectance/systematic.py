@@ -16,6 +16,8 @@ quadrature into the systematic uncertainty of each parameter.
   (``[calibration.gantry] covariance``), every mode (no ray cast: the lamp alone moves).
 - The sensor: sensitivity × lamp power and the black level (``[calibration.radiometric]``
   ``sensitivity_se_rel``, ``black_level_se_dn``).
+- The lamp, where the run did not watch it: what the radiometric calibration saw it change while warming
+  up, or drift once warm (:func:`lamp_terms`).
 - The object's placement, when ``hlr-lab register`` measured it (the plan's ``object.placement``): its
   shift's and its turn's standard errors, six independent terms (each a ray cast of the samples). A
   placement only assumed has no standard error to give: the record says so (:func:`placement_note`).
@@ -42,6 +44,7 @@ from hlr_lab.geometry.camera import Camera
 from hlr_lab.geometry.sphere import rotation_z
 from hlr_lab.rig.file import CAMERA_PARAMETERS, GANTRY_PARAMETERS, Rig
 from hlr_lab.rig.kinematics import GantryKinematics
+from hlr_lab.session.lamp import LampFigures
 
 # a rig never calibrated: what the drawing of builtin:bench-offsets cost the fit of builtin:pebble
 # (docs/calibration.md, "End to end": worst region 19 % in Rd, 41 % in Rs and n with neither camera nor
@@ -54,7 +57,7 @@ CAMERA_MODES_KEPT = 0.99  # of the object's image movement
 _MAX_CAMERA_MODES = 6
 _IMAGE_POINTS = 300  # of the object, seen at four turntable angles, to measure the image's movement
 
-Source = Literal["covariance", "standard errors", "uncalibrated"]
+Source = Literal["covariance", "standard errors", "uncalibrated", "lamp record"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -227,6 +230,29 @@ def sensor_terms(rig: Rig) -> list[RigTerm]:
     return [
         RigTerm("sensitivity × power", f"{100 * relative:.3g} %", source, sensitivity_factor=1.0 + relative),
         RigTerm("black level", f"{black:.3g} DN", source, black_level_dn=sensor.black_level_dn + black),
+    ]
+
+
+def lamp_terms(rig: Rig, *, watched: bool, warmed: bool, absolute: bool) -> list[RigTerm]:
+    """The lamp's level in the run against the one the radiometric calibration measured sensitivity ×
+    power at (the lamp warmed up, still :attr:`~hlr_lab.session.lamp.LampFigures.short_of_warm` below
+    warm), one term: none where the run measured it ``absolute`` (a white reference beside the object);
+    else the span it may lie in, as one σ (the span is an estimate good to a factor of two:
+    :func:`~hlr_lab.session.lamp.short_of_warm`) — from short of warm to warm for a run ``warmed`` up (it
+    may have been on for hours), from cold (the calibration's warm-up change below) to warm for one not;
+    a ``watched`` run's reference frames measure the lamp relative to its first, not that — and, for a run
+    not watched, at least the warm lamp's move over the calibration's white frames. None where the record
+    says nothing of the lamp (docs/fitting.md, "Systematic uncertainty")."""
+    seen = LampFigures.of(rig)
+    if absolute:
+        return []
+    span = abs(seen.short_of_warm) + (0.0 if warmed else abs(seen.warm_up_change))
+    share = max(span, 0.0 if watched else abs(seen.drift))
+    if not share:
+        return []
+    state = "watched" if watched else "warmed up, not watched" if warmed else "neither warmed up nor watched"
+    return [
+        RigTerm(f"lamp level ({state})", f"{100 * share:.3g} %", "lamp record", sensitivity_factor=1 + share)
     ]
 
 
