@@ -561,7 +561,7 @@ def test_the_simulated_world_can_be_a_rig_other_than_the_one_believed(builtin_pl
     assert _lamp_believed_and_true(tmp_path / "known", load_rig(true_file)).max() < 1e-9
     assert main([*common[:4], "--true-rig", "builtin:no-such-rig", "--out", str(tmp_path / "x")]) == 1
     assert (
-        "no such built-in true rig; known: builtin:bench-night, builtin:bench-offsets"
+        "no such built-in true rig; known: builtin:bench-night, builtin:bench-offsets, builtin:bench-other"
         in capsys.readouterr().err
     )
 
