@@ -445,11 +445,11 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     """The issue's figure, on the drawing's geometry with builtin:bench-night's sensor and lamp (S·Φ
     22.6 % below the nominal, the lamp cold at the start of each command, then fading, flickering — here
     −4 % per hour, four times bench-night's, so that 20 poses see a few tenths of a per cent of drift):
-    `calibrate radiometric --warm-up 30`, then a 20-pose run of builtin:pebble's plan with `--warm-up 30
-    --lamp-every 5` (at 640×480), then `fit`: every region's Rd within 1 % of the truth in absolute terms
-    (measured 0.32 %; at −2 % per hour 0.37 %, 0.28–0.32 % at 40 poses, 0.07–0.42 % at the full film);
-    `fit --no-lamp-correction` differs from it by the lamp's measured output over the run, and the report
-    says by how much."""
+    `calibrate radiometric --warm-up 30`, then a 20-pose run of builtin:pebble's plan (at 640×480) that
+    warms up and watches the lamp every 5 poses as that calibration's record says, then `fit`: every
+    region's Rd within 1 % of the truth in absolute terms (measured 0.32 %; at −2 % per hour 0.37 %,
+    0.28–0.32 % at 40 poses, 0.07–0.42 % at the full film); `fit --no-lamp-correction` differs from it by
+    the lamp's measured output over the run, and the report says by how much."""
     from benchmarks.acquire import repeated_poses
     from hlr_lab.cli.main import main
     from hlr_lab.formats.materials import read_materials
@@ -485,8 +485,11 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     plan = tmp_path / "plan.json"
     write_plan(plan, repeated_poses(read_plan(tmp_path / "p.json"), 20))
     session = tmp_path / "s"
-    assert main(["acquire", "--plan", str(plan), "--rig", str(calibrated), *fast, "--warm-up", "30",
-                 "--lamp-every", "5", "--out", str(session)]) == 0, capsys.readouterr().err  # fmt: skip
+    # neither --warm-up nor --lamp-every: the calibration's record asks for both (30 min at most, every 5)
+    capsys.readouterr()
+    assert main(["acquire", "--plan", str(plan), "--rig", str(calibrated), *fast, "--out", str(session)]) == 0
+    said = capsys.readouterr()
+    assert "the lamp is warmed up (at most 30 min) and watched every 5 poses" in said.out + said.err
     truth = dict(zip((r.id for r in read_plan(plan).object.regions), sim_scene(read_plan(plan), plan, None).materials,
                      strict=True))  # fmt: skip
 
@@ -503,6 +506,8 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     corrected, uncorrected = rd(session / "materials.json"), rd(tmp_path / "uncorrected.json")
     events = [json.loads(line) for line in (session / "journal.jsonl").read_text().splitlines()]
     outputs = [e["output"] for e in events if e["event"] == "lamp"]
+    assert [e["event"] for e in events].count("warm_up") == 1
+    assert len(outputs) == 5  # before the first pose, after every fifth, and at the end
     worst = max(float(np.max(np.abs(corrected[i] / truth[i].rd - 1))) for i in corrected)
     assert worst < 0.01  # 0.32 % measured
     # The correction divides each pose's light by the lamp's measured output, so without it every Rd is
