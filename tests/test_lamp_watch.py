@@ -525,3 +525,4 @@ def test_the_nights_figure_rd_within_one_per_cent_with_the_correction(tmp_path, 
     assert main(["report", str(session)]) == 0
     page = (session / "report.html").read_text()
     assert re.search(r"without that, the poses' light would have been off by up to \d\.\d\d %", page)
+    assert f"The lamp level (watched): {100 * seen.short_of_warm:.3g} % of sensitivity × power" in page

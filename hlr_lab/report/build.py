@@ -238,6 +238,13 @@ def _uncertainty_note(materials: MaterialsFile) -> str:
     for left_out in (record.uncalibrated, record.placement):
         if left_out:
             text += f" <b>{h.escape(left_out)}.</b>"
+    # the one term a user can remove at the rig: the lamp's level, where nothing measured it absolutely
+    for lamp in (t for t in record.terms if t.source == "lamp record"):
+        text += (
+            f" The {h.escape(lamp.name)}: {h.escape(lamp.size)} of sensitivity × power, from what the "
+            "radiometric calibration saw of the lamp; a white reference beside the object measures it in "
+            'every pose (docs/sessions.md, "The lamp").'
+        )
     return f'<p class="note">{text}</p>'
 
 
