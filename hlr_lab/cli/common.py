@@ -147,8 +147,8 @@ def warm_up_options(before: str, note: str = "", *, as_calibrated: bool = False)
         "acquire and calibrate radiometric (a tighter one waits longer and leaves the lamp nearer its warm output).",
     )  # fmt: skip
     default = (
-        "; default: 30 where the rig's radiometric calibration saw the lamp change by 0.5 % or more while "
-        "warming up, else 0"
+        "; default: 30 where the rig's radiometric calibration saw the lamp 0.5 % or more below warm when "
+        "first lit, else 0"
         if as_calibrated
         else ""
     )

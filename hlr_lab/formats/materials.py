@@ -80,7 +80,7 @@ class MaterialEntry(OpenModel):
 class SystematicTerm(OpenModel):
     """One independent one-σ move of the rig the fit believed: what it moves, by how much, and whether
     its σ came from a calibration's covariance, its standard errors, the uncalibrated default, or what the
-    radiometric calibration saw of the lamp (a run that did not watch it)."""
+    radiometric calibration saw of the lamp (a run that did not measure it absolutely)."""
 
     name: str
     size: str
