@@ -268,7 +268,8 @@ class RadiometricCalibration:
     reflectance_se: float = 0.0  # the white reference's, relative (its certificate's)
     # the lamp's change over the warm-up (its last reading over its first − 1) and how far short of warm it
     # still was (hlr_lab.session.lamp.short_of_warm); None without a warm-up. A run on this rig warms its
-    # lamp up and watches it when the change is large, and states the rest (docs/sessions.md, "The lamp")
+    # lamp up and watches it when the two together are large (hlr_lab.session.lamp.lamp_watch_for), and fit
+    # states the rest (docs/sessions.md, "The lamp")
     lamp_warm_up: tuple[float, float] | None = None
 
     @property

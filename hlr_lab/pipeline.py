@@ -195,7 +195,8 @@ def acquire_plan(
     # where the object may appear at each turntable angle, computed once per angle
     windows = functools.cache(lambda turntable_deg: object_window(rig.camera, vertices, turntable_deg))
     reference = reference_meter(rig, vertices, windows)
-    lamp = lamp or lamp_watch_for(rig)[0]
+    if lamp is None:
+        lamp = lamp_watch_for(rig)[0]
     if reference is not None and lamp.every:
         raise InputError(
             "the rig file's white reference lies beside the object during runs: the lamp is measured on it in "
