@@ -1,13 +1,14 @@
 """``hlr-lab acquire --adaptive`` on the simulated rig: a pebble whose four regions have lobes the plan's
 θc (5°) does not fit — no specular at all, n 40, n 1500 (dim), n 400 — photographed with a pilot, each
-region's θc measured, the rest planned again, stopped during the re-plan's poses and resumed."""
+region's θc measured, the rest planned again, stopped during the re-plan's poses and resumed; and one
+whose lobes are all as the plan assumed, which the rest of the plan follows."""
 
 from __future__ import annotations
 
 import json
 import re
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pytest
@@ -15,11 +16,16 @@ import trimesh
 
 from hlr_lab.adaptive.run import acquire_adaptive
 from hlr_lab.cli.main import main
+from hlr_lab.display.adaptive import adaptive_lines
 from hlr_lab.formats.materials import read_materials
-from hlr_lab.formats.plan import read_plan
+from hlr_lab.formats.plan import read_plan, write_plan
 from hlr_lab.instrument.control import RunStopped
 from hlr_lab.object.procedural import pebble
+from hlr_lab.object.segment import segment
+from hlr_lab.pipeline import plan_object
+from hlr_lab.planning.planner import PlanSettings
 from hlr_lab.rig.file import sim_rig
+from sim.render.scene import Material
 from sim.rig import SimRig
 from tests.renderer_guard import require_renderer
 from worlds.plan_world import sim_scene, world_geometry, world_links
@@ -175,3 +181,39 @@ def test_the_adaptive_session_is_fitted_from_its_re_plan_and_kept_to_it(
         == 1
     )
     assert "started without --adaptive" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)  # measured 16 s on two quiet cores
+def test_a_pilot_that_finds_every_lobe_as_the_plan_assumed_is_followed_by_the_rest_of_the_plan(tmp_path):
+    """Every region n 400 (θc ~6.4°, within √2 of the plan's 5°): the re-plan is the plan as made — its
+    remaining pose under its own id, the pilot's first — journaled and printed as such, and every frame of
+    the plan taken once."""
+    mesh, rig = pebble().mesh, sim_rig()
+    plan, _ = plan_object(mesh, segment(mesh), rig, PlanSettings(min_samples=150), mesh_spec="builtin:pebble",
+                          plan_folder=tmp_path)  # fmt: skip
+    write_plan(tmp_path / "plan.json", plan)
+    plan = read_plan(tmp_path / "plan.json")
+    lobe = Material((0.3, 0.2, 0.1), (0.25, 0.25, 0.25), 400.0)
+    world = replace(
+        sim_scene(plan, tmp_path / "plan.json", None), materials=[lobe] * len(plan.object.regions)
+    )
+    stages: list[str] = []
+    with SimRig(scene=world, speed_factor=1000.0, seed=5, **world_geometry(rig, None)) as sim:
+        outcome = acquire_adaptive(tmp_path / "plan.json", rig, tmp_path / "session", links=world_links(sim),
+                                   on_stage=stages.append)  # fmt: skip
+    ids = [p.id for p in plan.poses]
+    assert len(outcome.pilot) < len(ids)
+    rest = [i for i in ids if i not in outcome.pilot]
+    assert outcome.replanned.added == rest
+    assert [p.id for p in outcome.replanned.plan.poses] == outcome.pilot + rest
+    assert all(4.5 < c.theta_c_deg < 7.0 and c.source == "measured" for c in outcome.replanned.cones)
+    assert any(s.startswith("the plan as made: every lobe measured is as the plan assumed") for s in stages)
+    lines = journal(tmp_path / "session")
+    (replan,) = [e for e in lines if e["event"] == "replan"]
+    assert replan["added"] == rest
+    assert replan["plan_as_made"] == outcome.replanned.plan_as_made
+    assert any(line.startswith("the re-plan is the plan as made: ") for line in adaptive_lines(outcome))
+    frames = Counter((e["pose"], e["exposure_index"]) for e in lines if e["event"] == "frame")
+    assert set(frames) == {(p.id, k) for p in plan.poses for k in range(len(p.exposures_s))}
+    assert set(frames.values()) == {1}

@@ -276,3 +276,38 @@ output = "rig-camera.toml"
     assert "1 of 1 jobs did not complete: camera (failed)" in err
     assert not (tmp_path / "rig-camera.toml").exists()
     assert not (tmp_path / "calibration").exists()  # no empty photographs folder left behind
+
+
+def test_an_acquire_job_left_to_the_lamp_defaults_journals_how_and_why(tmp_path, builtin_plan):
+    """A rig whose radiometric record saw its lamp 3 % below warm when first lit: the job left to the
+    defaults has its lamp warmed up and watched, and the campaign's journal says so and why (the job then
+    fails on its world, before anything moves); the same job given --warm-up 0 --lamp-every 0 has no such
+    line."""
+    from tests.films import DRAWING
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text(DRAWING.read_text() + '\n[calibration.radiometric]\ndate = "2026-12-07"\nhlr_lab = "0.1.0"\n'
+                   "lamp_warm_up_change = 0.02\nlamp_short_of_warm = 0.01\n")  # fmt: skip
+
+    def no_world(job, stack):
+        raise InputError("no world here", path=job.plan)
+
+    for extra, lines in (("", 1), ("warm_up_min = 0\nlamp_every = 0\n", 0)):
+        folder = tmp_path / f"night-{lines}"
+        folder.mkdir()
+        path = campaign_file(folder, builtin_plan, jobs=1, rig=rig)
+        path.write_text(path.read_text() + extra)
+        results = run_campaign(load_campaign(path), links_for=no_world, calibrate=no_calibration)
+        assert [r.status for r in results] == ["failed"]
+        journal = [
+            json.loads(line)
+            for line in (folder / "night-campaign" / "campaign.jsonl").read_text().splitlines()
+        ]
+        lamp = [e for e in journal if e["event"] == "job_lamp"]
+        assert len(lamp) == lines
+        if lines:
+            assert lamp[0]["job"] == "j0"
+            assert lamp[0]["lamp"].startswith(
+                "the lamp is warmed up (at most 30 min) and watched every 5 poses"
+            )
+            assert "3.0 % below warm when first lit" in lamp[0]["lamp"]

@@ -10,6 +10,8 @@ import pytest
 
 from hlr_lab.adaptive.pilot import PILOT_SAMPLES, cut_to, pilot_poses
 from hlr_lab.adaptive.precision import DARK_RD, MAX_FACTOR, RegionNeed, region_needs
+from hlr_lab.adaptive.run import rest_of_plan
+from hlr_lab.adaptive.theta_c import CONFIRMS_PLAN, confirmed, region_cones, replan_cones
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import MaterialEntry, PixelCounts, materials_file
 from hlr_lab.formats.plan import read_plan, write_plan
@@ -137,6 +139,50 @@ def test_a_plan_without_a_highlight_has_no_pilot_and_is_refused_before_anything_
     with pytest.raises(InputError, match="no pose of the plan puts a highlight on any region"):
         acquire_adaptive(tmp_path / "plan.json", sim_rig(), tmp_path / "session")
     assert not (tmp_path / "session").exists()
+
+
+def test_a_pilot_whose_lobes_are_within_root_two_of_the_plans_cones_confirms_the_plan(tmp_path):
+    """Each measured θc against the plan's (5°, region 3's own 8°): all within √2 (3.54–7.07°, 5.66–11.3°)
+    confirms the plan, and the re-plan is then the rest of the plan as made, the pilot's poses first as
+    "taken" under their own ids; one lobe outside (a wide n 40's 20°, a narrow one's 3.4°), or none
+    measured, does not. A lobe the pilot did not measure says nothing against the plan. A re-plan keeps
+    each region's cone that its lobe confirms (8° for a measured 5° is outside: 5°)."""
+    mesh = pebble(subdivisions=3).mesh
+    settings = replace(FAST, max_lights=4, min_samples=400, region_theta_c_deg=(5.0, 5.0, 5.0, 8.0))
+    plan, _ = plan_object(mesh, segment(mesh), sim_rig(), settings, mesh_spec="builtin:pebble",
+                          plan_folder=tmp_path)  # fmt: skip
+    regions = plan.object.regions
+    assert len(plan.poses) == 4
+    lobe = dict(specular="measured", reason=None, rs=[0.25] * 3, rs_se=[0.001] * 3, n=400.0, n_se=1.0)
+
+    def cones(*theta: float | None):
+        entries = [
+            _entry(r, **lobe, theta_c_deg=t) if t else _entry(r) for r, t in zip(regions, theta, strict=True)
+        ]
+        return region_cones(plan, materials_file(entries))
+
+    assert pytest.approx(2**0.5) == CONFIRMS_PLAN
+    why = confirmed(plan, cones(6.4, 3.6, None, 11.0))
+    assert why is not None
+    assert "0.72–1.38× the plan's" in why
+    for outside in (cones(20.0, 5.0, 5.0, 8.0), cones(5.0, 3.4, 5.0, 8.0), cones(5.0, 5.0, 5.0, 11.5)):
+        assert confirmed(plan, outside) is None
+    assert confirmed(plan, cones(None, None, None, None)) is None
+    ids = [r.id for r in regions]
+    # a re-plan without a precision keeps each confirmed region's cone, and takes the others' as measured
+    assert replan_cones(plan, cones(6.4, 3.4, None, 11.0)) == dict(
+        zip(ids, (5.0, 3.4, 5.0, 8.0), strict=True)
+    )
+    assert replan_cones(plan, cones(20.0, 7.0, 5.0, 5.0)) == dict(
+        zip(ids, (20.0, 5.0, 5.0, 5.0), strict=True)
+    )
+    pilot = cut_to(plan, [plan.poses[1].id, plan.poses[3].id])
+    rest = rest_of_plan(plan, pilot)
+    assert [p.id for p in rest.poses] == [plan.poses[i].id for i in (1, 3, 0, 2)]
+    assert [p.purpose for p in rest.poses[:2]] == ["taken", "taken"]
+    assert rest.poses[2:] == [plan.poses[0], plan.poses[2]]
+    assert rest.coverage == plan.coverage
+    assert rest.parameters == plan.parameters
 
 
 def test_sample_factors_raise_each_regions_needs_to_that_many_times_what_the_taken_lights_give(
@@ -301,12 +347,16 @@ def test_a_later_round_asks_nothing_more_of_a_region_whose_error_stopped_followi
 
 
 def test_the_adaptive_benchs_line_puts_each_runs_worst_error_in_standard_errors_beside_its_per_cent():
-    """``bench adaptive`` prints, per case, the poses and worst errors of both runs, and each run's worst
-    |error| in its stated standard errors: whether a difference between the two is the noise."""
+    """``bench adaptive`` prints, per case, the poses and worst errors of both runs, each run's worst
+    |error| in its stated standard errors (whether a difference between the two is the noise), and each
+    run's largest stated standard errors (the accuracy its photographs give)."""
     from benchmarks.adaptive import CaseFigures, RunFigures, case_line
 
-    planned = RunFigures(5, {"rd": 0.02, "rs": 2.97, "n": 2.25}, [], {0: 5.0}, worst_z=1.96)
-    adaptive = RunFigures(12, {"rd": 0.01, "rs": 6.3, "n": 2.54}, [], {0: 2.6, 1: 4.7}, worst_z=2.71)
+    planned = RunFigures(5, {"rd": 0.02, "rs": 2.97, "n": 2.25}, [], {0: 5.0}, worst_z=1.96,
+                         worst_se_pct={"rd": 0.011, "rs": 1.5, "n": 1.04})  # fmt: skip
+    adaptive = RunFigures(12, {"rd": 0.01, "rs": 6.3, "n": 2.54}, [], {0: 2.6, 1: 4.7}, worst_z=2.71,
+                          worst_se_pct={"rd": 0.02, "rs": 2.4, "n": 0.9})  # fmt: skip
     line = case_line(CaseFigures("narrow", "pebble", planned, adaptive, 3, 9, {}))
     assert line.split()[:9] == ["narrow", "pebble", "5", "0.02", "2.97", "2.25", "12", "(3+9)", "0.01"]
     assert "fitted θc 2.6–4.7°; worst |error|/σ 2.0 and 2.7" in line
+    assert "largest stated σ Rd/Rs/n % 0.01/1.50/1.04 and 0.02/2.40/0.90" in line

@@ -37,7 +37,7 @@ from hlr_lab.acquisition.poses import Bracketing, Outcome, Step
 from hlr_lab.acquisition.run import PLANNED_ONLY
 from hlr_lab.adaptive.pilot import cut_to, pilot_poses
 from hlr_lab.adaptive.precision import RegionNeed, region_needs
-from hlr_lab.adaptive.theta_c import RegionCone, region_cones
+from hlr_lab.adaptive.theta_c import RegionCone, confirmed, region_cones, replan_cones
 from hlr_lab.errors import InputError
 from hlr_lab.formats.plan import PlanFile, PlanPose, read_plan
 from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable, planned_segmentation
@@ -69,7 +69,8 @@ MAX_ROUNDS = 10
 class Replanned:
     """What a re-plan made of the photographs before it: its round (1: from the pilot's), each region's θc,
     the plan it runs (the poses taken first), the poses it added, the regions it leaves short (id → why),
-    and each region's samples when a precision was asked."""
+    each region's samples when a precision was asked, and why it is the plan as made where the pilot
+    confirmed it (:func:`~hlr_lab.adaptive.theta_c.confirmed`)."""
 
     cones: list[RegionCone]
     plan: PlanFile
@@ -77,6 +78,7 @@ class Replanned:
     short: dict[int, str]
     needs: list[RegionNeed] | None = None
     round: int = 1
+    plan_as_made: str | None = None
 
 
 @dataclass
@@ -258,17 +260,37 @@ def _replan(
 ) -> None:
     """Fit every photograph so far (the pilot's for ``round_`` 1), plan the rest with each region's θc
     (and, with a precision asked, its samples; ``previous`` the last round's), keep the re-plan and journal
-    it."""
+    it. Without a precision, a region whose lobe confirms the plan's cone keeps it, and a pilot that confirms
+    every one is followed by the rest of the plan (:data:`~hlr_lab.adaptive.theta_c.CONFIRMS_PLAN`)."""
     fitted = fit_session(open_session(session), systematic=False).materials
     kept, kept_path = session_plan(session, read_record(session))
     lines = _stage_lines(session)
     taken_plan, _ = stage_plan(session, lines["replan" if "replan" in lines else "pilot"])
     cones = region_cones(kept, fitted)
-    on_stage(
-        "re-planning with each region's θc: " + ", ".join(f"{c.region} {c.theta_c_deg:.1f}°" for c in cones)
+    by_id = (
+        {c.region: c.theta_c_deg for c in cones} if precision_pct is not None else replan_cones(kept, cones)
     )
+    on_stage(
+        "re-planning with each region's θc: "
+        + ", ".join(
+            f"{c.region} {by_id[c.region]:.1f}°"
+            + ("" if by_id[c.region] == c.theta_c_deg else f" (the plan's: {c.theta_c_deg:.1f}° measured)")
+            for c in cones
+        )
+    )
+    as_made = confirmed(kept, cones) if precision_pct is None and round_ == 1 else None
+    if as_made is not None:
+        on_stage(f"the plan as made: {as_made}")
+        _journal_replan(
+            session,
+            round_,
+            cones,
+            rest_of_plan(kept, taken_plan),
+            len(taken_plan.poses),
+            plan_as_made=as_made,
+        )
+        return
     mesh = load_planned_mesh(kept, kept_path)
-    by_id = {c.region: c.theta_c_deg for c in cones}
     settings = replace(
         plan_settings(kept), region_theta_c_deg=tuple(by_id[r.id] for r in kept.object.regions)
     )
@@ -287,17 +309,42 @@ def _replan(
     planned, _ = plan_object(mesh, planned_segmentation(kept, mesh), rig, settings, mesh_spec=spec,
                              plan_folder=kept_path.parent, up=kept.object.up, scale=kept.object.scale,
                              to_turntable=mesh_to_turntable(kept), taken=taken)  # fmt: skip
-    planned = _named(planned, kept, taken_plan)
+    _journal_replan(session, round_, cones, _named(planned, kept, taken_plan), len(taken), needs=needs)
+
+
+def _journal_replan(
+    session: Path,
+    round_: int,
+    cones: list[RegionCone],
+    planned: PlanFile,
+    n_taken: int,
+    *,
+    needs: list[RegionNeed] | None = None,
+    plan_as_made: str | None = None,
+) -> None:
+    """Keep a round's plan (its first ``n_taken`` poses those photographed) and journal its line."""
     stage = keep_stage_plan(session, "replan", planned, round_)
-    added = [p.id for p in planned.poses[len(taken) :]]
+    added = [p.id for p in planned.poses[n_taken:]]
     short = {str(u.region): u.reason for u in planned.uncovered}
     line = ReplanLine(event="replan", at=time.time(), round=round_,
                       regions={str(c.region): c.as_line() for c in cones}, added=added, short=short,
                       plan=stage)  # fmt: skip
     if needs is not None:
         line["needs"] = {str(n.region): n.as_line() for n in needs}
+    if plan_as_made is not None:
+        line["plan_as_made"] = plan_as_made
     with Journal(session / JOURNAL) as journal:
         journal.append(line)
+
+
+def rest_of_plan(kept: PlanFile, taken: PlanFile) -> PlanFile:
+    """The plan as made as a re-plan lists it: the poses ``taken`` first (their frames are in the session),
+    then the plan's others in its order, under their own ids."""
+    done = {p.id for p in taken.poses}
+    rest = [p for p in kept.poses if p.id not in done]
+    return kept.model_copy(
+        update={"poses": [*(p.model_copy(update={"purpose": "taken"}) for p in taken.poses), *rest]}
+    )
 
 
 def _named(planned: PlanFile, kept: PlanFile, taken: PlanFile) -> PlanFile:
@@ -340,7 +387,9 @@ def _replanned(session: Path) -> Replanned:
             for rid, n in line["needs"].items()
         ]
     short = {int(k): v for k, v in line["short"].items()}
-    return Replanned(cones, plan, list(line["added"]), short, needs, stage_round(line))
+    return Replanned(
+        cones, plan, list(line["added"]), short, needs, stage_round(line), line.get("plan_as_made")
+    )
 
 
 def _replan_lines(session: Path) -> list[ReplanLine]:

@@ -46,6 +46,16 @@ class JobStartLine(TypedDict):
     kind: str
 
 
+class JobLampLine(TypedDict):
+    """How an acquire job left to the defaults watches its lamp, and why: the sentence
+    :func:`hlr_lab.session.lamp.lamp_watch_for` gives where the rig's radiometric record chose it."""
+
+    event: Literal["job_lamp"]
+    at: float
+    job: str
+    lamp: str
+
+
 class JobRetryLine(TypedDict):
     """A job stopped by a device fault: run again (``job_retry``) or given up (``job_skip``)."""
 

@@ -37,6 +37,7 @@ from hlr_lab.campaign.events import (
     CampaignStoppedLine,
     JobEndLine,
     JobEndNotice,
+    JobLampLine,
     JobOutcome,
     JobRetryLine,
     JobStartLine,
@@ -421,6 +422,7 @@ def _acquire_job(job: AcquireJob, links_for, say, journal: Journal) -> JobResult
                                 stable_per_min=job.warm_up_within / 100)  # fmt: skip
     if why:
         say(why)
+        journal.append(JobLampLine(event="job_lamp", at=time.time(), job=job.name, lamp=why))
     with contextlib.ExitStack() as world:
         try:
             links = links_for(job, world)

@@ -14,6 +14,7 @@ from rich.markup import escape
 from hlr_lab.acquisition.poses import Bracketing, Step
 from hlr_lab.adaptive.pilot import pilot_poses
 from hlr_lab.adaptive.run import MAX_ROUNDS, PRECISION_ROUNDS, AdaptiveOutcome, acquire_adaptive
+from hlr_lab.adaptive.theta_c import prior_cones
 from hlr_lab.cli.common import (
     FILE,
     FOLDER,
@@ -93,8 +94,9 @@ from hlr_lab.session.lamp import LampWatch, lamp_watch_for
     "--adaptive",
     is_flag=True,
     help="Photograph a pilot first (the plan's poses that put a highlight on every region once), measure each "
-    "region's θc from its lobe, plan the rest again with those θc and take what the re-plan adds "
-    "(docs/planning.md). Exit status 3 when the re-plan leaves a region short.",
+    "region's θc from its lobe, plan the rest again with those θc and take what the re-plan adds (where every "
+    "θc is within √2 of the plan's, the rest of the plan as made) (docs/planning.md). Exit status 3 when the "
+    "re-plan leaves a region short.",
 )
 @click.option(
     "--precision",
@@ -253,9 +255,7 @@ def _adaptive(run: Callable[..., AdaptiveOutcome], plan: PlanFile) -> AdaptiveOu
             stages[0](step)
 
         done = run(progress=progress, on_stage=stage)
-    prior = plan.parameters.region_theta_c_deg or {}
-    console.print(cones_table(done, {r.id: prior.get(str(r.id), plan.parameters.theta_c_deg)
-                                     for r in plan.object.regions}))  # fmt: skip
+    console.print(cones_table(done, prior_cones(plan)))
     if (needs := needs_table(done)) is not None:
         console.print(needs)
     for line in adaptive_lines(done):

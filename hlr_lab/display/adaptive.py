@@ -6,24 +6,26 @@ from rich.markup import escape
 from rich.table import Table
 
 from hlr_lab.adaptive.run import AdaptiveOutcome
+from hlr_lab.adaptive.theta_c import prior_cones
 
 
 def cones_table(outcome: AdaptiveOutcome, prior_deg: dict[int, float]) -> Table:
-    """One row per region: the plan's θc (``prior_deg``: region id → degrees), the θc the last re-plan used,
-    the n fitted to the photographs it was made from (the pilot's for the first), and where the θc came from
-    (why, when not measured or held)."""
+    """One row per region: the plan's θc (``prior_deg``: region id → degrees), the θc measured on the
+    photographs the last re-plan was made from (the pilot's for the first), the θc that re-plan counted the
+    region's samples in, the n fitted, and where the measured θc came from (why, when not measured or held)."""
     r = outcome.replanned.round
     t = Table(
         title="θc measured on the pilot" if r == 1 else f"θc measured (re-plan {r})", title_justify="left"
     )
-    for column in ("region", "planned θc", "measured θc", "n fitted"):
+    for column in ("region", "planned θc", "measured θc", "re-planned with", "n fitted"):
         t.add_column(column, justify="right")
     t.add_column("from")
+    used = prior_cones(outcome.replanned.plan)
     for c in outcome.replanned.cones:
         why = c.source if c.reason is None else f"{c.source}: {c.reason}"
         n = "—" if c.n is None else f"{c.n:.1f}"
-        t.add_row(str(c.region), f"{prior_deg.get(c.region, float('nan')):.1f}°", f"{c.theta_c_deg:.1f}°", n,
-                  escape(why))  # fmt: skip
+        t.add_row(str(c.region), f"{prior_deg.get(c.region, float('nan')):.1f}°", f"{c.theta_c_deg:.1f}°",
+                  f"{used.get(c.region, float('nan')):.1f}°", n, escape(why))  # fmt: skip
     return t
 
 
@@ -36,6 +38,8 @@ def adaptive_lines(outcome: AdaptiveOutcome) -> list[str]:
     if len(rounds) > 1:
         by = f"{added} added by {len(rounds)} re-plans ({' + '.join(map(str, rounds))}; {made})"
     lines = [f"photographed {outcome.photographed_poses} poses: the pilot's {len(outcome.pilot)} and {by}"]
+    if r.plan_as_made is not None:
+        lines.append(f"the re-plan is the plan as made: {escape(r.plan_as_made)}")
     lines += [f"[yellow]region {k}: {escape(why)}[/]" for k, why in sorted(r.short.items())]
     return lines
 

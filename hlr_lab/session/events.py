@@ -228,7 +228,8 @@ class RegionNeedLine(TypedDict):
 class ReplanLine(TypedDict):
     """An adaptive run's re-plan (``round`` 1 from the pilot's photographs, each later one from all the
     photographs before it): each region's θc (and, with a precision asked, its samples), the poses it adds
-    after those taken, the regions it leaves short (id → why), and its plan (the poses taken first)."""
+    after those taken, the regions it leaves short (id → why), its plan (the poses taken first), and, where
+    the pilot confirmed the plan's cones, why the rest is the plan as made."""
 
     event: Literal["replan"]
     at: float
@@ -238,6 +239,7 @@ class ReplanLine(TypedDict):
     added: list[str]
     short: dict[str, str]
     plan: StagePlan
+    plan_as_made: NotRequired[str]  # why the re-plan is the rest of the plan as made (the pilot confirmed it)
 
 
 SessionEvent = (
