@@ -187,8 +187,8 @@ def test_the_adaptive_session_is_fitted_from_its_re_plan_and_kept_to_it(
 @pytest.mark.timeout(300)  # measured 16 s on two quiet cores
 def test_a_pilot_that_finds_every_lobe_as_the_plan_assumed_is_followed_by_the_rest_of_the_plan(tmp_path):
     """Every region n 400 (θc ~6.4°, within √2 of the plan's 5°): the re-plan is the plan as made — its
-    remaining pose under its own id, the pilot's first — journaled and printed as such, and every frame of
-    the plan taken once."""
+    remaining pose under its own id, the pilot's first — journaled and printed as such; stopped at that
+    pose and resumed, every frame of the plan taken once."""
     mesh, rig = pebble().mesh, sim_rig()
     plan, _ = plan_object(mesh, segment(mesh), rig, PlanSettings(min_samples=150), mesh_spec="builtin:pebble",
                           plan_folder=tmp_path)  # fmt: skip
@@ -199,10 +199,22 @@ def test_a_pilot_that_finds_every_lobe_as_the_plan_assumed_is_followed_by_the_re
         sim_scene(plan, tmp_path / "plan.json", None), materials=[lobe] * len(plan.object.regions)
     )
     stages: list[str] = []
-    with SimRig(scene=world, speed_factor=1000.0, seed=5, **world_geometry(rig, None)) as sim:
-        outcome = acquire_adaptive(tmp_path / "plan.json", rig, tmp_path / "session", links=world_links(sim),
-                                   on_stage=stages.append)  # fmt: skip
+    pilot: list[str] = []
+
+    def stop_at_the_rest(step) -> None:
+        if not pilot and stages[-1].startswith("the re-plan"):
+            pilot.extend(plan_pilot(tmp_path / "session"))
+        if pilot and step.pose not in pilot:
+            raise KeyboardInterrupt
+
+    geometry = world_geometry(rig, None)
+    with SimRig(scene=world, speed_factor=1000.0, seed=5, **geometry) as sim, pytest.raises(RunStopped):
+        acquire_adaptive(tmp_path / "plan.json", rig, tmp_path / "session", links=world_links(sim),
+                         on_stage=stages.append, progress=stop_at_the_rest)  # fmt: skip
+    with SimRig(scene=world, speed_factor=1000.0, seed=5, **geometry) as sim:  # resumed at the rest
+        outcome = acquire_adaptive(tmp_path / "plan.json", rig, tmp_path / "session", links=world_links(sim))
     ids = [p.id for p in plan.poses]
+    assert outcome.pilot == pilot
     assert len(outcome.pilot) < len(ids)
     rest = [i for i in ids if i not in outcome.pilot]
     assert outcome.replanned.added == rest
@@ -214,6 +226,7 @@ def test_a_pilot_that_finds_every_lobe_as_the_plan_assumed_is_followed_by_the_re
     assert replan["added"] == rest
     assert replan["plan_as_made"] == outcome.replanned.plan_as_made
     assert any(line.startswith("the re-plan is the plan as made: ") for line in adaptive_lines(outcome))
+    assert any(e["event"] == "stopped" for e in lines)
     frames = Counter((e["pose"], e["exposure_index"]) for e in lines if e["event"] == "frame")
     assert set(frames) == {(p.id, k) for p in plan.poses for k in range(len(p.exposures_s))}
     assert set(frames.values()) == {1}

@@ -267,6 +267,19 @@ def _replan(
     lines = _stage_lines(session)
     taken_plan, _ = stage_plan(session, lines["replan" if "replan" in lines else "pilot"])
     cones = region_cones(kept, fitted)
+    as_made = confirmed(kept, cones) if precision_pct is None and round_ == 1 else None
+    if as_made is not None:
+        on_stage("each region's θc measured: " + ", ".join(f"{c.region} {c.theta_c_deg:.1f}°" for c in cones))
+        on_stage(f"the plan as made: {as_made}")
+        _journal_replan(
+            session,
+            round_,
+            cones,
+            rest_of_plan(kept, taken_plan),
+            len(taken_plan.poses),
+            plan_as_made=as_made,
+        )
+        return
     by_id = (
         {c.region: c.theta_c_deg for c in cones} if precision_pct is not None else replan_cones(kept, cones)
     )
@@ -278,18 +291,6 @@ def _replan(
             for c in cones
         )
     )
-    as_made = confirmed(kept, cones) if precision_pct is None and round_ == 1 else None
-    if as_made is not None:
-        on_stage(f"the plan as made: {as_made}")
-        _journal_replan(
-            session,
-            round_,
-            cones,
-            rest_of_plan(kept, taken_plan),
-            len(taken_plan.poses),
-            plan_as_made=as_made,
-        )
-        return
     mesh = load_planned_mesh(kept, kept_path)
     settings = replace(
         plan_settings(kept), region_theta_c_deg=tuple(by_id[r.id] for r in kept.object.regions)

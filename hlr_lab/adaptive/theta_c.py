@@ -26,9 +26,10 @@ CONFIRMS_PLAN = 2.0**0.5
 
 @dataclass(frozen=True)
 class RegionCone:
-    """A region's θc for the re-plan (degrees): ``measured`` on the pilot (``n`` the fitted exponent) or the
-    ``prior`` (the plan's), with ``reason`` saying why (or, measured, that the fit's θc was held within
-    PLANNING_THETA_C_DEG)."""
+    """A region's θc from the pilot (degrees): ``measured`` (``n`` the fitted exponent) or the ``prior``
+    (the plan's), with ``reason`` saying why (or, measured, that the fit's θc was held within
+    PLANNING_THETA_C_DEG). Without a precision a re-plan counts the region's samples in the plan's θc where
+    this one confirms it (:func:`replan_cones`)."""
 
     region: int
     theta_c_deg: float
