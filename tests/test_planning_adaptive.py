@@ -11,7 +11,7 @@ import pytest
 from hlr_lab.adaptive.pilot import PILOT_SAMPLES, cut_to, pilot_poses
 from hlr_lab.adaptive.precision import DARK_RD, MAX_FACTOR, RegionNeed, region_needs
 from hlr_lab.adaptive.run import rest_of_plan
-from hlr_lab.adaptive.theta_c import CONFIRMS_PLAN, confirmed, region_cones, replan_cones
+from hlr_lab.adaptive.theta_c import CONFIRMS_PLAN, confirmed, core_deg, region_cones, replan_cones
 from hlr_lab.errors import InputError
 from hlr_lab.formats.materials import MaterialEntry, PixelCounts, materials_file
 from hlr_lab.formats.plan import read_plan, write_plan
@@ -141,40 +141,47 @@ def test_a_plan_without_a_highlight_has_no_pilot_and_is_refused_before_anything_
     assert not (tmp_path / "session").exists()
 
 
-def test_a_pilot_whose_lobes_are_within_root_two_of_the_plans_cones_confirms_the_plan(tmp_path):
-    """Each measured θc against the plan's (5°, region 3's own 8°): all within √2 (3.54–7.07°, 5.66–11.3°)
-    confirms the plan, and the re-plan is then the rest of the plan as made, the pilot's poses first as
-    "taken" under their own ids; one lobe outside (a wide n 40's 20°, a narrow one's 3.4°), or none
-    measured, does not. A lobe the pilot did not measure says nothing against the plan. A re-plan keeps
-    each region's cone that its lobe confirms (8° for a measured 5° is outside: 5°)."""
+def test_a_re_plan_counts_each_lobes_core_unless_the_plan_s_cone_holds_it_and_a_plan_all_hold_is_kept(
+    tmp_path,
+):
+    """A lobe's core is 2·arccos(2^(−1/n)) (n 400: 6.74°, n 1500: 3.48°, n 8 held at 30°, n 10⁶ at 1°).
+    Against the plan's cones (5°, region 3's own 8°): a core no narrower than the plan's and within √2 of
+    it (5–7.07°, 8–11.3°) keeps the plan's cone, any other is re-planned in its core, a region without a
+    lobe measured in the plan's; every measured core so confirming the plan (at least one) makes the
+    re-plan the rest of the plan as made, the pilot's poses first as "taken" under their own ids."""
     mesh = pebble(subdivisions=3).mesh
     settings = replace(FAST, max_lights=4, min_samples=400, region_theta_c_deg=(5.0, 5.0, 5.0, 8.0))
     plan, _ = plan_object(mesh, segment(mesh), sim_rig(), settings, mesh_spec="builtin:pebble",
                           plan_folder=tmp_path)  # fmt: skip
     regions = plan.object.regions
+    ids = [r.id for r in regions]
     assert len(plan.poses) == 4
-    lobe = dict(specular="measured", reason=None, rs=[0.25] * 3, rs_se=[0.001] * 3, n=400.0, n_se=1.0)
+    assert core_deg(400) == pytest.approx(6.74, abs=0.005)
+    assert core_deg(1500) == pytest.approx(3.48, abs=0.005)
+    assert core_deg(8) == 30.0
+    assert core_deg(1e6) == 1.0
+    assert pytest.approx(2**0.5) == CONFIRMS_PLAN
 
-    def cones(*theta: float | None):
-        entries = [
-            _entry(r, **lobe, theta_c_deg=t) if t else _entry(r) for r, t in zip(regions, theta, strict=True)
-        ]
+    def cones(*n: float | None):
+        lobe = dict(
+            specular="measured", reason=None, rs=[0.25] * 3, rs_se=[0.001] * 3, n_se=1.0, theta_c_deg=6.0
+        )
+        entries = [_entry(r, **lobe, n=k) if k else _entry(r) for r, k in zip(regions, n, strict=True)]
         return region_cones(plan, materials_file(entries))
 
-    assert pytest.approx(2**0.5) == CONFIRMS_PLAN
-    why = confirmed(plan, cones(6.4, 3.6, None, 11.0))
+    # n 200's core: 9.54°, 1.19× region 3's 8°
+    why = confirmed(plan, cones(400, 400, None, 200))
     assert why is not None
-    assert "0.72–1.38× the plan's" in why
-    for outside in (cones(20.0, 5.0, 5.0, 8.0), cones(5.0, 3.4, 5.0, 8.0), cones(5.0, 5.0, 5.0, 11.5)):
-        assert confirmed(plan, outside) is None
+    assert "its core 1.19–1.35× the plan's θc" in why
+    assert replan_cones(plan, cones(400, 400, None, 200)) == dict(zip(ids, (5.0, 5.0, 5.0, 8.0), strict=True))
+    for other in (cones(1500, 400, 400, 200), cones(40, 400, 400, 200), cones(400, 400, 400, 100)):
+        assert confirmed(plan, other) is None
     assert confirmed(plan, cones(None, None, None, None)) is None
-    ids = [r.id for r in regions]
-    # a re-plan without a precision keeps each confirmed region's cone, and takes the others' as measured
-    assert replan_cones(plan, cones(6.4, 3.4, None, 11.0)) == dict(
-        zip(ids, (5.0, 3.4, 5.0, 8.0), strict=True)
+    assert replan_cones(plan, cones(400, 1500, None, 200)) == dict(
+        zip(ids, (5.0, pytest.approx(3.48, abs=0.005), 5.0, 8.0), strict=True)
     )
-    assert replan_cones(plan, cones(20.0, 7.0, 5.0, 5.0)) == dict(
-        zip(ids, (20.0, 5.0, 5.0, 5.0), strict=True)
+    assert replan_cones(plan, cones(40, 8, None, 1500)) == dict(
+        zip(ids, (pytest.approx(21.27, abs=0.005), 30.0, 5.0, pytest.approx(3.48, abs=0.005)), strict=True)
     )
     pilot = cut_to(plan, [plan.poses[1].id, plan.poses[3].id])
     rest = rest_of_plan(plan, pilot)

@@ -260,8 +260,9 @@ def _replan(
 ) -> None:
     """Fit every photograph so far (the pilot's for ``round_`` 1), plan the rest with each region's θc
     (and, with a precision asked, its samples; ``previous`` the last round's), keep the re-plan and journal
-    it. Without a precision, a region whose lobe confirms the plan's cone keeps it, and a pilot that confirms
-    every one is followed by the rest of the plan (:data:`~hlr_lab.adaptive.theta_c.CONFIRMS_PLAN`)."""
+    it. Without a precision each region's samples are counted in its lobe's core, or in the plan's cone
+    where the core confirms it, and a pilot that confirms every one is followed by the rest of the plan
+    (:func:`~hlr_lab.adaptive.theta_c.replan_cones`)."""
     fitted = fit_session(open_session(session), systematic=False).materials
     kept, kept_path = session_plan(session, read_record(session))
     lines = _stage_lines(session)
@@ -287,7 +288,7 @@ def _replan(
         "re-planning with each region's θc: "
         + ", ".join(
             f"{c.region} {by_id[c.region]:.1f}°"
-            + ("" if by_id[c.region] == c.theta_c_deg else f" (the plan's: {c.theta_c_deg:.1f}° measured)")
+            + ("" if by_id[c.region] == c.theta_c_deg else f" (θc measured {c.theta_c_deg:.1f}°)")
             for c in cones
         )
     )

@@ -1,9 +1,11 @@
-"""Each region's θc for the re-plan: the one the fit chose for the lobe it measured on the pilot's
+"""Each region's θc from the pilot: the one the fit chose for the lobe it measured on the pilot's
 photographs (``theta_c_deg="auto"``: where the fitted lobe falls to a few noise σ, docs/fitting.md), or
-the plan's own where the pilot told nothing (and why)."""
+the plan's own where the pilot told nothing (and why); and the cone a re-plan counts each region's samples
+in."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -15,12 +17,12 @@ from hlr_lab.session.events import RegionThetaC
 # counts as 30° (fewer samples counted than are there: a plan that errs towards more photographs). Below
 # 1° a cone is narrower than two candidate spacings and falls between the candidates.
 PLANNING_THETA_C_DEG = (1.0, 30.0)
-# A measured cone within this factor of the plan's confirms it for its region: a light's samples grow as
-# θc², so the plan counted each of its lights within 2× of what the measured cone gives it. Without a
-# precision the re-plan keeps such a region's cone (M samples in the cone the plan promised them in: on
-# the bunny with n 8/40/400 in turn, the n 400 regions' stated σ Rs/n 0.46/0.64 % → 0.28/0.29 % for the
-# same 3 photographs), and where every lobe confirms the plan it is the rest of the plan as made: a re-plan
-# from the pilot for the same cones only reshuffles poses chosen together (docs/planning.md)
+# Without a precision a re-plan counts a measured region's samples in its lobe's core (:func:`core_deg`),
+# or in the plan's own cone where that is no wider than the core and the core within this factor of it: a
+# light's samples grow as θc², so the plan then counted each of its lights within 2× of what the core gives
+# it, every sample it counted inside the core. Where every lobe so confirms the plan the re-plan is the rest
+# of the plan as made: a re-plan from the pilot for the same cones only reshuffles poses chosen together
+# (docs/planning.md, "The closed loop")
 CONFIRMS_PLAN = 2.0**0.5
 
 
@@ -28,8 +30,8 @@ CONFIRMS_PLAN = 2.0**0.5
 class RegionCone:
     """A region's θc from the pilot (degrees): ``measured`` (``n`` the fitted exponent) or the ``prior``
     (the plan's), with ``reason`` saying why (or, measured, that the fit's θc was held within
-    PLANNING_THETA_C_DEG). Without a precision a re-plan counts the region's samples in the plan's θc where
-    this one confirms it (:func:`replan_cones`)."""
+    PLANNING_THETA_C_DEG). A re-plan with a precision counts the region's samples in this cone, one without
+    in its lobe's core or the plan's (:func:`replan_cones`)."""
 
     region: int
     theta_c_deg: float
@@ -53,29 +55,45 @@ def prior_cones(plan: PlanFile) -> dict[int, float]:
     return {r.id: own.get(str(r.id), plan.parameters.theta_c_deg) for r in plan.object.regions}
 
 
-def _confirms(cone: RegionCone, prior_deg: float) -> bool:
-    """Whether ``cone`` was measured within CONFIRMS_PLAN of ``prior_deg``, the plan's θc for its region."""
-    return cone.source == "measured" and 1 / CONFIRMS_PLAN <= cone.theta_c_deg / prior_deg <= CONFIRMS_PLAN
+def core_deg(n: float) -> float:
+    """The cone about the mirror direction (degrees, held within PLANNING_THETA_C_DEG) that holds a lobe
+    cosⁿβ's core: a light γ from a pixel's mirror direction puts the half vector γ/2 from the normal in the
+    plane of incidence, so γ = 2·arccos(2^(−1/n)) reaches the lobe's half maximum. The pixels there tell Rs
+    and n apart; the fit's θc (where the lobe meets the noise) reaches further on a bright lobe and less far
+    on a dim one (n 1500, Rs 0.05: 2.6–5.0° for a core of 3.5°)."""
+    low, high = PLANNING_THETA_C_DEG
+    return min(max(2.0 * math.degrees(math.acos(0.5 ** (1.0 / max(n, 1e-6)))), low), high)
+
+
+def _confirms(core: float, prior_deg: float) -> bool:
+    """Whether a lobe's ``core`` (degrees) confirms the plan's ``prior_deg`` cone: no narrower than it, and
+    within CONFIRMS_PLAN of it."""
+    return prior_deg <= core <= CONFIRMS_PLAN * prior_deg
 
 
 def replan_cones(plan: PlanFile, cones: list[RegionCone]) -> dict[int, float]:
-    """θc per region (id → degrees) a re-plan without a precision counts its samples in: the plan's own
-    where the measured one confirms it (within CONFIRMS_PLAN), else the one in ``cones``."""
+    """θc per region (id → degrees) a re-plan without a precision counts its samples in: a measured lobe's
+    core (:func:`core_deg`), or the plan's own where the core confirms it; the plan's where the pilot
+    measured no lobe."""
     prior = prior_cones(plan)
-    return {c.region: prior[c.region] if _confirms(c, prior[c.region]) else c.theta_c_deg for c in cones}
+    planned = {}
+    for c in cones:
+        core = core_deg(c.n) if c.source == "measured" and c.n is not None else None
+        planned[c.region] = prior[c.region] if core is None or _confirms(core, prior[c.region]) else core
+    return planned
 
 
 def confirmed(plan: PlanFile, cones: list[RegionCone]) -> str | None:
-    """Why the pilot confirms ``plan`` — every measured cone within CONFIRMS_PLAN of the plan's θc for its
-    region, and at least one measured — or None where some lobe is wider or narrower than that."""
+    """Why the pilot confirms ``plan`` — every measured lobe's core no narrower than the plan's θc for its
+    region and within CONFIRMS_PLAN of it, and at least one measured — or None."""
     prior = prior_cones(plan)
-    measured = [c for c in cones if c.source == "measured"]
-    ratios = [c.theta_c_deg / prior[c.region] for c in measured]
-    if not measured or not all(_confirms(c, prior[c.region]) for c in measured):
+    measured = [c for c in cones if c.source == "measured" and c.n is not None]
+    ratios = [core_deg(c.n) / prior[c.region] for c in measured if c.n is not None]
+    if not measured or not all(1.0 <= x <= CONFIRMS_PLAN for x in ratios):
         return None
     return (
-        f"every lobe measured is as the plan assumed (θc {min(ratios):.2f}–{max(ratios):.2f}× the plan's, within "
-        f"{CONFIRMS_PLAN:.2f}×): the plan's own poses, chosen together for those cones, are the rest"
+        f"every lobe measured is as the plan assumed (its core {min(ratios):.2f}–{max(ratios):.2f}× the plan's "
+        f"θc, within 1–{CONFIRMS_PLAN:.2f}×): the plan's own poses, chosen together for those cones, are the rest"
     )
 
 

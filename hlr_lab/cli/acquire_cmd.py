@@ -94,9 +94,9 @@ from hlr_lab.session.lamp import LampWatch, lamp_watch_for
     "--adaptive",
     is_flag=True,
     help="Photograph a pilot first (the plan's poses that put a highlight on every region once), measure each "
-    "region's θc from its lobe, plan the rest again with those θc and take what the re-plan adds (where every "
-    "θc is within √2 of the plan's, the rest of the plan as made) (docs/planning.md). Exit status 3 when the "
-    "re-plan leaves a region short.",
+    "region's lobe, plan the rest again in each lobe's core (or the plan's cone, where the core confirms it) and "
+    "take what the re-plan adds: where every lobe confirms the plan, the rest of the plan as made "
+    "(docs/planning.md). Exit status 3 when the re-plan leaves a region short.",
 )
 @click.option(
     "--precision",
