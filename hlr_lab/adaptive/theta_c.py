@@ -49,7 +49,7 @@ class RegionCone:
         return line
 
 
-def prior_cones(plan: PlanFile) -> dict[int, float]:
+def plan_cones(plan: PlanFile) -> dict[int, float]:
     """Each of ``plan``'s regions' θc (region id → degrees): its own where the plan has one, else the plan's."""
     own = plan.parameters.region_theta_c_deg or {}
     return {r.id: own.get(str(r.id), plan.parameters.theta_c_deg) for r in plan.object.regions}
@@ -65,32 +65,33 @@ def core_deg(n: float) -> float:
     return min(max(2.0 * math.degrees(math.acos(0.5 ** (1.0 / max(n, 1e-6)))), low), high)
 
 
-def _confirms(core: float, prior_deg: float) -> bool:
-    """Whether a lobe's ``core`` (degrees) confirms the plan's ``prior_deg`` cone: no narrower than it, and
+def _cores(cones: list[RegionCone]) -> dict[int, float]:
+    """Each measured lobe's core (:func:`core_deg`), region id → degrees."""
+    return {c.region: core_deg(c.n) for c in cones if c.source == "measured" and c.n is not None}
+
+
+def _confirms(core: float, plan_deg: float) -> bool:
+    """Whether a lobe's ``core`` (degrees) confirms the plan's ``plan_deg`` cone: no narrower than it, and
     within CONFIRMS_PLAN of it."""
-    return prior_deg <= core <= CONFIRMS_PLAN * prior_deg
+    return plan_deg <= core <= CONFIRMS_PLAN * plan_deg
 
 
 def replan_cones(plan: PlanFile, cones: list[RegionCone]) -> dict[int, float]:
     """θc per region (id → degrees) a re-plan without a precision counts its samples in: a measured lobe's
     core (:func:`core_deg`), or the plan's own where the core confirms it; the plan's where the pilot
     measured no lobe."""
-    prior = prior_cones(plan)
-    planned = {}
-    for c in cones:
-        core = core_deg(c.n) if c.source == "measured" and c.n is not None else None
-        planned[c.region] = prior[c.region] if core is None or _confirms(core, prior[c.region]) else core
-    return planned
+    own, cores = plan_cones(plan), _cores(cones)
+    counted = {r: core for r, core in cores.items() if not _confirms(core, own[r])}
+    return {c.region: counted.get(c.region, own[c.region]) for c in cones}
 
 
 def confirmed(plan: PlanFile, cones: list[RegionCone]) -> str | None:
     """Why the pilot confirms ``plan`` — every measured lobe's core no narrower than the plan's θc for its
     region and within CONFIRMS_PLAN of it, and at least one measured — or None."""
-    prior = prior_cones(plan)
-    measured = [c for c in cones if c.source == "measured" and c.n is not None]
-    ratios = [core_deg(c.n) / prior[c.region] for c in measured if c.n is not None]
-    if not measured or not all(1.0 <= x <= CONFIRMS_PLAN for x in ratios):
+    own, cores = plan_cones(plan), _cores(cones)
+    if not cores or not all(_confirms(core, own[r]) for r, core in cores.items()):
         return None
+    ratios = [core / own[r] for r, core in cores.items()]
     return (
         f"every lobe measured is as the plan assumed (its core {min(ratios):.2f}–{max(ratios):.2f}× the plan's "
         f"θc, within 1–{CONFIRMS_PLAN:.2f}×): the plan's own poses, chosen together for those cones, are the rest"
@@ -101,7 +102,7 @@ def region_cones(plan: PlanFile, pilot: MaterialsFile) -> list[RegionCone]:
     """Each of ``plan``'s regions' θc (in the plan's order of regions) from the ``pilot``'s fit."""
     entries = {e.id: e for e in pilot.regions}
     missing = {m.id: m.reason for m in pilot.not_measured}
-    priors = prior_cones(plan)
+    priors = plan_cones(plan)
     low, high = PLANNING_THETA_C_DEG
     cones = []
     for region in plan.object.regions:

@@ -14,7 +14,7 @@ from rich.markup import escape
 from hlr_lab.acquisition.poses import Bracketing, Step
 from hlr_lab.adaptive.pilot import pilot_poses
 from hlr_lab.adaptive.run import MAX_ROUNDS, PRECISION_ROUNDS, AdaptiveOutcome, acquire_adaptive
-from hlr_lab.adaptive.theta_c import prior_cones
+from hlr_lab.adaptive.theta_c import plan_cones
 from hlr_lab.cli.common import (
     FILE,
     FOLDER,
@@ -255,7 +255,7 @@ def _adaptive(run: Callable[..., AdaptiveOutcome], plan: PlanFile) -> AdaptiveOu
             stages[0](step)
 
         done = run(progress=progress, on_stage=stage)
-    console.print(cones_table(done, prior_cones(plan)))
+    console.print(cones_table(done, plan_cones(plan)))
     if (needs := needs_table(done)) is not None:
         console.print(needs)
     for line in adaptive_lines(done):

@@ -6,7 +6,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from hlr_lab.adaptive.run import AdaptiveOutcome
-from hlr_lab.adaptive.theta_c import prior_cones
+from hlr_lab.adaptive.theta_c import plan_cones
 
 
 def cones_table(outcome: AdaptiveOutcome, prior_deg: dict[int, float]) -> Table:
@@ -20,7 +20,7 @@ def cones_table(outcome: AdaptiveOutcome, prior_deg: dict[int, float]) -> Table:
     for column in ("region", "planned θc", "measured θc", "re-planned with", "n fitted"):
         t.add_column(column, justify="right")
     t.add_column("from")
-    used = prior_cones(outcome.replanned.plan)
+    used = plan_cones(outcome.replanned.plan)
     for c in outcome.replanned.cones:
         why = c.source if c.reason is None else f"{c.source}: {c.reason}"
         n = "—" if c.n is None else f"{c.n:.1f}"

@@ -170,6 +170,7 @@ class LampRecord:
 
     @property
     def watched(self) -> bool:
+        """Whether the run measured the lamp at all (reference frames or a white reference beside)."""
         return len(self.times) > 0
 
     def at(self, t: float) -> float:
