@@ -540,21 +540,13 @@ class _Planner:
         need: np.ndarray,
         *,
         capped: bool,
-        among: dict[int, np.ndarray] | None = None,
         taken: Sequence[Choice] = (),
     ) -> _Run:
-        """The greedy's lights for ``need``: among all candidates, or only ``among`` (view → (Q,) bool)."""
+        """The greedy's lights for ``need``, going on from the lights ``taken`` (exact counts)."""
         if not taken:
             self._refined.clear()  # a refinement chosen for one run's needs is not another's
-        estimates_of = self.estimates_of
-        if among is not None:
-            mask = among
-
-            def estimates_of(v: int) -> np.ndarray:
-                return self.estimates_of(v) * mask.get(v, np.zeros(len(self.cands.coarse), bool))[:, None]
-
         selection = select_lights(
-            estimates_of,
+            self.estimates_of,
             len(self.views),
             lambda v, q, n: self.evaluate(v, q, n, capped),
             need,
@@ -585,12 +577,12 @@ class _Planner:
         counts = np.concatenate([self.estimates_of(v) for v in range(len(self.views))])  # (V·Q, R)
         found = self._cover(counts, reference, best.n_lights, need)
         if found.cover is not None:
+            # the cover's lights as counted exactly (each refined in its cell), completed by the greedy
+            # where the counts fall short of the estimates the cover was found on
             q = len(self.cands.coarse)
-            among: dict[int, np.ndarray] = {}
-            for j in found.cover:
-                among.setdefault(int(j) // q, np.zeros(q, bool))[int(j) % q] = True
-            seeded = self.run(INTEGER_PROGRAMME, need, capped=True, among=among)
-            finished = self.run(INTEGER_PROGRAMME, need, capped=True, taken=seeded.selection.choices)
+            cover = [divmod(int(j), q) for j in found.cover]
+            choices = [Choice(v, c, self.evaluate(v, c, need, True)) for v, c in cover]
+            finished = self.run(INTEGER_PROGRAMME, need, capped=True, taken=choices)
             finished = replace(finished, selection=prune(finished.selection, m))
             if acceptable(finished) and rank(finished) < rank(best):
                 best = finished
