@@ -54,6 +54,11 @@ _FEW_COLUMNS = (64, 256)
 # programme over every column a cover of k lights can use settles k after it (a 64-column try that proved
 # its own best 11 for a bound of 10 took 452 nodes, 0.5 s, on a painted bunny counted in vertices)
 _FEW_NODES = 50
+# ... and each k is settled within this many nodes, or the deepening ends and the search goes on as it did
+# without it (the rounded proof, the 2 000 cheapest columns): a programme over every column a cover of k
+# lights can use is not always quick (1 981 columns of a painted bunny: 124 nodes, 4.6 s, where the
+# cheapest 256 held a cover of k), and the deepening should cost little where it does not help
+_DEEP_NODES = 100
 MAX_PAIR_KINDS = 4_000
 TIME_GUARD = "time budget reached"  # the status when the wall-clock guard, not the work limits, ended it
 QUANTA = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)  # roundings of the proof, as fractions of the largest target
@@ -146,21 +151,29 @@ def minimum_cover(
     # 1. Covers of k lights, from the bound up, among the few columns they can use: exact, and at once
     deep = _deepened(capped, useful, reduced, lp_value, need, lower, incumbent, deadline)
     lower = deep.lower
+
+    def searched(lower: int) -> CoverOptimum:
+        """Where the search ends without a smaller cover: the deepening's (above the bound), or none."""
+        if deep.cover is not None:
+            return result(lower, deep.cover, False, "a smaller cover; not proven the fewest")
+        return result(lower, None, False, "no smaller cover found within the node limit")
+
     if deep.cover is not None and len(deep.cover) <= lower:
         return result(lower, deep.cover, True, "optimal")
     if lower >= incumbent:
         return result(incumbent, None, True, "no cover smaller than the incumbent")
     if deep.whole:  # its programme was over every column that could beat the incumbent: no more to try
-        if deep.cover is not None:
-            return result(lower, deep.cover, False, "a smaller cover; not proven the fewest")
-        return result(lower, None, False, "no smaller cover found within the node limit")
+        return searched(lower)
     # 2. The proof, on counts rounded up to a quantum of the largest target: every cover is still one, so
     #    the rounded programme's minimum bounds the true one from below. Rounding merges columns into few
     #    kinds, each an integer variable bounded by how many columns it stands for.
     rounded = _rounded_kinds(capped[useful], need.max())
+    kinds, inverse, multiplicity = _unique_rows(capped[useful])
+    # rounded to a quantum of 0 (few kinds already), the proof is the programme step 3 would solve again
+    true_solved = False
     if rounded is not None and _may_raise(rounded[0], rounded[2], need, lower):
-        kinds, inverse, multiplicity = rounded
-        proof = _solve(kinds, multiplicity, need, deadline)
+        true_solved = np.array_equal(rounded[0], kinds)
+        proof = _solve(rounded[0], rounded[2], need, deadline)
         if proof.status == 2:  # not even the rounded counts have a cover here: none is smaller
             return result(incumbent, None, True, "no cover smaller than the incumbent")
         if proof.status == 0:
@@ -170,7 +183,7 @@ def minimum_cover(
         if lower >= incumbent:
             return result(incumbent, None, True, "no cover smaller than the incumbent")
         if proof.x is not None:
-            cover = _members(inverse, useful, np.round(proof.x).astype(np.int64))
+            cover = _members(rounded[1], useful, np.round(proof.x).astype(np.int64))
             if len(cover) < incumbent and np.all(capped[cover].sum(axis=0) >= need - _EPS):
                 proven = len(cover) <= lower
                 return result(lower, cover, proven, "optimal" if proven else "node limit reached")
@@ -178,7 +191,6 @@ def minimum_cover(
         return result(lower, None, False, TIME_GUARD)
     # 3. A cover of the true counts: of two lights by trying every pair (the rounding can merge a pair
     #    that falls just short with one that covers), else among the distinct columns of least reduced cost.
-    kinds, inverse, multiplicity = _unique_rows(capped[useful])
     if not pairs_tried and lower <= 2 < incumbent:
         pairs_tried = True
         if (pair := _pair_cover(capped, useful, reduced, need, deadline)) is not None:
@@ -186,6 +198,8 @@ def minimum_cover(
     every_pair = pairs_tried and len(kinds) <= MAX_PAIR_KINDS and time.perf_counter() < deadline
     if every_pair and lower == 2 and incumbent == 3:  # no pair covers, and 3 lights do
         return result(incumbent, None, True, "no cover smaller than the incumbent")
+    if true_solved:  # its cover, if any, was no smaller than the incumbent
+        return searched(lower)
     if len(kinds) > MAX_MILP_COLUMNS:
         keep = _cheapest(kinds, inverse, reduced[useful], MAX_MILP_COLUMNS)
         mask = np.isin(inverse, keep)
@@ -199,9 +213,7 @@ def minimum_cover(
             return result(
                 lower, cover, proven, "optimal" if proven else "a smaller cover; not proven the fewest"
             )
-    if deep.cover is not None:  # the deepening's cover, above the bound it raised
-        return result(lower, deep.cover, False, "a smaller cover; not proven the fewest")
-    return result(lower, None, False, "no smaller cover found within the node limit")
+    return searched(lower)
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,7 +268,9 @@ def _deepened(
         for few in (f for f in _FEW_COLUMNS if 4 * f <= len(kinds)):
             keep = _cheapest(kinds, inverse, reduced[columns], few)
             mask = np.isin(inverse, keep)
-            found = _solve(kinds[keep], multiplicity[keep], need, deadline, nodes=_FEW_NODES)
+            found = _solve(
+                kinds[keep], multiplicity[keep], need, deadline, nodes=min(_FEW_NODES, MILP_NODE_LIMIT)
+            )
             best = smaller(
                 _cover_of(found, np.searchsorted(keep, inverse[mask]), columns[mask], capped, need)
             )
@@ -264,7 +278,7 @@ def _deepened(
                 return _Deepened(k, best)
         if len(kinds) > MAX_MILP_COLUMNS:  # too many to settle k
             break
-        found = _solve(kinds, multiplicity, need, deadline)
+        found = _solve(kinds, multiplicity, need, deadline, nodes=min(_DEEP_NODES, MILP_NODE_LIMIT))
         best = smaller(_cover_of(found, inverse, columns, capped, need))
         if best is not None and len(best) <= k:
             return _Deepened(k, best)
@@ -274,7 +288,6 @@ def _deepened(
             return _Deepened(k, best, whole=len(columns) == len(useful))  # the node limit left k open
         k += 1  # no cover of k lights
     return _Deepened(k, best)
-    return _Deepened(lower, best)
 
 
 def _cover_of(

@@ -661,14 +661,8 @@ class _Planner:
                 )
                 found = replace(found, cover=among_exact, proven=proven, status=status)
             else:  # the last one still seeds
-                found = replace(
-                    found,
-                    cover=seed,
-                    proven=False,
-                    status=TIME_GUARD
-                    if guarded
-                    else "covers of the estimates fell short when counted exactly",
-                )
+                status = TIME_GUARD if guarded else "covers of the estimates fell short when counted exactly"
+                found = replace(found, cover=seed, proven=False, status=status)
         return replace(found, seconds=time.perf_counter() - start)
 
     @staticmethod
