@@ -93,6 +93,28 @@ def test_the_search_ends_on_its_work_limit_not_on_the_clock(monkeypatch):
     assert not guarded.proven
 
 
+def test_no_programme_is_solved_twice(monkeypatch):
+    """The hard cover's 249 columns are few enough that the proof rounds them by nothing: that proof is the
+    true counts' programme, and the search does not solve it again (3.5 s each with 2 000 nodes)."""
+    import hlr_lab.planning.optimum as optimum
+
+    monkeypatch.setattr(optimum, "MILP_NODE_LIMIT", 5)
+    solved: list[np.ndarray] = []
+    real_solve = optimum._solve
+
+    def counting_solve(kinds, *args, **kwargs):
+        solved.append(kinds)
+        return real_solve(kinds, *args, **kwargs)
+
+    monkeypatch.setattr(optimum, "_solve", counting_solve)
+    counts, target, greedy = hard_multicover()
+    found = minimum_cover(counts, target, greedy, budget_s=60.0)
+    assert not found.proven
+    assert len(solved) >= 2  # the deepening's, and the proof
+    for i, a in enumerate(solved):
+        assert not any(a.shape == b.shape and np.array_equal(a, b) for b in solved[i + 1 :])
+
+
 def test_an_incumbent_at_the_bound_is_proven_without_the_programme():
     counts = np.array([[50.0, 0.0], [0.0, 50.0], [30.0, 30.0]])
     found = minimum_cover(counts, np.array([50.0, 50.0]), incumbent=2, budget_s=0.0)
