@@ -616,8 +616,10 @@ class _Planner:
         of every view's candidates. A cover the estimates promise is checked with exact counts; where they
         fall short its lights' estimates are replaced by their exact counts and the programme solved again
         (as the greedy does light by light), for at most MAX_COVER_ROUNDS rounds — a limit of work, so that
-        the plan does not depend on the machine's speed; the time budget only guards the whole. A cover
-        that still falls short is returned unproven: the greedy completes it from there. A covering pair is
+        the plan does not depend on the machine's speed; the time budget only guards the whole. Where no
+        round's cover held, the fewest lights among those counted exactly that cover are returned if no more
+        than the last round's (:meth:`_exact_cover`), else that last cover, unproven: the greedy completes it
+        from there. A covering pair is
         sought before the programme (``pairs_among``) in the first round among all candidates, then among
         those counted exactly first: the pair search favours the largest totals, and once a cover has fallen
         short those are the suspect estimates (a pair of exact counts that covers holds outright)."""
