@@ -543,3 +543,26 @@ def test_a_region_seen_only_in_its_highlight_is_not_taken_for_one_the_lamp_does_
     assert np.corrcoef(x, r.intensity[near].mean(axis=1))[0, 1] < 0.5
     _, diag, _, _ = _fit_one(RegionEntry(id=0, color=[20, 20, 20], vertices=10), pooled, "auto", "robust")
     assert "do not brighten" not in diag.get("note", ""), diag
+
+
+def test_pixels_that_do_not_follow_the_model_are_told_the_cause_the_photographs_show():
+    """The advice for a region's Rd below black follows the session's own evidence: a placement check that
+    flagged poses names the placement; brackets that put the black level off name it with their figure;
+    brackets that agree say the black level is not the cause; with no brackets, the black level is to be
+    checked. A reflectance above 1.5 names the lamp's power unless the object was misplaced."""
+    from hlr_lab.reflectance.session_fit import misfit_advice
+
+    agree = {"rig_dn": 64.0, "brackets": 6, "offset_dn": 0.3}
+    off = {**agree, "offset_dn": -9.6, "warning": "…"}
+    misplaced = misfit_advice(off, {"flagged": ["p000", "p002"]})
+    assert "the photographs of 2 pose(s) show the object off where the plan puts it" in misplaced.below_black
+    assert "hlr-lab register" in misplaced.too_bright
+    assert "black_level_dn" not in misplaced.below_black
+    wrong_black = misfit_advice(off, {"flagged": []})
+    assert "black level -9.6 DN from the rig file's [sensor] black_level_dn = 64" in wrong_black.below_black
+    assert "sensitivity and [light] power" in wrong_black.too_bright
+    right_black = misfit_advice(agree, {"flagged": []})
+    assert "agree with the rig file's black level (within 0.3 DN over 6 brackets)" in right_black.below_black
+    assert "black_level_dn" not in right_black.below_black
+    untold = misfit_advice({"rig_dn": 64.0, "brackets": 0}, {"flagged": []})
+    assert "check [sensor] black_level_dn against dark frames" in untold.below_black

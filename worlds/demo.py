@@ -17,7 +17,7 @@ from typing import Protocol
 from rich.console import RenderableType
 from rich.markup import escape
 
-from hlr_lab.display.materials import materials_table
+from hlr_lab.display.materials import fit_notes, materials_table
 from hlr_lab.display.plan import coverage_table
 from hlr_lab.display.regions import region_table
 from hlr_lab.errors import InputError
@@ -104,6 +104,8 @@ def run_demo(
     with display.busy("fitting…"):
         fitted = fit_into(session)
     display.show(materials_table(fitted.materials))
+    for line in fit_notes(fitted):
+        display.show(line)
 
     display.step("report", f"{session / 'report.html'}")
     with display.busy("building the report…"):

@@ -10,7 +10,7 @@ from rich.markup import escape
 
 from hlr_lab.cli.common import FILE, FOLDER
 from hlr_lab.cli.console import console
-from hlr_lab.display.materials import materials_table, stage_progress
+from hlr_lab.display.materials import fit_notes, materials_table, stage_progress
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, ESTIMATORS, EstimatorName
 from hlr_lab.pipeline import fit_into
 from hlr_lab.reflectance.session_fit import DIAGNOSTICS, MATERIALS, RADIANCE
@@ -105,19 +105,8 @@ def fit(session: Path, theta_c: float | Literal["auto"], method: EstimatorName, 
                           correct_lamp=not no_lamp_correction, systematic=not no_systematic, progress=show,
                           on_gaps=_say_gaps, radiance=radiance)  # fmt: skip
     console.print(materials_table(result.materials))
-    systematic = result.materials.systematic
-    for left_out in (systematic.uncalibrated, systematic.placement) if systematic is not None else ():
-        if left_out:
-            console.print(f"[yellow]systematic:[/] {escape(left_out)}", soft_wrap=True)
-    if "warning" in result.diagnostics["black_level"]:
-        console.print(f"[yellow]warning:[/] {escape(result.diagnostics['black_level']['warning'])}")
-    if "warning" in result.diagnostics["alignment"]:
-        console.print(
-            f"[bold red]misplaced:[/] {escape(result.diagnostics['alignment']['warning'])}", soft_wrap=True
-        )
-    for d in result.diagnostics["regions"]:
-        if "note" in d:
-            console.print(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")
+    for line in fit_notes(result):
+        console.print(line, soft_wrap=True)
     console.print(f"wrote {escape(str(output))} and {escape(str(output.with_name(DIAGNOSTICS)))}")
     if radiance:
         console.print(f"wrote each pose's radiance as {escape(str(output.with_name(RADIANCE)))}/POSE.exr")

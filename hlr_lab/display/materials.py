@@ -11,7 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextC
 from rich.table import Table
 
 from hlr_lab.formats.materials import MaterialsFile
-from hlr_lab.reflectance.session_fit import FitStep
+from hlr_lab.reflectance.session_fit import FitResult, FitStep
 
 
 def materials_table(materials: MaterialsFile) -> Table:
@@ -47,6 +47,25 @@ def materials_table(materials: MaterialsFile) -> Table:
         theta = f"{e.theta_c_deg:.1f}°" if e.specular == "measured" else "—"  # an unmeasured lobe has none
         t.add_row(str(e.id), rd, rs, n, theta, f"{e.pixels.diffuse} / {e.pixels.highlight}")
     return t
+
+
+def fit_notes(result: FitResult) -> list[str]:
+    """What a fit says beside its table, as console markup, most urgent last: what the systematic errors
+    leave out, the black level and the placement the photographs contradict, and each region with no
+    entry and why. ``fit`` and ``demo`` print the same lines."""
+    lines = []
+    systematic = result.materials.systematic
+    for left_out in (systematic.uncalibrated, systematic.placement) if systematic is not None else ():
+        if left_out:
+            lines.append(f"[yellow]systematic:[/] {escape(left_out)}")
+    if "warning" in result.diagnostics["black_level"]:
+        lines.append(f"[yellow]warning:[/] {escape(result.diagnostics['black_level']['warning'])}")
+    if "warning" in result.diagnostics["alignment"]:
+        lines.append(f"[bold red]misplaced:[/] {escape(result.diagnostics['alignment']['warning'])}")
+    for d in result.diagnostics["regions"]:
+        if "note" in d:
+            lines.append(f"[yellow]region {d['id']}: {escape(d['note'])}[/] (no entry written)")
+    return lines
 
 
 def _value(v: float, se: float, sys: float | None, digits: int) -> str:

@@ -222,10 +222,48 @@ Respond = Callable[[_Inputs], np.ndarray]
 
 # a lamp that lit nothing: what to look at
 _DARK_ADVICE = "check that it is connected and switched by the rig, the exposures, and the lens cap"
-_BELOW_BLACK_ADVICE = (
-    "the pixels read darker than black; check [sensor] black_level_dn against dark frames (hlr-lab "
-    "calibrate radiometric)"
-)
+_BELOW_BLACK = "the pixels read darker than black"
+_BLACK_LEVEL_ADVICE = "check [sensor] black_level_dn against dark frames (hlr-lab calibrate radiometric)"
+_POWER_ADVICE = "check [sensor] sensitivity and [light] power (hlr-lab calibrate radiometric)"
+
+
+@dataclass(frozen=True)
+class MisfitAdvice:
+    """What to check first when a region's pixels do not follow the model: its Rd below black
+    (``below_black``), or a reflectance above what the lamp can give (``too_bright``)."""
+
+    below_black: str = f"{_BELOW_BLACK}; {_BLACK_LEVEL_ADVICE}"
+    too_bright: str = _POWER_ADVICE
+
+
+def misfit_advice(black_level: dict, alignment: dict) -> MisfitAdvice:
+    """The advice for pixels that do not follow the model, from what the session's own photographs tell
+    (``fit-diagnostics.json``'s ``black_level`` and ``alignment``): an object the photographs show off where
+    the plan puts it is named first (its regions' pixels are then other surfaces', or the plate); then a
+    black level the exposure brackets put off the rig file's; where the brackets agree with the rig file,
+    the black level is not the cause and the advice says so."""
+    flagged = alignment.get("flagged", [])
+    if flagged:
+        misplaced = (
+            f"the photographs of {len(flagged)} pose(s) show the object off where the plan puts it "
+            "(fit-diagnostics.json's alignment), so this region's pixels are partly other surfaces': run "
+            "hlr-lab register and acquire the placed plan"
+        )
+        return MisfitAdvice(f"{_BELOW_BLACK}: {misplaced}", misplaced)
+    if "warning" in black_level:
+        return MisfitAdvice(
+            f"{_BELOW_BLACK}: the exposure brackets put the sensor's black level {black_level['offset_dn']:+.1f} "
+            f"DN from the rig file's [sensor] black_level_dn = {black_level['rig_dn']:g}; measure it (hlr-lab "
+            "calibrate radiometric)"
+        )
+    if black_level.get("brackets"):
+        return MisfitAdvice(
+            f"{_BELOW_BLACK}, though the exposure brackets agree with the rig file's black level (within "
+            f"{abs(black_level['offset_dn']):.1f} DN over {black_level['brackets']} brackets): check light from "
+            "elsewhere (dark frames), the rig file's camera and gantry (hlr-lab calibrate) and that the object "
+            "photographed is the plan's, where the plan puts it (hlr-lab register)"
+        )
+    return MisfitAdvice()
 
 
 @dataclass(frozen=True)
@@ -455,6 +493,7 @@ def fit_session(
     diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": [],
                          "black_level": black_level_check(offsets, rig.file.sensor.black_level_dn),
                          "alignment": alignment_record(alignment, plan)}  # fmt: skip
+    advice = misfit_advice(diagnostics["black_level"], diagnostics["alignment"])
     fits: dict[int, RegionFit] = {}
     responds: dict[int, Respond] = {}
     for i, region in enumerate(plan.object.regions):
@@ -466,7 +505,7 @@ def fit_session(
             )
             continue
         with times("fitting"):
-            entry, diag, fit, respond = _fit_one(region, p, theta_c_deg, method)
+            entry, diag, fit, respond = _fit_one(region, p, theta_c_deg, method, advice)
         if entry is not None:
             entries.append(entry)
             if respond is not None:
@@ -556,11 +595,12 @@ def black_level_check(offsets: list[float], assumed_dn: float) -> dict:
 
 
 def _fit_one(
-    region: RegionEntry, p: _Pooled, theta_c_deg, method: EstimatorName
+    region: RegionEntry, p: _Pooled, theta_c_deg, method: EstimatorName, advice: MisfitAdvice = MisfitAdvice()
 ) -> tuple[MaterialEntry | None, dict, RegionFit | None, Respond | None]:
     """The region's entry (None when not even its diffuse colour can be told), diagnostics, the fit when
     its specular was measured, and how the entry's numbers move with its inputs (None where they cannot
-    be followed: no entry, or the paper's estimator)."""
+    be followed: no entry, or the paper's estimator). ``advice``: what a note on pixels that do not follow
+    the model tells to check (:func:`misfit_advice`)."""
     intensity, irradiance, cos_alpha, cos_beta, footprint = p.inputs()
     diag = {"id": region.id, "samples": len(cos_beta), "samples_per_pose": p.per_view}
     unlit = _not_lit(intensity, irradiance, cos_alpha, cos_beta)
@@ -573,9 +613,9 @@ def _fit_one(
                          footprint=footprint, patch=patch)  # fmt: skip
     except (InsufficientSamples, DegenerateSamples) as exc:
         diag["specular"] = f"unmeasured: {exc}"
-        entry, diag, respond = _diffuse_outcome(region, p, patch, str(exc), method, diag)
+        entry, diag, respond = _diffuse_outcome(region, p, patch, str(exc), method, diag, advice)
         return entry, diag, None, respond
-    held, below_black = _held_note(fit.held_at_zero)
+    held, below_black = _held_note(fit.held_at_zero, advice)
     if below_black:  # no near-black surface: pixels that do not follow the model get no entry
         diag["note"] = held
         return None, diag, None, None
@@ -591,7 +631,7 @@ def _fit_one(
             f"the lobe's reach; plan a light whose highlight falls on this region"
         )
         diag["specular"] = f"unmeasured: {reason}"
-        entry, diag, respond = _diffuse_outcome(region, p, patch, reason, method, diag)
+        entry, diag, respond = _diffuse_outcome(region, p, patch, reason, method, diag, advice)
         return entry, diag, None, respond
     rs, rs_se = float(np.mean(fit.rs)), float(np.sqrt(np.mean(np.square(fit.rs_se))))
     if not rs > SIGNIFICANT * rs_se:  # the lobe was not seen: an Rs this close to 0 is not a measurement
@@ -603,7 +643,7 @@ def _fit_one(
         # Rd as the full fit has it: with a lobe too faint to measure still in the model, its tail beyond
         # any β cone is not taken for diffuse light (Rd from β > 35° alone came out 0.8 % high, 9 σ, on a
         # faint n = 15 lobe), and Rd's standard error carries what the unmeasured lobe leaves uncertain
-        wrong = _unphysical(fit.rd)  # materials.json cannot hold it
+        wrong = _unphysical(fit.rd, advice=advice)  # materials.json cannot hold it
         if wrong:
             diag["note"] = wrong
             return None, diag, None, None
@@ -613,7 +653,8 @@ def _fit_one(
         return entry, diag, None, _fit_response(fit, rd_only=True)
     diag["residual_rms"] = fit.residual_rms
     diag["beta_curve"] = _beta_curve(fit, intensity, irradiance, cos_alpha, cos_beta)
-    wrong = _unphysical(fit.rd) or _unphysical(fit.rs, "Rs")  # materials.json holds neither
+    # materials.json holds neither
+    wrong = _unphysical(fit.rd, advice=advice) or _unphysical(fit.rs, "Rs", advice=advice)
     if wrong:
         diag["note"] = wrong
         return None, diag, None, None
@@ -635,7 +676,13 @@ def _fit_response(fit: RegionFit, *, rd_only: bool = False) -> Respond | None:
 
 
 def _diffuse_outcome(
-    region: RegionEntry, p: _Pooled, patch: np.ndarray, reason: str, method: EstimatorName, diag: dict
+    region: RegionEntry,
+    p: _Pooled,
+    patch: np.ndarray,
+    reason: str,
+    method: EstimatorName,
+    diag: dict,
+    advice: MisfitAdvice,
 ) -> tuple[MaterialEntry | None, dict, Respond | None]:
     """A region whose highlight was not measured: its diffuse colour from the pixels beyond the lobe's tail
     (``_diffuse_only``; ``patch`` (N,) each pixel's surface patch), or the note why there is none; and how
@@ -643,7 +690,7 @@ def _diffuse_outcome(
     inputs = p.inputs()
     x = inputs.irradiance * inputs.cos_alpha
     cutoff = diffuse_cutoff(x, inputs.intensity, inputs.cos_beta, patch, MIN_DIFFUSE)
-    entry = _diffuse_only(region, inputs, reason, method, patch, cutoff)
+    entry = _diffuse_only(region, inputs, reason, method, patch, cutoff, advice)
     if isinstance(entry, str):
         diag["note"] = entry
         return None, diag, None
@@ -788,7 +835,7 @@ def _listed(a: np.ndarray) -> list[float]:
     return [float(x) for x in a]
 
 
-def _held_note(held_z: np.ndarray) -> tuple[str | None, bool]:
+def _held_note(held_z: np.ndarray, advice: MisfitAdvice) -> tuple[str | None, bool]:
     """What the fit's channels held at 0 say (``held_z`` (6,): the unbounded values in standard errors,
     NaN where not held), or None; and whether an Rd channel went further below than a near-black
     surface's noise can take it (``BELOW_BLACK`` σ). Rs is not judged so: below 0 it says no highlight
@@ -802,7 +849,7 @@ def _held_note(held_z: np.ndarray) -> tuple[str | None, bool]:
     if min((z for name, z in held if name.startswith("Rd")), default=0.0) >= -BELOW_BLACK:
         return f"held at 0 where the unbounded fit went below it: {cells}", False
     return (f"the unbounded fit went below 0 by more than {BELOW_BLACK:g} σ: {cells} — these pixels do not "
-            f"follow the model; {_BELOW_BLACK_ADVICE}", True)  # fmt: skip
+            f"follow the model; {advice.below_black}", True)  # fmt: skip
 
 
 def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
@@ -839,7 +886,7 @@ def _not_lit(intensity, irradiance, cos_alpha, cos_beta) -> str | None:
     )
 
 
-def _unphysical(values: np.ndarray, name: str = "Rd") -> str | None:
+def _unphysical(values: np.ndarray, name: str = "Rd", *, advice: MisfitAdvice) -> str | None:
     """Why a fitted Rd or Rs (C,) cannot be a reflectance (a channel below 0, or above the 1.5
     materials.json allows), or None. The pixels then do not follow the model: most often a black level or a
     sensitivity × power that is not the rig's."""
@@ -848,15 +895,18 @@ def _unphysical(values: np.ndarray, name: str = "Rd") -> str | None:
         return None
     shown = ", ".join(f"{v:.3g}" for v in values)
     if np.any(values < 0):
-        return f"the fit gave {name} = {shown} (below 0): {_BELOW_BLACK_ADVICE}"
-    return (
-        f"the fit gave {name} = {shown} (above 1.5: more light than falls on it): check [sensor] sensitivity and "
-        "[light] power (hlr-lab calibrate radiometric)"
-    )
+        return f"the fit gave {name} = {shown} (below 0): {advice.below_black}"
+    return f"the fit gave {name} = {shown} (above 1.5: more light than falls on it): {advice.too_bright}"
 
 
 def _diffuse_only(
-    region, inputs: _Inputs, reason: str, method: EstimatorName, patch: np.ndarray, cutoff: DiffuseCutoff
+    region,
+    inputs: _Inputs,
+    reason: str,
+    method: EstimatorName,
+    patch: np.ndarray,
+    cutoff: DiffuseCutoff,
+    advice: MisfitAdvice,
 ) -> MaterialEntry | str:
     """Rd by least squares over the pixels beyond ``cutoff`` (I = L·Rd·cos α; ``fitting.diffuse_only``), with
     its SE — the pixels', or the surface patches' (``patch``, (N,) int) where that is the larger, as the full
@@ -870,11 +920,11 @@ def _diffuse_only(
     rd_se = rd_standard_error(x, y - x[:, None] * rd, patch[far])
     if np.any(rd < -BELOW_BLACK * rd_se):
         shown = ", ".join(f"{v:.3g} ± {e:.1g}" for v, e in zip(rd, rd_se, strict=True))
-        return f"the fit gave Rd = {shown}, below 0 by more than {BELOW_BLACK:g} σ: {_BELOW_BLACK_ADVICE}"
+        return f"the fit gave Rd = {shown}, below 0 by more than {BELOW_BLACK:g} σ: {advice.below_black}"
     # a near-black surface: a channel whose noise straddles 0 is held there (one parameter per channel:
     # the bounded least-squares solution is the clamped one)
     rd = np.maximum(rd, 0.0)
-    wrong = _unphysical(rd)
+    wrong = _unphysical(rd, advice=advice)
     if wrong:
         return wrong
     resid = y - x[:, None] * rd
