@@ -330,7 +330,9 @@ def export_materials(
                "mitsuba": (mitsuba_files, write_mitsuba)}  # fmt: skip
     suffix = EXPORT_FORMATS[fmt]
     if suffix and output.suffix.lower() != suffix:
-        raise InputError(f"a {fmt} export is written to a {suffix} file", field="--output")
+        raise InputError(
+            f"--format {fmt} writes a {suffix} file: give a name ending in {suffix}", field="--output"
+        )
     materials = read_materials(materials_path)
     if materials.sha256 and mesh.sha256 and materials.sha256 != mesh.sha256:
         raise InputError(

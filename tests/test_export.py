@@ -175,7 +175,8 @@ def test_export_command(capsys, pebble_materials, tmp_path):
         ["export", str(path), "--mesh", "builtin:pebble", "--format", "gltf", "-o", str(tmp_path / "x.obj")]
     )
     assert code == 1
-    assert ".glb" in capsys.readouterr().err
+    assert "--output: --format gltf writes a .glb file: give a name ending in .glb" in capsys.readouterr().err
+    assert not (tmp_path / "x.obj").exists()
 
 
 def test_export_refuses_regions_that_do_not_match(capsys, pebble_materials, tmp_path):
