@@ -50,9 +50,9 @@ def materials_table(materials: MaterialsFile) -> Table:
 
 
 def fit_notes(result: FitResult) -> list[str]:
-    """What a fit says beside its table, as console markup, most urgent last: what the systematic errors
-    leave out, the black level and the placement the photographs contradict, and each region with no
-    entry and why. ``fit`` and ``demo`` print the same lines."""
+    """What a fit says beside its table, as console markup: what the systematic errors leave out, the black
+    level and the placement the photographs contradict, then each region with no entry and why. ``fit``
+    and ``demo`` print the same lines."""
     lines = []
     systematic = result.materials.systematic
     for left_out in (systematic.uncalibrated, systematic.placement) if systematic is not None else ():
