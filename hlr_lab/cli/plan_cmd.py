@@ -139,7 +139,8 @@ def plan(mesh_spec, texture, regions_file, delta_e, split_connected, min_fragmen
     \b
     Examples:
       hlr-lab plan --mesh builtin:pebble --sim -o plan.json
-      hlr-lab plan --mesh bunny.obj --up y --sim --sphere-scale 2 --views 0 --count vertices -o plan.json
+      hlr-lab paint --mesh stanford-bunny.obj --regions 8 -o bunny8.ply   # the paper's set-up:
+      hlr-lab plan --mesh bunny8.ply --up y --sim --sphere-scale 2 --views 0 --count vertices -o plan.json
       hlr-lab plan --mesh spot.obj --texture spot.png --scale 0.08 --up y --rig rig.toml -o plan.json
     """
     rig = resolve_rig(rig_path, sim)
