@@ -329,7 +329,8 @@ def report(
     ]
     for name, regions in f.end_to_end.items():
         cells = "; ".join(
-            f"{rid}: Rd {e.rd_pct:.2f} Rs {e.rs_pct:.2f} n {e.n_pct:.2f}" if np.isfinite(e.rd_pct)
+            f"{rid}: Rd {e.rd_pct:.2f} Rs {e.rs_pct:.2f} n {e.n_pct:.2f}" if np.isfinite(e.rs_pct)
+            else f"{rid}: Rd {e.rd_pct:.2f}, its highlight unmeasured" if np.isfinite(e.rd_pct)
             else f"{rid}: not fitted"
             for rid, e in sorted(regions.items())
         )  # fmt: skip

@@ -296,3 +296,22 @@ def test_a_view_whose_photographs_disagree_on_where_it_was_is_refused(night_benc
     assert main(["calibrate", "camera", "--sim", "--from", str(images), "-o", str(tmp_path / "c.toml")]) == 1
     assert "view v03's photographs were taken at different turntable steps" in capsys.readouterr().err
     assert not (tmp_path / "c.toml").exists()
+
+
+def test_the_end_to_end_line_says_which_regions_had_no_highlight_measured_and_which_no_fit():
+    """A region fitted without its highlight shows its Rd and says the highlight was not measured (no
+    "nan"); a region not fitted at all says so; the worst figures are over the regions that have them."""
+    from benchmarks.calibration import CalibrationFigures, RadiometricRecovery, Recovery, RegionErrors, report
+
+    figures = CalibrationFigures(
+        {"camera": 31.0}, {"camera": 49.0},
+        Recovery(0.01, 0.7, 0.07, 0.06, 0.016, 0.015, 0, 0, 0.58, 0.003, 0.67),
+        RadiometricRecovery(0.0, 0.0064, 0.004, 0.0034, 0.0094),
+        {"drawing": {0: RegionErrors(126.8, float("nan"), float("nan")), 1: RegionErrors(11.0, 10.0, 9.0),
+                     2: RegionErrors(float("nan"), float("nan"), float("nan"))}},
+    )  # fmt: skip
+    (line,) = (x for x in report(figures, true_rig="t", views=24, poses=30, run_poses=4, speed_factor=40)
+               if x.lstrip().startswith("drawing"))  # fmt: skip
+    assert "nan" not in line, line
+    assert "worst Rd 126.80, Rs 10.00, n 9.00" in line
+    assert "0: Rd 126.80, its highlight unmeasured; 1: Rd 11.00 Rs 10.00 n 9.00; 2: not fitted" in line
