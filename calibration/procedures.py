@@ -48,6 +48,7 @@ from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.rig.calibrated import write_calibrated_rig
 from hlr_lab.rig.file import Rig, rig_source_path
 from hlr_lab.session.lamp import LampWatch, WarmUp
+from hlr_lab.session.outputs import check_outputs
 
 ProcedureName = Literal["camera", "gantry", "radiometric"]
 Progress = Callable[[str], None]
@@ -173,7 +174,10 @@ def run_procedure(
     """Photograph ``procedure``'s frames into ``images`` (a new folder; unless ``solve_only``: then it
     holds an earlier run's), solve, and write ``output``: ``rig``'s file with the procedure's fields
     replaced and its ``[calibration.PROCEDURE]`` record. The photographs are taken with
-    ``instrumented(procedure, the opened devices)``."""
+    ``instrumented(procedure, the opened devices)``. An ``output`` over the rig file, a photograph solved
+    again, a session's own file or a link is refused before anything moves (:func:`check_outputs`)."""
+    solved_again = [p for p in images.rglob("*") if p.is_file()] if solve_only else []
+    check_outputs([output], [rig_source_path(rig), *solved_again])
     if not solve_only:
         with new_photographs_folder(images):
             warmed = _capture(procedure, rig, images, targets, settings, progress, instrumented)
@@ -210,6 +214,10 @@ def calibrate_all(
     order: tuple[ProcedureName, ...] = (
         ("camera", "gantry", "radiometric") if radiometric else ("camera", "gantry")
     )
+    # the last procedure writes output minutes after the first moved: refused (over the rig file, an
+    # intermediate file, a session's own file) before anything moves
+    steps = [folder / f"rig-{name}.toml" for name in order[:-1]]
+    check_outputs([output, *steps], [rig_source_path(rig)])
     outcome: Calibrated | None = None
     with new_photographs_folder(folder):
         for i, name in enumerate(order):
@@ -218,7 +226,7 @@ def calibrate_all(
                 name,
                 rig,
                 folder / name,
-                output if last else folder / f"rig-{name}.toml",
+                output if last else steps[i],
                 targets,
                 settings,
                 progress=progress,

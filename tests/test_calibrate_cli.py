@@ -83,3 +83,44 @@ def test_photographs_go_to_the_current_folder_and_a_failed_run_leaves_no_folder(
         assert list(work.iterdir()) == [], f"calibrate {procedure} left {list(work.rglob('*'))}"
         assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.toml", "work"]
     assert default_folder("camera", "2026-12-01-093000") == Path("calibration/2026-12-01-093000-camera")
+
+
+def test_a_calibrated_file_over_its_rig_file_a_session_or_a_photograph_is_refused_before_anything_moves(
+    tmp_path, capsys
+):
+    """``-o`` is checked as every command's output is (docs/sessions.md, "Outputs never destroy inputs"),
+    before the first photograph: not over the rig file it calibrates, not over a session's journal (the
+    file that once took a night's measurement), not over a photograph solved again with --from, not
+    through a link; ``calibrate all`` not over its own intermediate file. Nothing is written."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text(SIM_RIG.read_text())
+    session = tmp_path / "session"
+    session.mkdir()
+    (session / "session.json").write_text("{}")
+    journal = session / "journal.jsonl"
+    journal.write_text("a night\n")
+    photographs = tmp_path / "photographs"
+    (photographs / "frames").mkdir(parents=True)
+    (photographs / "frames" / "v00.png").write_bytes(b"a photograph")
+    (tmp_path / "link.toml").symlink_to(tmp_path / "elsewhere.toml")
+    out = tmp_path / "out"
+    refusals = [
+        (["camera", "--rig", str(rig), "--sim", "--out", str(out), "-o", str(rig)], "is also this command's input"),
+        (["all", "--rig", str(rig), "--sim", "--out", str(out), "-o", str(rig)], "is also this command's input"),
+        (["gantry", "--sim", "--out", str(out), "-o", str(journal)], "is one of the session"),
+        (["all", "--sim", "--out", str(out), "-o", str(journal)], "is one of the session"),
+        (["camera", "--sim", "--from", str(photographs), "-o", str(photographs / "frames" / "v00.png")],
+         "is also this command's input"),
+        (["all", "--sim", "--out", str(out), "-o", str(out / "rig-camera.toml")], "is written twice"),
+        (["radiometric", "--sim", "--out", str(out), "-o", str(tmp_path / "link.toml")], "symbolic link"),
+    ]  # fmt: skip
+    for command, said in refusals:
+        assert main(["calibrate", *command]) == 1, command
+        err = " ".join(capsys.readouterr().err.split())
+        assert said in err, (command, err)
+        assert "--output" in err, (command, err)
+        assert not out.exists(), command
+    assert rig.read_text() == SIM_RIG.read_text()
+    assert journal.read_text() == "a night\n"
+    assert (photographs / "frames" / "v00.png").read_bytes() == b"a photograph"
+    assert not (tmp_path / "elsewhere.toml").exists()

@@ -126,6 +126,22 @@ def test_segment_and_plan_refuse_to_write_over_their_inputs(painted_ply, tmp_pat
     assert _snapshot(tmp_path) == before
 
 
+def test_paint_refuses_to_write_over_the_mesh_it_paints_or_into_a_session(painted_ply, tmp_path, capsys):
+    session = tmp_path / "session"
+    (session / "object").mkdir(parents=True)
+    (session / "session.json").write_text("{}")
+    before = _snapshot(tmp_path)
+    _refused(
+        capsys,
+        ["paint", "--mesh", str(painted_ply), "--regions", "2", "-o", str(painted_ply)],
+        "m.ply",
+        "input",
+    )
+    _refused(capsys, ["paint", "--mesh", str(painted_ply), "--regions", "2", "-o", str(session / "object" / "p.ply")],
+             "session")  # fmt: skip
+    assert _snapshot(tmp_path) == before
+
+
 def test_export_refuses_the_input_mesh_its_library_and_a_library_it_did_not_write(
     textured_obj, tmp_path, capsys
 ):

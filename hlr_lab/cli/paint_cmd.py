@@ -11,6 +11,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.errors import InputError
 from hlr_lab.object.mesh import load_mesh, write_vertex_coloured_ply
 from hlr_lab.object.procedural import PALETTE, paint_patches
+from hlr_lab.session.outputs import check_outputs, mesh_files
 
 
 @click.command()
@@ -36,6 +37,7 @@ def paint(mesh_path: Path, k: int, seed: int, output: Path) -> int:
         )
     with console.status("loading the mesh…"):
         mesh = load_mesh(mesh_path)
+    check_outputs([output], mesh_files(mesh))  # not over the mesh painted, nor into a session
     with console.status(f"painting {len(mesh.vertices):,} vertices in {k} patches…"):
         painted = paint_patches(mesh, k, seed=seed).mesh
     write_vertex_coloured_ply(output, painted)
