@@ -89,6 +89,28 @@ def test_a_new_session_with_a_linked_frames_folder_is_refused_before_anything_is
     assert sorted(p.name for p in session.iterdir()) == ["frames"]  # not even a lock or a journal
 
 
+def test_a_new_session_is_not_started_among_someone_elses_files_but_a_run_stopped_before_it_resumes(
+    builtin_plan, quarter_rig, tmp_path, capsys
+):
+    """``--out ~/thesis``: a folder that is not a session (no session.json, no journal) and holds other
+    files is refused naming them, before anything is written there; one that holds only a session's own
+    files (a run that stopped before its session.json) is a session to start."""
+    session = tmp_path / "thesis"
+    session.mkdir()
+    (session / "thesis.tex").write_bytes(VICTIM)
+    assert main(resume_command(builtin_plan, quarter_rig, session, speed_factor=200)) == 1
+    said = " ".join(capsys.readouterr().err.split())
+    assert f"{session}: is not a session and holds other files (thesis.tex)" in said, said
+    assert "give a new --out" in said
+    assert sorted(p.name for p in session.iterdir()) == ["thesis.tex"]  # not even a lock
+    stopped = tmp_path / "stopped"
+    stopped.mkdir()
+    (stopped / "acquire.lock").write_bytes(b"")
+    (stopped / "acquire.log").write_bytes(b"")
+    assert main(resume_command(builtin_plan, quarter_rig, stopped, speed_factor=200)) == 0
+    assert (stopped / "session.json").is_file()
+
+
 @pytest.mark.timeout(120)  # a FIFO read would block forever; /dev/zero would fill the memory
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
 def test_a_journal_that_is_a_fifo_or_a_device_is_refused_at_once(special, finished_session, tmp_path, capsys):

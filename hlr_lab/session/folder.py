@@ -53,6 +53,24 @@ def check_session_folder(session: Path) -> None:
         _check_entries(folder, recurse=name == OBJECT)  # a kept mesh may sit in subfolders (its textures)
 
 
+def check_new_session(session: Path) -> None:
+    """Refuse (:class:`InputError` naming a few of them) a folder that is not a session yet — no
+    ``session.json``, no journal — but holds something else than a session's own files: a session is
+    started in a new or empty folder, never among someone's files (``--out ~/thesis``), which the run's
+    files would mix with and a later ``fit`` would read beside. A run that stopped before its session.json
+    leaves only its own files, and resumes."""
+    if not session.is_dir() or (session / SESSION).exists() or (session / JOURNAL).exists():
+        return
+    foreign = sorted(name for name in os.listdir(session) if name not in OWN_FILES + FOLDERS)
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise InputError(
+            f"is not a session and holds other files ({shown}): a session is started in a new or empty folder; "
+            "give a new --out",
+            path=session,
+        )
+
+
 def _check_entries(folder: Path, *, recurse: bool = False) -> None:
     with os.scandir(folder) as entries:  # d_type: no stat per frame, so thousands of frames cost little
         for entry in entries:
