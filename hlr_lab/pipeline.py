@@ -50,7 +50,7 @@ from hlr_lab.reflectance.session_fit import (
     open_session,
 )
 from hlr_lab.rig.file import Rig
-from hlr_lab.session.folder import check_session_folder
+from hlr_lab.session.folder import check_new_session, check_session_folder
 from hlr_lab.session.journal import JOURNAL, read_journal
 from hlr_lab.session.lamp import LampWatch, lamp_watch_for
 from hlr_lab.session.outputs import check_outputs, mesh_files
@@ -184,7 +184,10 @@ def acquire_plan(
 
     ``stage``: an adaptive run's pilot or re-plan (:mod:`hlr_lab.adaptive`) and the path its object's files
     are named from, run instead of the plan's own poses (the session still records the plan at
-    ``plan_path``). Without it, a session an adaptive run started is refused: its plan is in its journal."""
+    ``plan_path``). Without it, a session an adaptive run started is refused: its plan is in its journal.
+    A folder that is not a session but holds other files is refused (a session is started in a new or
+    empty folder: :func:`~hlr_lab.session.folder.check_new_session`)."""
+    check_new_session(session)
     if stage is None:
         _refuse_adaptive_session(session)
     plan, poses_path = stage or (read_plan(plan_path), plan_path)

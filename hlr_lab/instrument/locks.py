@@ -28,7 +28,7 @@ from pathlib import Path
 
 from hlr_lab.errors import HlrLabError
 from hlr_lab.files import open_regular
-from hlr_lab.session.folder import LOCK, check_new_session, check_session_folder
+from hlr_lab.session.folder import LOCK, check_session_folder
 
 
 class Busy(HlrLabError):
@@ -120,9 +120,7 @@ def hold_devices(links: Iterable[tuple[str, str]]) -> Iterator[None]:
 @contextlib.contextmanager
 def hold_session(session: Path) -> Iterator[None]:
     """Lock a session directory (created if missing) for the block; a session holding a link or a special
-    file is refused first (:func:`hlr_lab.session.folder.check_session_folder`), and so is a folder that is
-    not a session but holds other files (:func:`~hlr_lab.session.folder.check_new_session`)."""
-    check_new_session(session)
+    file is refused first (:func:`hlr_lab.session.folder.check_session_folder`)."""
     session.mkdir(parents=True, exist_ok=True)
     check_session_folder(session)
     lock = Lock(session / LOCK, f"session {session}")
