@@ -46,7 +46,7 @@ from hlr_lab.instrument.control import open_rig
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.instruments import Instruments
 from hlr_lab.rig.calibrated import write_calibrated_rig
-from hlr_lab.rig.file import Rig, rig_source_path
+from hlr_lab.rig.file import RIG_FORMAT, Rig, rig_source_path
 from hlr_lab.session.lamp import LampWatch, WarmUp
 from hlr_lab.session.outputs import check_outputs
 
@@ -177,7 +177,7 @@ def run_procedure(
     ``instrumented(procedure, the opened devices)``. An ``output`` over the rig file, a photograph solved
     again, a session's own file or a link is refused before anything moves (:func:`check_outputs`)."""
     solved_again = [p for p in images.rglob("*") if p.is_file()] if solve_only else []
-    check_outputs([output], [rig_source_path(rig), *solved_again])
+    check_outputs([output], [rig_source_path(rig), *solved_again], writes=[RIG_FORMAT])
     if not solve_only:
         with new_photographs_folder(images):
             warmed = _capture(procedure, rig, images, targets, settings, progress, instrumented)
@@ -217,7 +217,7 @@ def calibrate_all(
     # the last procedure writes output minutes after the first moved: refused (over the rig file, an
     # intermediate file, a session's own file) before anything moves
     steps = [folder / f"rig-{name}.toml" for name in order[:-1]]
-    check_outputs([output, *steps], [rig_source_path(rig)])
+    check_outputs([output, *steps], [rig_source_path(rig)], writes=[RIG_FORMAT] * (1 + len(steps)))
     outcome: Calibrated | None = None
     with new_photographs_folder(folder):
         for i, name in enumerate(order):

@@ -24,7 +24,7 @@ from hlr_lab.acquisition.white_reference import reference_meter
 from hlr_lab.errors import InputError
 from hlr_lab.files import LINK_REFUSED, atomic_write_all, model_json
 from hlr_lab.fitting import DEFAULT_ESTIMATOR, EstimatorName
-from hlr_lab.formats.materials import read_materials
+from hlr_lab.formats.materials import MATERIALS_FORMAT, read_materials
 from hlr_lab.formats.plan import PlacementRecord, PlanFile, build_plan, read_plan
 from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable, planned_segmentation
 from hlr_lab.formats.regions import mesh_reference, read_regions
@@ -40,6 +40,7 @@ from hlr_lab.planning.planner import PlanResult, PlanSettings, TakenLight, plan_
 from hlr_lab.reflectance.radiance_file import RadianceHeader, write_radiance
 from hlr_lab.reflectance.session_fit import (
     DIAGNOSTICS,
+    DIAGNOSTICS_FORMAT,
     MATERIALS,
     RADIANCE,
     FitResult,
@@ -248,7 +249,10 @@ def fit_into(
     diagnostics = output.with_name(DIAGNOSTICS)
     s = open_session(session, allow_incomplete=allow_incomplete, correct_lamp=correct_lamp)
     exr = radiance_files(s, output.parent / RADIANCE) if radiance else {}
-    check_outputs([output, diagnostics, *exr.values()])
+    check_outputs(
+        [output, diagnostics, *exr.values()],
+        writes=[MATERIALS_FORMAT, DIAGNOSTICS_FORMAT, *[None] * len(exr)],
+    )
     on_gaps(s.gaps.notes(), len(s.gaps.missing_frames))
     if not s.views:
         raise InputError("the session has no frames yet; run hlr-lab acquire on it first", path=session)
@@ -304,7 +308,7 @@ def report_into(
     from hlr_lab.report.build import build_report, write_report
 
     output = output or session / REPORT
-    check_outputs([output], [session / MATERIALS, session / DIAGNOSTICS])
+    check_outputs([output], [session / MATERIALS, session / DIAGNOSTICS], writes=[None])
     s = open_session(session, allow_incomplete=True)  # fit said what is missing (so does materials.json)
     page, figures = build_report(s, progress=progress, page_folder=output.parent)
     write_report(output, page)
@@ -344,5 +348,6 @@ def export_materials(
     seg = read_regions(regions_path, mesh) if regions_path else segment(mesh)
     parts = region_parts(mesh, seg, materials, source=str(materials_path))
     files, write = writers[fmt]
-    check_outputs(files(output, parts), [materials_path, regions_path, *mesh_files(mesh)])
+    written = files(output, parts)
+    check_outputs(written, [materials_path, regions_path, *mesh_files(mesh)], writes=[None] * len(written))
     return write(output, parts), stand_ins(parts)

@@ -142,6 +142,45 @@ def test_paint_refuses_to_write_over_the_mesh_it_paints_or_into_a_session(painte
     assert _snapshot(tmp_path) == before
 
 
+def test_an_hlr_lab_file_of_another_kind_is_not_written_over_but_one_of_the_same_kind_is(
+    painted_ply, builtin_plan, finished_session, tmp_path, capsys
+):
+    """A mistyped ``-o`` that names an existing hlr-lab file of another kind (its declared ``format``) is
+    refused: regions over a plan, a plan over regions, a report over the plan a resumed run needs, regions
+    over a rig file (its format line after its comments), a calibrated rig file over a plan, before any
+    photograph. The same kind is written again."""
+    plan = tmp_path / "plan.json"
+    plan.write_bytes(builtin_plan.read_bytes())
+    regions = tmp_path / "regions.json"
+    assert main(["segment", "--mesh", str(painted_ply), "-o", str(regions)]) == 0
+    rig = tmp_path / "rig.toml"
+    rig.write_text('# a rig file\n# with comments first\n[rig]\nformat = "hlr-lab.rig"\nversion = 1\n')
+    before = _snapshot(tmp_path)
+    _refused(
+        capsys,
+        ["segment", "--mesh", str(painted_ply), "-o", str(plan)],
+        "plan.json: --output: is an hlr-lab.plan file, and this command would write an hlr-lab.regions file",
+    )
+    _refused(
+        capsys,
+        ["plan", "--mesh", str(painted_ply), "--sim", "-o", str(regions)],
+        "is an hlr-lab.regions file",
+    )
+    _refused(
+        capsys,
+        ["report", str(finished_session), "-o", str(plan)],
+        "is an hlr-lab.plan file, and this command would write a file of another kind",
+    )
+    _refused(capsys, ["segment", "--mesh", str(painted_ply), "-o", str(rig)], "is an hlr-lab.rig file")
+    _refused(
+        capsys,
+        ["calibrate", "camera", "--sim", "-o", str(plan)],
+        "is an hlr-lab.plan file, and this command would write an hlr-lab.rig file",
+    )
+    assert _snapshot(tmp_path) == before
+    assert main(["segment", "--mesh", str(painted_ply), "--delta-e", "9", "-o", str(regions)]) == 0
+
+
 def test_export_refuses_the_input_mesh_its_library_and_a_library_it_did_not_write(
     textured_obj, tmp_path, capsys
 ):

@@ -50,7 +50,7 @@ from hlr_lab.formats.plan import read_plan
 from hlr_lab.instrument.control import RunStopped
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
-from hlr_lab.rig.file import Rig, load_rig, sim_rig
+from hlr_lab.rig.file import RIG_FORMAT, Rig, load_rig, sim_rig
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
 from hlr_lab.session.lamp import lamp_watch_for
 from hlr_lab.session.outputs import check_outputs
@@ -215,7 +215,7 @@ def _check_calibration_outputs(path: Path, jobs: list[AcquireJob | CalibrateJob]
         if not isinstance(job, CalibrateJob):
             continue
         try:
-            check_outputs([job.output], [*inputs, job.rig], field=None)
+            check_outputs([job.output], [*inputs, job.rig], field=None, writes=[RIG_FORMAT])
         except InputError as exc:
             raise InputError(str(exc), path=path, field=f"job[{i}].output") from None
         inside = next((s for s in sessions if os.path.realpath(job.output).startswith(s + os.sep)), None)

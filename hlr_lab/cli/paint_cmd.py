@@ -37,7 +37,7 @@ def paint(mesh_path: Path, k: int, seed: int, output: Path) -> int:
         )
     with console.status("loading the mesh…"):
         mesh = load_mesh(mesh_path)
-    check_outputs([output], mesh_files(mesh))  # not over the mesh painted, nor into a session
+    check_outputs([output], mesh_files(mesh), writes=[None])  # not over the mesh painted, nor into a session
     with console.status(f"painting {len(mesh.vertices):,} vertices in {k} patches…"):
         painted = paint_patches(mesh, k, seed=seed).mesh
     write_vertex_coloured_ply(output, painted)

@@ -11,7 +11,7 @@ from hlr_lab.cli.console import console
 from hlr_lab.cli.segment_cmd import segmentation_options
 from hlr_lab.display.plan import coverage_table, plan_summary
 from hlr_lab.errors import InputError
-from hlr_lab.formats.plan import write_plan
+from hlr_lab.formats.plan import PLAN_FORMAT, write_plan
 from hlr_lab.formats.regions import read_regions
 from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object, plan_object
@@ -146,7 +146,7 @@ def plan(mesh_spec, texture, regions_file, delta_e, split_connected, min_fragmen
     rig = resolve_rig(rig_path, sim)
     with console.status("loading the mesh…"):
         mesh = load_object(mesh_spec, texture)
-    check_outputs([output], [*mesh_files(mesh), regions_file, rig_path])
+    check_outputs([output], [*mesh_files(mesh), regions_file, rig_path], writes=[PLAN_FORMAT])
     if regions_file is not None:
         seg = read_regions(regions_file, mesh)
     else:

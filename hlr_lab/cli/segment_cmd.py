@@ -7,7 +7,7 @@ import click
 from hlr_lab.cli.common import Finite, mesh_options, output_option
 from hlr_lab.cli.console import console
 from hlr_lab.display.regions import region_table
-from hlr_lab.formats.regions import write_regions
+from hlr_lab.formats.regions import REGIONS_FORMAT, write_regions
 from hlr_lab.object.segment import DEFAULT_DELTA_E, DEFAULT_MIN_FRAGMENT
 from hlr_lab.object.segment import segment as segment_mesh
 from hlr_lab.pipeline import load_object
@@ -51,7 +51,7 @@ def segment(mesh_spec, texture, n_regions, delta_e, split_connected, min_fragmen
     """
     with console.status("loading the mesh…"):
         mesh = load_object(mesh_spec, texture)
-    check_outputs([output], mesh_files(mesh))
+    check_outputs([output], mesh_files(mesh), writes=[REGIONS_FORMAT])
     with console.status(f"segmenting {len(mesh.vertices):,} vertices…"):
         seg = segment_mesh(
             mesh,

@@ -73,6 +73,7 @@ from hlr_lab.session.metadata import SESSION, read_record, session_plan
 from hlr_lab.session.stages import current_plan
 
 MATERIALS, DIAGNOSTICS = "materials.json", "fit-diagnostics.json"  # written into the session by default
+DIAGNOSTICS_FORMAT = "hlr-lab.fit-diagnostics"
 # fit --radiance: each pose's merged radiance as POSE.exr, in this folder beside materials.json
 RADIANCE = "radiance"
 SIGNIFICANT = 5.0  # a fitted Rs below this many standard errors is no highlight seen
@@ -490,7 +491,7 @@ def fit_session(
         )
 
     entries: list[MaterialEntry] = []
-    diagnostics: dict = {"format": "hlr-lab.fit-diagnostics", "version": 1, "regions": [],
+    diagnostics: dict = {"format": DIAGNOSTICS_FORMAT, "version": 1, "regions": [],
                          "black_level": black_level_check(offsets, rig.file.sensor.black_level_dn),
                          "alignment": alignment_record(alignment, plan)}  # fmt: skip
     advice = misfit_advice(diagnostics["black_level"], diagnostics["alignment"])

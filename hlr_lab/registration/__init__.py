@@ -20,7 +20,7 @@ import numpy as np
 
 from hlr_lab.acquisition.poses import Outcome, Step
 from hlr_lab.errors import InputError
-from hlr_lab.formats.plan import PlacementRecord, PlanFile, read_plan, write_plan
+from hlr_lab.formats.plan import PLAN_FORMAT, PlacementRecord, PlanFile, read_plan, write_plan
 from hlr_lab.instrument.control import NO_OVERRIDES
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import motion_targets
@@ -76,7 +76,7 @@ def register_plan(
     the photographs already there), measure where it lies, plan again for it and write the placed plan at
     ``output``. ``progress`` hears each step, ``on_step`` the photographs' poses."""
     plan = read_plan(plan_path)
-    check_outputs([output], [plan_path])
+    check_outputs([output], [plan_path], writes=[PLAN_FORMAT])
     motion_targets(plan, rig, plan_path)  # a plan for another rig is refused before anything moves
     seconds: dict[str, float] = {}
     lap = time.perf_counter()

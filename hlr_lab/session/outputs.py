@@ -32,14 +32,23 @@ def has_control_character(name: str) -> bool:
 
 
 def check_outputs(
-    outputs: Sequence[Path], inputs: Iterable[str | Path | None] = (), *, field: str | None = "--output"
+    outputs: Sequence[Path],
+    inputs: Iterable[str | Path | None] = (),
+    *,
+    field: str | None = "--output",
+    writes: Sequence[str | None] | None = None,
 ) -> None:
     """Refuse (:class:`InputError` naming the output and ``field``) to write any of ``outputs`` — the files
     one command is about to write — when it is one of ``inputs`` (the same file by any name, hard links
     included), a symbolic link, a file of a session (its journal, session.json, lock, log, reserve, anything in its
     ``frames/`` or ``object/``), another of ``outputs`` (two files of the command under one name), an
     existing folder, or a name with a control character (a line break, a NUL). ``inputs`` may hold
-    ``None`` and ``builtin:`` names (skipped)."""
+    ``None`` and ``builtin:`` names (skipped).
+
+    ``writes``: what each output is, its hlr-lab format (``"hlr-lab.materials"``) or None for any other
+    file (a report, a mesh); an existing file that declares another hlr-lab format is then refused too
+    (``report S -o plan.json`` would replace the plan a resumed run needs). Without it, not checked."""
+    kinds: Sequence[str | bool | None] = writes if writes is not None else [False] * len(outputs)
     taken: dict[str, Path] = {}
     for output in outputs:
         if has_control_character(str(output)):
@@ -70,6 +79,34 @@ def check_outputs(
                     path=output,
                     field=field,
                 )
+    for output, kind in zip(outputs, kinds, strict=True):  # last: an input or a session file says more
+        found = declared_format(output) if kind is not False else None
+        if found is not None and found != kind:
+            what = f"an {kind} file" if kind else "a file of another kind"
+            raise InputError(
+                f"is an {found} file, and this command would write {what} over it: give another output (or move "
+                "the file away first)",
+                path=output,
+                field=field,
+            )
+
+
+# the hlr-lab file an existing file is: a JSON file's first key, a rig file's [rig] format (after its comments)
+_DECLARED = re.compile(
+    rb'\A\s*\{\s*"format"\s*:\s*"(hlr-lab\.[a-z-]+)"|^format\s*=\s*"(hlr-lab\.[a-z-]+)"', re.M
+)
+_HEAD = 16384  # bytes read: a rig file's comments come before its format line
+
+
+def declared_format(path: Path) -> str | None:
+    """The hlr-lab format (``"hlr-lab.plan"``, …) an existing regular file declares at its head, or None."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_HEAD)
+    except OSError:  # not there, or not readable: nothing to protect that hlr-lab could tell
+        return None
+    found = _DECLARED.search(head)
+    return None if found is None else (found.group(1) or found.group(2)).decode()
 
 
 def mesh_files(mesh: ColouredMesh) -> list[Path]:
