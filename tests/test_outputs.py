@@ -19,7 +19,7 @@ from hlr_lab.formats.materials import PixelCounts, materials_file, unmeasured_en
 from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.object.mesh import load_mesh
 from hlr_lab.object.segment import segment
-from hlr_lab.session.outputs import check_outputs
+from hlr_lab.session.outputs import check_outputs, declared_format
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
@@ -179,6 +179,9 @@ def test_an_hlr_lab_file_of_another_kind_is_not_written_over_but_one_of_the_same
     )
     assert _snapshot(tmp_path) == before
     assert main(["segment", "--mesh", str(painted_ply), "--delta-e", "9", "-o", str(regions)]) == 0
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)  # not read to learn its kind (a read would block): written over as any file would be
+    assert declared_format(fifo) is None
 
 
 def test_export_refuses_the_input_mesh_its_library_and_a_library_it_did_not_write(

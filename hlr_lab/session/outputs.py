@@ -99,7 +99,10 @@ _HEAD = 16384  # bytes read: a rig file's comments come before its format line
 
 
 def declared_format(path: Path) -> str | None:
-    """The hlr-lab format (``"hlr-lab.plan"``, …) an existing regular file declares at its head, or None."""
+    """The hlr-lab format (``"hlr-lab.plan"``, …) an existing regular file declares at its head, or None
+    (also for anything but a regular file: reading a FIFO would block)."""
+    if not path.is_file():
+        return None
     try:
         with open(path, "rb") as f:
             head = f.read(_HEAD)
