@@ -133,6 +133,8 @@ def test_a_job_that_keeps_failing_is_skipped_and_a_rig_not_confirmed_safe_stops_
 
 def test_campaign_files_that_are_wrong_are_refused_with_the_field(tmp_path, builtin_plan):
     path = campaign_file(tmp_path, builtin_plan, jobs=1)
+    (tmp_path / "thesis").mkdir()
+    (tmp_path / "thesis" / "thesis.tex").write_text("mine")
     text = path.read_text()
     calibrating = text + '\n[[job]]\nkind = "calibrate"\nname = "c"\nprocedure = "radiometric"\nsim = true\n'
     for change, field in (
@@ -160,6 +162,10 @@ def test_campaign_files_that_are_wrong_are_refused_with_the_field(tmp_path, buil
         (calibrating + f'output = "{builtin_plan}"\n', "is also this command's input"),  # over a job's plan
         (calibrating + 'output = "s0/rig.toml"\n', "lies in the session of an acquire job"),
         (text + 'warm_up_min = "30"\n', "job[0].warm_up_min: Input should be a valid number"),
+        (  # a session is started in a new or empty folder, never among someone's files
+            text.replace('out = "s0"', 'out = "thesis"'),
+            "holds other files (thesis.tex): a session is started in a new or empty folder; give a new out for the job",
+        ),
     ):
         path.write_text(change)
         (tmp_path / "r.toml").write_text("")

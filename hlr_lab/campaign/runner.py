@@ -51,6 +51,7 @@ from hlr_lab.instrument.control import RunStopped
 from hlr_lab.instrument.devices import Links
 from hlr_lab.instrument.motion import estimate_duration_s, motion_targets
 from hlr_lab.rig.file import RIG_FORMAT, Rig, load_rig, sim_rig
+from hlr_lab.session.folder import check_new_session
 from hlr_lab.session.journal import JOURNAL, Journal, read_journal
 from hlr_lab.session.lamp import lamp_watch_for
 from hlr_lab.session.outputs import check_outputs
@@ -184,6 +185,10 @@ def load_campaign(path: Path) -> Campaign:
                     path=path,
                     field=f"job[{i}].out",
                 )
+            try:  # a folder among someone's files is refused now, not in the middle of the night
+                check_new_session(job.out, option="out for the job")
+            except InputError as exc:
+                raise InputError(f"job {job.name!r}: {exc}", path=path, field=f"job[{i}].out") from None
         for key in ("plan", "rig", "scene"):
             p = getattr(job, key, None)
             written = key == "rig" and p in {j.output for j in checked if isinstance(j, CalibrateJob)}

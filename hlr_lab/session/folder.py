@@ -53,12 +53,12 @@ def check_session_folder(session: Path) -> None:
         _check_entries(folder, recurse=name == OBJECT)  # a kept mesh may sit in subfolders (its textures)
 
 
-def check_new_session(session: Path) -> None:
+def check_new_session(session: Path, *, option: str = "--out") -> None:
     """Refuse (:class:`InputError` naming a few of them) a folder that is not a session yet — no
     ``session.json``, no journal — but holds something else than a session's own files: a session is
     started in a new or empty folder, never among someone's files (``--out ~/thesis``), which the run's
     files would mix with and a later ``fit`` would read beside. A run that stopped before its session.json
-    leaves only its own files, and resumes."""
+    leaves only its own files, and resumes. ``option``: what names the folder, in the advice."""
     if not session.is_dir() or (session / SESSION).exists() or (session / JOURNAL).exists():
         return
     foreign = sorted(name for name in os.listdir(session) if name not in OWN_FILES + FOLDERS)
@@ -66,7 +66,7 @@ def check_new_session(session: Path) -> None:
         shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
         raise InputError(
             f"is not a session and holds other files ({shown}): a session is started in a new or empty folder; "
-            "give a new --out",
+            f"give a new {option}",
             path=session,
         )
 
