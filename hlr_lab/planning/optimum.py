@@ -182,11 +182,10 @@ def minimum_cover(
             lower = max(lower, min(incumbent, math.ceil(proof.mip_dual_bound - _EPS)))
         if lower >= incumbent:
             return result(incumbent, None, True, "no cover smaller than the incumbent")
-        if proof.x is not None:
-            cover = _members(rounded[1], useful, np.round(proof.x).astype(np.int64))
-            if len(cover) < incumbent and np.all(capped[cover].sum(axis=0) >= need - _EPS):
-                proven = len(cover) <= lower
-                return result(lower, cover, proven, "optimal" if proven else "node limit reached")
+        cover = _cover_of(proof, rounded[1], useful, capped, need)
+        if cover is not None and len(cover) < incumbent:
+            proven = len(cover) <= lower
+            return result(lower, cover, proven, "optimal" if proven else "node limit reached")
     if time.perf_counter() > deadline:
         return result(lower, None, False, TIME_GUARD)
     # 3. A cover of the true counts: of two lights by trying every pair (the rounding can merge a pair
@@ -201,10 +200,9 @@ def minimum_cover(
     if true_solved:  # its cover, if any, was no smaller than the incumbent
         return searched(lower)
     if len(kinds) > MAX_MILP_COLUMNS:
-        keep = _cheapest(kinds, inverse, reduced[useful], MAX_MILP_COLUMNS)
-        mask = np.isin(inverse, keep)
-        useful, inverse = useful[mask], np.searchsorted(keep, inverse[mask])
-        kinds, multiplicity = kinds[keep], multiplicity[keep]
+        kinds, multiplicity, inverse, useful = _cheapest_columns(
+            kinds, multiplicity, inverse, useful, reduced, MAX_MILP_COLUMNS
+        )
     found = _solve(kinds, multiplicity, need, deadline)
     if found.x is not None:
         cover = _members(inverse, useful, np.round(found.x).astype(np.int64))
@@ -266,14 +264,9 @@ def _deepened(
         # a cover of k lights among the cheapest few (a quarter of them at most) is the fewest already (k is
         # the bound): often there
         for few in (f for f in _FEW_COLUMNS if 4 * f <= len(kinds)):
-            keep = _cheapest(kinds, inverse, reduced[columns], few)
-            mask = np.isin(inverse, keep)
-            found = _solve(
-                kinds[keep], multiplicity[keep], need, deadline, nodes=min(_FEW_NODES, MILP_NODE_LIMIT)
-            )
-            best = smaller(
-                _cover_of(found, np.searchsorted(keep, inverse[mask]), columns[mask], capped, need)
-            )
+            some = _cheapest_columns(kinds, multiplicity, inverse, columns, reduced, few)
+            found = _solve(some[0], some[1], need, deadline, nodes=min(_FEW_NODES, MILP_NODE_LIMIT))
+            best = smaller(_cover_of(found, some[2], some[3], capped, need))
             if best is not None and len(best) <= k:
                 return _Deepened(k, best)
         if len(kinds) > MAX_MILP_COLUMNS:  # too many to settle k
@@ -312,6 +305,22 @@ def _pair_cover(
     if pair is None:
         return None
     return _members(inverse, useful, np.bincount(tried[pair], minlength=len(kinds)))
+
+
+def _cheapest_columns(
+    kinds: np.ndarray,
+    multiplicity: np.ndarray,
+    inverse: np.ndarray,
+    columns: np.ndarray,
+    reduced: np.ndarray,
+    most: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The programme cut to the ``most`` kinds of least reduced cost (:func:`_cheapest`): their rows (k, R)
+    and multiplicities (k,), and of the ``columns`` (n,) of those kinds, each one's kind among them and
+    the columns themselves (``inverse`` (n,) each column's kind; ``reduced`` (N,) every column's cost)."""
+    keep = _cheapest(kinds, inverse, reduced[columns], most)
+    mask = np.isin(inverse, keep)
+    return kinds[keep], multiplicity[keep], np.searchsorted(keep, inverse[mask]), columns[mask]
 
 
 def _cheapest(kinds: np.ndarray, inverse: np.ndarray, reduced: np.ndarray, most: int) -> np.ndarray:

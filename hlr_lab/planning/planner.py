@@ -619,10 +619,10 @@ class _Planner:
         the plan does not depend on the machine's speed; the time budget only guards the whole. Where no
         round's cover held, the fewest lights among those counted exactly that cover are returned if no more
         than the last round's (:meth:`_exact_cover`), else that last cover, unproven: the greedy completes it
-        from there. A covering pair is
-        sought before the programme (``pairs_among``) in the first round among all candidates, then among
-        those counted exactly first: the pair search favours the largest totals, and once a cover has fallen
-        short those are the suspect estimates (a pair of exact counts that covers holds outright)."""
+        from there. A covering pair is sought before the programme (``pairs_among``) in the first round
+        among all candidates, then among those counted exactly first: the pair search favours the largest
+        totals, and once a cover has fallen short those are the suspect estimates (a pair of exact counts
+        that covers holds outright)."""
         m, budget = need, self.settings.optimum_budget_s  # m (R,): each region's target
         counts, q, start = counts.copy(), len(self.cands.coarse), time.perf_counter()
         exact = np.zeros(len(counts), bool)

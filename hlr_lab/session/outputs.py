@@ -48,7 +48,6 @@ def check_outputs(
     ``writes``: what each output is, its hlr-lab format (``"hlr-lab.materials"``) or None for any other
     file (a report, a mesh); an existing file that declares another hlr-lab format is then refused too
     (``report S -o plan.json`` would replace the plan a resumed run needs). Without it, not checked."""
-    kinds: Sequence[str | bool | None] = writes if writes is not None else [False] * len(outputs)
     taken: dict[str, Path] = {}
     for output in outputs:
         if has_control_character(str(output)):
@@ -79,8 +78,10 @@ def check_outputs(
                     path=output,
                     field=field,
                 )
-    for output, kind in zip(outputs, kinds, strict=True):  # last: an input or a session file says more
-        found = declared_format(output) if kind is not False else None
+    if writes is None:  # what each output is was not said: not checked
+        return
+    for output, kind in zip(outputs, writes, strict=True):  # last: an input or a session file says more
+        found = declared_format(output)
         if found is not None and found != kind:
             what = f"an {kind} file" if kind else "a file of another kind"
             raise InputError(
