@@ -132,9 +132,11 @@ def test_corner_normals_are_sharp_across_creases_and_smooth_elsewhere():
 
 
 def test_a_few_faces_corner_normals_are_those_of_all_faces(monkeypatch):
-    """``corner_normals_of`` (a G-buffer's hit faces on a scan) works out only the faces asked for, its
-    crease vertices and their faces found a block of faces at a time: with blocks of 50 faces, the
-    welded cylinder's creased and smooth corners are exactly those of :attr:`corner_normals`."""
+    """``corner_normals_of`` (a G-buffer's hit faces on a scan) works out only the faces asked for (each
+    once, however many pixels hit it), its crease vertices and their faces found a block of faces at a
+    time: with blocks of 50 faces, the welded cylinder's creased and smooth corners are exactly those of
+    :attr:`corner_normals`, and the mesh keeps nothing per face. Asked for as many as it has faces (a
+    G-buffer of a coarse mesh), it works out all of them once and keeps them."""
     from hlr_lab.object import mesh as mesh_module
 
     cyl = trimesh.creation.cylinder(radius=0.04, height=0.12, sections=64)
@@ -142,8 +144,23 @@ def test_a_few_faces_corner_normals_are_those_of_all_faces(monkeypatch):
     v, f = np.asarray(cyl.vertices), np.asarray(cyl.faces, np.int64)
     every = ColouredMesh(v, f).corner_normals
     monkeypatch.setattr(mesh_module, "_FACE_BLOCK", 50)
-    few = np.random.default_rng(4).integers(0, len(f), 60)
-    np.testing.assert_array_equal(ColouredMesh(v, f).corner_normals_of(few), every[few])
+    rng = np.random.default_rng(4)
+    few = rng.integers(0, len(f), 60)  # fewer than its 256 faces, some twice
+    scan_like = ColouredMesh(v, f)
+    np.testing.assert_array_equal(scan_like.corner_normals_of(few), every[few])
+    assert "corner_normals" not in scan_like.__dict__
+    many = rng.integers(0, len(f), 20 * len(f))  # pixels: many on each face
+    coarse = ColouredMesh(v, f)
+    np.testing.assert_array_equal(coarse.corner_normals_of(many), every[many])
+    assert "corner_normals" in coarse.__dict__
+    np.testing.assert_array_equal(coarse.corner_normals_of(few), every[few])
+    # the same rule for the faces' own normals (a ray's hit face, in every first hit)
+    units = ColouredMesh(v, f).face_normals
+    scan_like, coarse = ColouredMesh(v, f), ColouredMesh(v, f)
+    np.testing.assert_array_equal(scan_like.face_normals_of(few), units[few])
+    np.testing.assert_array_equal(coarse.face_normals_of(many), units[many])
+    assert "face_normals" not in scan_like.__dict__
+    assert "face_normals" in coarse.__dict__
 
 
 def _open_box() -> ColouredMesh:
