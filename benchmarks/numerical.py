@@ -328,11 +328,14 @@ class OptimumFigures:
     plan_s: float
 
 
+MIXED_THETA_C_DEG = (30.0, 12.0, 2.6, 4.0)  # builtin:pebble's regions, as a re-plan measures them
+
+
 def optimum_objects(mesh_path: Path | None, up: str, scale: float, assets: Path | None) -> list[tuple]:
     """``bench plan``'s cases for the fewest lights: (name, placed mesh, settings). The paper's set-up
     on ``mesh_path`` (8 regions; counted in pixels, then in vertices as the paper counts) and the same mesh
     in 12 patches, builtin:pebble and the pebble in 14 patches on the simulated rig, and Spot when
-    ``assets`` holds it."""
+    ``assets`` holds it; the pebble also with each region's own cone, as an adaptive re-plan plans it."""
     rig = sim_rig()
     base = load_mesh(mesh_path) if mesh_path else pebble().mesh
     name = Path(mesh_path).stem if mesh_path else "builtin:pebble"
@@ -349,6 +352,9 @@ def optimum_objects(mesh_path: Path | None, up: str, scale: float, assets: Path 
     stone = pebble().mesh
     placed = stone.transformed(placement(stone))
     cases.append(("builtin:pebble, sim rig", placed, PlanSettings()))
+    # an adaptive re-plan's cones: each region's measured θc, a wide lobe beside a narrow one
+    mixed = PlanSettings(region_theta_c_deg=MIXED_THETA_C_DEG)
+    cases.append(("builtin:pebble, sim rig, θc 30/12/2.6/4°", placed, mixed))
     cases.append(("pebble in 14 patches, sim rig", paint_patches(placed, 14).mesh, PlanSettings()))
     spot = None if assets is None else assets / "spot" / "spot_triangulated.obj"
     if spot is not None and spot.exists():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import KDTree
 
-from benchmarks.numerical import PAPER_SETTINGS, paper_41_object
+from benchmarks.numerical import MIXED_THETA_C_DEG, PAPER_SETTINGS, paper_41_object
 from hlr_lab.errors import InputError, PlanningError
 from hlr_lab.geometry.camera import Camera
 from hlr_lab.geometry.sphere import azimuth_elevation, directions_with_spacing, rotation_z
@@ -381,3 +381,26 @@ def test_a_y_up_mesh_is_stood_up_by_the_least_rotation():
 
     rot = _rotation_taking(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
     np.testing.assert_allclose(rot, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
+
+
+def test_each_regions_estimates_pool_on_its_own_cone_as_near_the_exact_counts_as_a_plan_with_one_cone(
+    placed_pebble, pebble_object, rig
+):
+    """An adaptive re-plan's cones (each region's measured θc: 30°, 12°, 2.6° and 4° on the pebble's
+    regions) pool each region's samples on a grid of its own θc/2, as a plan with one θc pools all of
+    them; the wide lobes pooled on the narrowest's grid took 38.5 s of ``hlr-lab bench plan``'s mixed
+    case, 3.0 s now (a speed the bench prints). Each region's best candidates by estimate, counted exactly:
+    the estimates stay within what one cone's give (measured 1.11–1.35 × the exact counts here, 1.09–1.27
+    with one 5° cone; high at a peak, where a pool's disc holds each member's whole cone)."""
+    seg = segment(pebble_object.mesh)
+    settings = PlanSettings(region_theta_c_deg=MIXED_THETA_C_DEG, min_samples=250)
+    planner = _Planner(placed_pebble, seg, rig, settings, None, _Clock())
+    estimates = planner.estimates_of(0)  # (Q, R)
+    for region in range(seg.n_regions):
+        if estimates[:, region].max() == 0:  # region 2: its narrow lobe seen in no candidate of this view
+            continue
+        best = np.argsort(-estimates[:, region], kind="stable")[:8]
+        only = np.eye(seg.n_regions)[region] * 1e9  # the exact count asked for this region alone
+        exact = np.array([planner.evaluate(0, int(q), only, True)[region] for q in best])
+        ratio = estimates[best, region] / exact
+        assert np.all((ratio > 0.9) & (ratio < 1.5)), (region, ratio)

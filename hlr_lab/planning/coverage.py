@@ -143,12 +143,16 @@ class ViewSamples:
 
 
 def count_estimates(
-    view: ViewSamples, caster: RayCaster, theta_c: np.ndarray, cell: float, tree: KDTree | None = None
+    view: ViewSamples,
+    caster: RayCaster,
+    theta_c: np.ndarray,
+    cell: float | np.ndarray,
+    tree: KDTree | None = None,
 ) -> np.ndarray:
     """(Q, R) estimated highlight count of each candidate per region.
 
-    ``theta_c`` (R,): each region's cone half-angle (radians); ``cell`` (chord on the unit sphere) is the
-    pooling grid; ``tree`` a KD-tree of candidate_dirs.
+    ``theta_c`` (R,): each region's cone half-angle (radians); ``cell`` (chord on the unit sphere), one or
+    (R,) each region's, is the pooling grid; ``tree`` a KD-tree of candidate_dirs.
     """
     h, q = view.highlights, len(view.candidates)
     estimates = np.zeros(q * view.n_regions)
@@ -201,12 +205,13 @@ class _Pools:
     region: np.ndarray
 
 
-def _pool(view: ViewSamples, keep: np.ndarray, radius: np.ndarray, cell: float) -> _Pools:
+def _pool(view: ViewSamples, keep: np.ndarray, radius: np.ndarray, cell: float | np.ndarray) -> _Pools:
     h = view.highlights
     idx = np.flatnonzero(keep & (view.weight > 0))
     fp, rad, reg, w = view.footprint_dirs[idx], radius[idx], view.region[idx], view.weight[idx]
     cls = np.floor(np.log(np.maximum(rad, 1e-12)) / np.log(_RADIUS_CLASS)).astype(np.int64)
-    keys = np.column_stack([np.floor(fp / cell).astype(np.int64), reg, cls])
+    grid = np.broadcast_to(cell, (view.n_regions,))[reg]  # (S,) each sample's region's cell
+    keys = np.column_stack([np.floor(fp / grid[:, None]).astype(np.int64), reg, cls])
     group, first = group_rows(keys)  # np.unique(keys, axis=0)'s groups, in its order, ~4× faster
     group, n = group.astype(np.intp), len(first)
 
