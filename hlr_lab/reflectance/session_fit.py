@@ -49,6 +49,7 @@ from hlr_lab.formats.plan import PlanFile
 from hlr_lab.formats.planned_object import load_planned_mesh, mesh_to_turntable
 from hlr_lab.formats.regions import RegionEntry
 from hlr_lab.geometry.silhouette import object_window
+from hlr_lab.object.grouping import group_rows
 from hlr_lab.object.mesh import ColouredMesh
 from hlr_lab.object.raycast import RayCaster
 from hlr_lab.reflectance.alignment import PoseAlignment, pose_alignment
@@ -711,7 +712,7 @@ def surface_patches(points: np.ndarray) -> np.ndarray:
     ``PATCH_M`` — the same for every pose that sees it (the fit's standard errors count patches where the
     model's misses are shared by a patch's pixels: ``fitting.robust``)."""
     cells = np.floor(points / PATCH_M).astype(np.int64)
-    return np.unique(cells, axis=0, return_inverse=True)[1].ravel()
+    return group_rows(cells)[0].astype(np.int64)  # np.unique(cells, axis=0)'s inverse, ~4× faster
 
 
 def _diffuse_rd(inputs: _Inputs, far: np.ndarray) -> np.ndarray:
