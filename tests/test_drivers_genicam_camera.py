@@ -132,7 +132,8 @@ def test_arv_camera_test_streams_with_no_missing_packets(device):
         "arv-camera-test-0.8", "-n", device.address, "--duration=3", "--frame-retention=3000", timeout=120
     )
     stats = {k: int(v) for k, v in re.findall(r"^(n_\w+)\s+= (\d+)", out, re.MULTILINE)}
-    assert stats["n_completed_buffers"] >= 10, out
+    # free-running at its 10 ms exposure: at most 100 frames a second, as a sensor (~3 400 before)
+    assert 10 <= stats["n_completed_buffers"] <= 3.5 / 0.010, out
     assert stats["n_missing_packets"] == stats["n_failures"] == stats["n_missing_frames"] == 0, out
 
 
