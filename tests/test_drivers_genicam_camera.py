@@ -128,12 +128,15 @@ def test_arv_camera_test_streams_with_no_missing_packets(device):
     # loaded CI machine can pause mid-frame for longer (one frame timed out so in a full suite at 100 ms, and
     # once at 1 s beside two Mitsuba renders), which a camera's hardware does not; every packet must still
     # arrive
+    started = time.monotonic()
     out = aravis_tool(
         "arv-camera-test-0.8", "-n", device.address, "--duration=3", "--frame-retention=3000", timeout=120
     )
+    elapsed_s = time.monotonic() - started
     stats = {k: int(v) for k, v in re.findall(r"^(n_\w+)\s+= (\d+)", out, re.MULTILINE)}
-    # free-running at its 10 ms exposure: at most 100 frames a second, as a sensor (~3 400 before)
-    assert 10 <= stats["n_completed_buffers"] <= 3.5 / 0.010, out
+    # free-running at its 10 ms exposure: no more than a frame per 10 ms while the tool ran, as a sensor
+    # (Python alone sent ~3 400 a second)
+    assert 10 <= stats["n_completed_buffers"] <= elapsed_s / 0.010 + 1, out
     assert stats["n_missing_packets"] == stats["n_failures"] == stats["n_missing_frames"] == 0, out
 
 
