@@ -26,6 +26,9 @@ from sim.true_rig import load_true_rig
 pytestmark = pytest.mark.renderer  # the simulated rig renders its frames
 
 SIM_RIG = Path(__file__).resolve().parents[1] / "hlr_lab" / "data" / "sim-rig.toml"
+# every test's timeout: the bench is made by whichever test asks for it first. 266–317 s in CI (2 cores,
+# 3 workers), 411 s with 4 workers: 1 800 s keeps 3× with another job on the same machine too
+BENCH_TIMEOUT_S = 1800
 
 
 @pytest.fixture(scope="module")
@@ -55,9 +58,7 @@ def night_bench(tmp_path_factory) -> tuple[Path, str]:
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(
-    1200
-)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_calibrate_all_writes_one_file_with_all_three_records(night_bench):
     """Camera, gantry, then radiometry on the simulated bench whose sensor and lamp are off too
     (builtin:bench-night), short runs: one rig file carrying all three calibrations, the intermediate
@@ -91,9 +92,7 @@ def test_calibrate_all_writes_one_file_with_all_three_records(night_bench):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(
-    1200
-)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_bench_calibration_prints_what_calibration_is_worth(night_bench):
     """Every figure printed; the recovery within the issue's targets that a short run still reaches; the
     end-to-end error far smaller with the calibrated file than with the drawing (measured here: worst Rd
@@ -126,9 +125,7 @@ def test_bench_calibration_prints_what_calibration_is_worth(night_bench):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(
-    1200
-)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_the_truth_lies_within_the_combined_uncertainty_on_the_calibrated_bench(night_bench):
     """The issue's test of the systematic part: the run fitted with the calibrated file (its records now
     carry the camera's and gantry's covariances and the radiometry's standard errors): every parameter of
@@ -174,9 +171,7 @@ def test_the_truth_lies_within_the_combined_uncertainty_on_the_calibrated_bench(
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(
-    1200
-)  # the bench, when this test is the first to ask for it: 266–317 s in CI (2 cores, 3 workers), 411 s with 4
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_calibrate_gantry_on_the_camera_calibrated_rig(night_bench, tmp_path, capsys):
     """`calibrate gantry` on the rig file `calibrate camera` wrote, solved again with --from from the
     photographs the bench's `calibrate all` took of the mirror ball (12 lamp poses, in builtin:bench-night:
@@ -210,7 +205,7 @@ def test_calibrate_gantry_on_the_camera_calibrated_rig(night_bench, tmp_path, ca
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1200)  # the bench, when this test is the first to ask for it (see above)
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_the_calibrated_camera_is_the_true_one(night_bench, rig: Rig):
     """The camera ``calibrate all`` measured first (rig-camera.toml), against the true rig, in the world
     whose +x the camera's drawn azimuth defines (a turn about the turntable axis no photograph of the
@@ -250,7 +245,7 @@ def test_the_calibrated_camera_is_the_true_one(night_bench, rig: Rig):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1200)  # the bench, when this test is the first to ask for it (see above)
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_the_camera_photographs_are_solved_again_without_the_rig(night_bench, tmp_path, capsys):
     """``calibrate camera --from`` the bench's camera photographs: the same camera; their summary page
     self-contained, every view with its corners and RMS; handed to the gantry's solve, refused, nothing
@@ -278,7 +273,7 @@ def test_the_camera_photographs_are_solved_again_without_the_rig(night_bench, tm
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1200)  # the bench, when this test is the first to ask for it (see above)
+@pytest.mark.timeout(BENCH_TIMEOUT_S)
 def test_a_view_whose_photographs_disagree_on_where_it_was_is_refused(night_bench, tmp_path, capsys):
     """The photographs of one view are averaged: one of them journaled at other turntable steps (a careless
     hand, checksums made good) is refused naming the view, and nothing is written."""

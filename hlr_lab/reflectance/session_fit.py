@@ -712,7 +712,7 @@ def surface_patches(points: np.ndarray) -> np.ndarray:
     ``PATCH_M`` — the same for every pose that sees it (the fit's standard errors count patches where the
     model's misses are shared by a patch's pixels: ``fitting.robust``)."""
     cells = np.floor(points / PATCH_M).astype(np.int64)
-    return group_rows(cells)[0].astype(np.int64)  # np.unique(cells, axis=0)'s inverse, ~4× faster
+    return group_rows(cells)[0].astype(np.int64)  # np.unique(cells, axis=0)'s inverse; 15× faster on 2 M
 
 
 def _diffuse_rd(inputs: _Inputs, far: np.ndarray) -> np.ndarray:
