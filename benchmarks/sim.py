@@ -143,7 +143,8 @@ GIGE_CASES = (("Mono16", 0.0), ("RGB12", 0.0), ("Mono16", 0.01), ("Mono16", 0.05
 
 def camera_transport_figures(n: int = 20, width: int = 1280, height: int = 960) -> CameraTransport:
     """Per frame, from trigger to decoded pixels, with a frame already made (no rendering: only the
-    transport is timed): through GigE Vision (the simulated device, Aravis, the GenICam driver) in Mono16
+    transport is timed): through GigE Vision (the simulated device on the simulated rig's 10 GigE link, Aravis,
+    the GenICam driver) in Mono16
     and RGB12, then Mono16 with 1 % and 5 % of the stream's packets lost on their first sending (the
     resends counted); and through the older TCP frame endpoint."""
     import numpy as np
@@ -152,6 +153,7 @@ def camera_transport_figures(n: int = 20, width: int = 1280, height: int = 960) 
     from drivers.net_camera import NetworkCamera
     from sim.camera_server import CameraServer
     from sim.gige.device import GigECamera
+    from sim.rig import CAMERA_LINK_BITS_PER_S
 
     frame = np.random.default_rng(0).integers(0, 4096, (height, width, 3), dtype=np.uint16)
 
@@ -162,7 +164,8 @@ def camera_transport_figures(n: int = 20, width: int = 1280, height: int = 960) 
     timings, packets = {}, {}
     for fmt, lost in GIGE_CASES:
         case = f"GigE Vision, {width}×{height} {fmt}" + (f", {lost:.0%} of packets lost" if lost else "")
-        device = GigECamera(Ready().capture, width=width, height=height, sensor_bits=12)
+        device = GigECamera(Ready().capture, width=width, height=height, sensor_bits=12,
+                            link_bits_per_s=CAMERA_LINK_BITS_PER_S)  # fmt: skip
         try:
             device.serve_on_loopback()
             camera = GenICamCamera(GenICamConfig(device.address, pixel_format=fmt))

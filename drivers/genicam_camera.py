@@ -177,11 +177,16 @@ class GenICamCamera:
         for name, value in (("TriggerSelector", "FrameStart"), ("TriggerMode", "On"), ("TriggerSource", "Software"),
                             ("AcquisitionMode", "Continuous")):  # fmt: skip
             self._set(name, value)
-        # the chunks this camera can send; each frame reads those it carries (a camera may need
-        # ChunkSelector/ChunkEnable in [camera.genicam.features] to send them)
+        # the chunks this camera can send, each switched on by name where it has SFNC's ChunkSelector (many
+        # cameras start with them off); each frame reads those it carries
         self._chunks = [name for name in CHUNKS if self._has(name)] if self._has("ChunkModeActive") else []
         if self._chunks:
             self._set("ChunkModeActive", True)
+            selectable = self._enumeration("ChunkSelector") if self._has("ChunkSelector") else []
+            for name in self._chunks:
+                if (entry := name.removeprefix("Chunk")) in selectable:
+                    self._set("ChunkSelector", entry)
+                    self._set("ChunkEnable", True)
             self._chunk_parser = self._camera.create_chunk_parser()
         for name, value in c.features.items():
             self._set(name, value)
@@ -244,6 +249,13 @@ class GenICamCamera:
             return getter(name)
         except Exception as exc:
             raise self._failure(f"cannot read {name} ({_message(exc)})", exc) from exc
+
+    def _enumeration(self, name: str) -> list[str]:
+        """The entries of enumeration ``name`` the camera offers now."""
+        try:
+            return list(self._camera.dup_available_enumerations_as_strings(name))
+        except Exception as exc:
+            raise self._failure(f"cannot read {name}'s entries ({_message(exc)})", exc) from exc
 
     def _failure(self, what: str, exc: BaseException) -> DeviceError:
         """A failed feature access as a device error: lost control and no answer are worth knowing apart."""

@@ -248,7 +248,7 @@ def test_a_socket_buffer_smaller_than_a_frame_is_a_warning_with_the_command(tmp_
     flat = re.sub(r"[│\s]+", " ", capsys.readouterr().err)
     # the simulated camera's RGB12 frame: 1280 × 960 × 3 × 2 bytes, and its chunks
     assert (
-        "caps a socket's receive buffer at 4,194,304 bytes (net.core.rmem_max), less than a frame's 7,374,896"
+        "caps a socket's receive buffer at 4,194,304 bytes (net.core.rmem_max), less than a frame's 7,374,936"
         in flat
     )
     assert "sudo sysctl -w net.core.rmem_max=8388608" in flat

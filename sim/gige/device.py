@@ -1,10 +1,13 @@
 """A GigE Vision camera in Python: GVCP on ``address``:3956, frames as GVSP to whoever holds control.
 
-What a real camera does, as far as a client can tell: discovery, register and memory reads and writes
-(the bootstrap registers, the features of :mod:`sim.gige.features`, the GenICam XML), control privilege
-kept alive by the client's heartbeat (lost when it stays silent past ``GevHeartbeatTimeout``), test
-packets for packet-size negotiation, software-triggered or continuous frames, chunks (exposure, gain,
-and the simulator's account of the frame), and resends of the packets a client asks for again.
+What a real camera does, as far as a client can tell: discovery (asked of its address, or broadcast as
+Aravis's device list asks it), register and memory reads and writes (the bootstrap registers, the
+features of :mod:`sim.gige.features`, the GenICam XML), control privilege kept alive by the client's
+heartbeat (lost when it stays silent past ``GevHeartbeatTimeout``), test packets for packet-size
+negotiation, software-triggered or continuous frames (at ``AcquisitionFrameRate`` when enabled), the
+chunks ``ChunkSelector``/``ChunkEnable`` choose (exposure, gain, size, timestamp and the simulator's account
+of the frame), stream packets no faster than the link carries them (plus ``GevSCPD``), and resends of the
+packets a client asks for again. Aravis's ``arv-test-0.8`` passes against it (docs/camera.md).
 
 Faults, for the soak and the stop tests (:class:`Faults`): stream packets dropped on their first
 sending (a resend brings them), packets dropped for good (the frame arrives incomplete), triggers that
@@ -38,6 +41,15 @@ FrameSource = Callable[[float, float], tuple[np.ndarray, dict]]  # (exposure s, 
 KEPT_BLOCKS = 8  # blocks whose packets are kept for resend requests
 DEFAULT_PACKET_BYTES = 1500  # a standard Ethernet frame, until the client negotiates more
 MAX_PACKET_BYTES = 9000  # jumbo frames, as GigE Vision cameras offer
+GIGABIT = 1e9  # bits a second: a GigE camera's link
+# each packet's bytes on the wire beyond what sendto is given: IP and UDP headers (28), and Ethernet's
+# preamble, header, checksum and inter-frame gap (38)
+WIRE_OVERHEAD_BYTES = 28 + 38
+# the stream waits for the link only once this far ahead of it (s): at 1 Gb/s a burst of at most ~60 kB,
+# well within a receiver's default socket buffer (~200 kB), where sleeping per packet would cost more
+# than the packet's own 12 µs
+PACING_SLACK_S = 0.0005
+TICKS_PER_S = 1_000_000_000  # the device's timestamp (and GevSCPD) tick: ns
 
 
 @dataclass
@@ -75,8 +87,10 @@ class GigECamera:
         pixel_format: str | None = None,
         identity: Identity = Identity(),
         temperature_c: Callable[[], float] = lambda: 38.0,
+        link_bits_per_s: float = GIGABIT,
     ):
         self.source, self.sensor_bits, self.identity = source, sensor_bits, identity
+        self.link_bits_per_s = link_bits_per_s
         self.width, self.height = width, height
         self.temperature_c = temperature_c
         self.faults = Faults()
@@ -119,13 +133,18 @@ class GigECamera:
         self._put(gvcp.GVCP_CAPABILITY, gvcp.CAPABILITY_WRITE_MEMORY | gvcp.CAPABILITY_PACKET_RESEND
                   | gvcp.CAPABILITY_SERIAL_NUMBER | gvcp.CAPABILITY_USER_NAME)  # fmt: skip
         self._put(gvcp.HEARTBEAT_TIMEOUT, 3000)
-        self._put(gvcp.TICK_FREQUENCY_LOW, 1_000_000_000)  # timestamps in nanoseconds
+        self._put(gvcp.TICK_FREQUENCY_LOW, TICKS_PER_S)  # timestamps in nanoseconds
         self._put(gvcp.SC_PACKET_SIZE, DEFAULT_PACKET_BYTES)
         for name, value in (("SensorWidth", self.width), ("SensorHeight", self.height), ("Width", self.width),
                             ("Height", self.height), ("PixelFormat", FORMATS[pixel_format].code),
                             ("TriggerMode", 0)):  # fmt: skip
             self._put(ft.BY_NAME[name].address, value)
         self._put_float("ExposureTime", 10_000.0)
+        self._put_float("AcquisitionFrameRate", 30.0)
+        self._put(ft.BY_NAME["GevLinkSpeed"].address, round(self.link_bits_per_s / 1e6))
+        enable = ft.BY_NAME["ChunkEnable"].address
+        for i in range(len(ft.CHUNKS)):  # every chunk on: chunk mode alone turns them on or off
+            self._put(enable + 4 * i, 1)
         self._update_payload_size()
 
     def _put(self, address: int, value: int) -> None:
@@ -151,10 +170,17 @@ class GigECamera:
     def pixel_format(self) -> PixelFormat:
         return BY_CODE[self._get(ft.BY_NAME["PixelFormat"].address)]
 
+    def _chunks_sent(self) -> list[ft.Chunk]:
+        """The chunks a frame carries: those ChunkEnable sets, in chunk mode; none otherwise."""
+        if not self.feature("ChunkModeActive"):
+            return []
+        enable = ft.BY_NAME["ChunkEnable"].address
+        return [c for i, c in enumerate(ft.CHUNKS) if self._get(enable + 4 * i)]
+
     def _update_payload_size(self) -> None:
         size = self.pixel_format.payload_bytes(self.width, self.height)
-        if self.feature("ChunkModeActive"):  # each chunk is followed by its id and length
-            size += 8 + sum(8 + n for *_, n in ft.CHUNKS)
+        if chunks := self._chunks_sent():  # the image and each chunk are followed by their id and length
+            size += 8 + sum(8 + c.size for c in chunks)
         self._put(ft.BY_NAME["PayloadSize"].address, size)
 
     # -- GVCP -------------------------------------------------------------------------------------
@@ -173,7 +199,11 @@ class GigECamera:
         self._stream.bind((address, 0))
         self._stream.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
         self._put(gvcp.CURRENT_IP, int.from_bytes(socket.inet_aton(address), "big"))
-        for target, name in ((self._answer_loop, "gvcp"), (self._frame_loop, "gvsp")):
+        self._discovery = _broadcast_listener()
+        loops = [(self._answer_loop, "gvcp"), (self._frame_loop, "gvsp")]
+        if self._discovery is not None:
+            loops.append((self._discovery_loop, "discovery"))
+        for target, name in loops:
             thread = threading.Thread(target=target, name=f"sim-camera-{name}-{address}", daemon=True)
             thread.start()
             self._threads.append(thread)
@@ -208,6 +238,23 @@ class GigECamera:
                 reply = gvcp.ack(command, status=gvcp.INVALID_HEADER)
             if reply is not None and (command.ack_required or command.code == gvcp.DISCOVERY):
                 with contextlib.suppress(OSError):  # closed meanwhile, or the peer gone: as a lost datagram
+                    self._gvcp.sendto(reply, peer)
+
+    def _discovery_loop(self) -> None:
+        """Broadcast discovery (how Aravis's device list and vendors' tools find cameras): answered from
+        the camera's own address, as to a discovery sent to it; every other broadcast command ignored."""
+        assert self._discovery is not None
+        while not self._stop.is_set():
+            try:
+                datagram, peer = self._discovery.recvfrom(2048)
+            except (TimeoutError, OSError):
+                continue
+            command = gvcp.parse_command(datagram)
+            if command is None or command.code != gvcp.DISCOVERY or self.faults.silent:
+                continue
+            reply = self._answer(command, peer)
+            if reply is not None:  # always, for a discovery
+                with contextlib.suppress(OSError):
                     self._gvcp.sendto(reply, peer)
 
     def _drop_stale_control(self) -> None:
@@ -310,7 +357,7 @@ class GigECamera:
             return gvcp.INVALID_PARAMETER
         if address == gvcp.SC_PACKET_SIZE:
             return self._set_packet_size(struct.unpack(">I", data[:4])[0])
-        if address == ft.BY_NAME["PixelFormat"].address and self._acquiring:
+        if feature is not None and feature.name in _PAYLOAD_LAYOUT and self._acquiring:
             return gvcp.ACCESS_DENIED  # the payload's layout is locked while frames flow
         self._memory[address : address + len(data)] = data
         if feature is not None:
@@ -325,7 +372,7 @@ class GigECamera:
         return gvcp.SUCCESS
 
     def _effect(self, name: str) -> None:
-        if name in ("PixelFormat", "ChunkModeActive"):
+        if name in _PAYLOAD_LAYOUT:
             self._update_payload_size()
         elif name == "AcquisitionStart":
             self._acquiring = True
@@ -367,9 +414,12 @@ class GigECamera:
     def _rest_of_frame_period(self, started: float) -> None:
         """Wait out the frame begun at ``started`` (monotonic s): a sensor delivers a frame no sooner than
         it has exposed it, so free-running frames come at most 1 / ExposureTime a second (Python alone sent
-        ~3 400 frames a second of 160 × 120: a core's worth of packets, which no camera sends). Ends early
-        when the acquisition stops."""
-        end = started + self.feature("ExposureTime") / 1e6
+        ~3 400 frames a second of 160 × 120: a core's worth of packets, which no camera sends), and at
+        AcquisitionFrameRate when it is enabled. Ends early when the acquisition stops."""
+        period = self.feature("ExposureTime") / 1e6
+        if self.feature("AcquisitionFrameRateEnable"):
+            period = max(period, 1 / self.feature("AcquisitionFrameRate"))
+        end = started + period
         while self._acquiring and (left := end - time.monotonic()) > 0:
             if self._stop.wait(min(left, 0.05)):
                 return
@@ -394,12 +444,13 @@ class GigECamera:
                     frame = np.minimum(frame + np.uint16(round(black)), np.uint16(2**self.sensor_bits - 1))
                 values = sensor_values(frame, fmt, self.sensor_bits)
             truth = {**truth, "exposure_s": exposure_s, "gain_db": gain_db}
+            timestamp_ns = time.time_ns()
             with self._lock:
-                data = self._payload(values, truth, fmt)
+                data = self._payload(values, truth, fmt, timestamp_ns)
                 self._block_id = self._block_id % 0xFFFF + 1
                 packets = gvsp.block(
                     self._block_id, data, pixel_format=fmt.code, width=self.width, height=self.height,
-                    timestamp_ns=time.time_ns(), packet_bytes=self._get(gvcp.SC_PACKET_SIZE) & gvcp.SCPS_SIZE,
+                    timestamp_ns=timestamp_ns, packet_bytes=self._get(gvcp.SC_PACKET_SIZE) & gvcp.SCPS_SIZE,
                     chunks=bool(self.feature("ChunkModeActive")),
                 )  # fmt: skip
                 self._sent[self._block_id] = packets
@@ -409,26 +460,41 @@ class GigECamera:
                 lose = self._losses(len(packets))
             if destination[1] == 0:  # the stream channel was closed meanwhile (its client left)
                 return
-            for i, packet in enumerate(packets):
-                if i not in lose:
-                    self._stream.sendto(packet, destination)
+            self._transmit(packets, destination, lose)
             self.frames_sent += 1
         except Exception:  # a frame that cannot be made is a frame that never comes, as on a real camera
             log.exception("simulated camera: frame failed")
 
-    def _payload(self, values: np.ndarray, truth: dict, fmt: PixelFormat) -> bytes:
-        """The frame's bytes: the image, then (chunk mode) exposure, gain and truth chunks, each followed by
+    def _transmit(self, packets: list[bytes], destination: tuple[str, int], lose: set[int]) -> None:
+        """Send a frame's packets (but those in ``lose``) no faster than the link carries them, each
+        followed by the inter-packet delay GevSCPD asks (ticks): a GigE camera streams ~120 MB/s, where
+        a loop of sendto on loopback outruns any receiver whose socket buffer is smaller than a frame."""
+        wire_s_per_byte = 8 / self.link_bits_per_s
+        gap_s = self._get(gvcp.SC_PACKET_DELAY) / TICKS_PER_S
+        start, due = time.monotonic(), 0.0
+        for i, packet in enumerate(packets):
+            if i not in lose:
+                self._stream.sendto(packet, destination)
+            due += (len(packet) + WIRE_OVERHEAD_BYTES) * wire_s_per_byte + gap_s
+            if (ahead := start + due - time.monotonic()) > PACING_SLACK_S and self._stop.wait(ahead):
+                return
+
+    def _payload(self, values: np.ndarray, truth: dict, fmt: PixelFormat, timestamp_ns: int) -> bytes:
+        """The frame's bytes: the image, then (chunk mode) the chunks ChunkEnable sets, each followed by
         its id and length (GigE Vision chunk layout, read from the end). ``truth`` holds the exposure (s)
-        and gain (dB) the frame was taken with."""
+        and gain (dB) the frame was taken with; ``timestamp_ns`` is the frame's GVSP timestamp."""
         image = encode(values, fmt)
-        if not self.feature("ChunkModeActive"):
+        if not (chunks := self._chunks_sent()):
             return image
         text = json.dumps(truth).encode()[: ft.TRUTH_CHUNK_BYTES - 1].ljust(ft.TRUTH_CHUNK_BYTES, b"\0")
-        chunks = [(image, ft.CHUNK_IMAGE),
-                  (struct.pack(">d", truth["exposure_s"] * 1e6), ft.CHUNK_EXPOSURE),
-                  (struct.pack(">d", truth["gain_db"]), ft.CHUNK_GAIN),
-                  (text, ft.CHUNK_TRUTH)]  # fmt: skip
-        return b"".join(data + struct.pack(">II", chunk_id, len(data)) for data, chunk_id in chunks)
+        value = {"ExposureTime": struct.pack(">d", truth["exposure_s"] * 1e6),
+                 "Gain": struct.pack(">d", truth["gain_db"]),
+                 "SimulatorTruth": text,
+                 "Width": struct.pack(">I", self.width),
+                 "Height": struct.pack(">I", self.height),
+                 "Timestamp": struct.pack(">Q", timestamp_ns)}  # fmt: skip
+        parts = [(image, ft.CHUNK_IMAGE), *((value[c.name], c.chunk_id) for c in chunks)]
+        return b"".join(data + struct.pack(">II", chunk_id, len(data)) for data, chunk_id in parts)
 
     def _losses(self, n_packets: int) -> set[int]:
         """Which data packets this frame loses on the way (never the leader or trailer: a receiver
@@ -461,6 +527,25 @@ class GigECamera:
         for thread in self._threads:
             thread.join(timeout=5)
         self._threads.clear()
-        for sock in ("_gvcp", "_stream"):
-            if hasattr(self, sock):
+        for sock in ("_gvcp", "_stream", "_discovery"):
+            if getattr(self, sock, None) is not None:
                 getattr(self, sock).close()
+
+
+_PAYLOAD_LAYOUT = ("PixelFormat", "ChunkModeActive", "ChunkEnable")  # features that change the payload
+
+
+def _broadcast_listener() -> socket.socket | None:
+    """A socket on 255.255.255.255:3956, shared (SO_REUSEADDR) with every other camera on this machine
+    (Aravis's fake camera binds it too): where a discovery broadcast from any local interface arrives.
+    None where the system refuses it; the camera then answers discovery sent to its address only."""
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("255.255.255.255", gvcp.PORT))
+    except OSError:
+        log.warning("simulated camera: broadcast discovery unavailable (port %d taken)", gvcp.PORT)
+        listener.close()
+        return None
+    listener.settimeout(0.1)
+    return listener

@@ -7,6 +7,7 @@ Chunk features are read from the frame's chunks, not from registers (docs/camera
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from xml.sax.saxutils import escape
 
@@ -16,7 +17,28 @@ from sim.gige.pixels import FORMATS
 FEATURES_AT = 0xA000  # device-specific registers start here (below it: the bootstrap registers)
 XML_AT = 0x10000  # where the XML file lies in the device's memory
 TRUTH_CHUNK_BYTES = 2048  # the simulator's account of a frame: JSON, NUL-padded
-CHUNK_IMAGE, CHUNK_EXPOSURE, CHUNK_GAIN, CHUNK_TRUTH = 0x1, 0x1001, 0x1002, 0x1003
+CHUNK_IMAGE = 0x1
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """One chunk a frame can carry: its SFNC name without "Chunk" (a ChunkSelector entry), its chunk id,
+    kind and size in bytes (big-endian, as the registers)."""
+
+    name: str
+    chunk_id: int
+    kind: str  # "float", "int", "string"
+    size: int
+
+
+CHUNKS: tuple[Chunk, ...] = (
+    Chunk("ExposureTime", 0x1001, "float", 8),  # µs
+    Chunk("Gain", 0x1002, "float", 8),  # dB
+    Chunk("SimulatorTruth", 0x1003, "string", TRUTH_CHUNK_BYTES),
+    Chunk("Width", 0x1004, "int", 4),
+    Chunk("Height", 0x1005, "int", 4),
+    Chunk("Timestamp", 0x1006, "int", 8),  # ns, the frame's GVSP timestamp
+)
 
 
 @dataclass(frozen=True)
@@ -34,10 +56,12 @@ class Feature:
     length: int = 4  # string registers: bytes
     entries: dict[str, int] = field(default_factory=dict)
     description: str = ""
+    selector: str = ""  # an enumeration selecting which of the feature's registers (4 bytes apart) is meant
+    selected: int = 1  # how many registers it has: one per entry of its selector
 
     @property
     def size(self) -> int:
-        return {"float": 8, "string": self.length}.get(self.kind, 4)
+        return {"float": 8, "string": self.length}.get(self.kind, 4) * self.selected
 
 
 def _at(i: int) -> int:
@@ -77,22 +101,33 @@ FEATURES: tuple[Feature, ...] = (
     Feature("ChunkModeActive", "bool", _at(18), "RW", "ChunkDataControl"),
     Feature("GevHeartbeatTimeout", "int", gvcp.HEARTBEAT_TIMEOUT, "RW", "TransportLayerControl", 500, 600000,
             "ms"),
+    Feature("AcquisitionFrameRate", "float", _at(19), "RW", "AcquisitionControl", 0.1, 1000.0, "Hz",
+            description="Free-running frames at this rate when AcquisitionFrameRateEnable is set (and the "
+                        "exposure allows it); otherwise one frame per exposure."),
+    Feature("AcquisitionFrameRateEnable", "bool", _at(20), "RW", "AcquisitionControl"),
+    Feature("GevLinkSpeed", "int", _at(21), "RO", "TransportLayerControl", unit="Mbps",
+            description="The link's speed: the stream's packets leave no faster than it carries them."),
+    Feature("GevSCPD", "int", gvcp.SC_PACKET_DELAY, "RW", "TransportLayerControl", 0, 1_000_000_000,
+            description="A delay after each stream packet, in timestamp ticks (ns)."),
+    Feature("ChunkSelector", "enum", _at(22), "RW", "ChunkDataControl",
+            entries={c.name: i for i, c in enumerate(CHUNKS)}),
+    Feature("ChunkEnable", "bool", _at(23), "RW", "ChunkDataControl", selector="ChunkSelector",
+            selected=len(CHUNKS), description="Whether the chunk ChunkSelector names is sent (chunk mode)."),
 )  # fmt: skip
 BY_NAME = {f.name: f for f in FEATURES}
-CHUNKS = (  # name, chunk id, kind, bytes
-    ("ChunkExposureTime", CHUNK_EXPOSURE, "float", 8),
-    ("ChunkGain", CHUNK_GAIN, "float", 8),
-    ("ChunkSimulatorTruth", CHUNK_TRUTH, "string", TRUTH_CHUNK_BYTES),
-)
 CATEGORIES = ("DeviceControl", "ImageFormatControl", "AcquisitionControl", "AnalogControl", "ChunkDataControl",
               "TransportLayerControl")  # fmt: skip
 
 
-def _register(name: str, kind: str, address: int, access: str, size: int, port: str = "Device") -> str:
+def _register(
+    name: str, kind: str, address: int, access: str, size: int, port: str = "Device", index: str = ""
+) -> str:
+    """A register node; ``index``: the integer node whose value picks the register, ``size`` bytes apart."""
     tag = {"float": "FloatReg", "string": "StringReg"}.get(kind, "IntReg")
     sign = "<Sign>Unsigned</Sign>" if tag == "IntReg" else ""
     endian = "" if tag == "StringReg" else "<Endianess>BigEndian</Endianess>"
-    return (f'<{tag} Name="{name}"><Address>0x{address:x}</Address><Length>{size}</Length>'
+    indexed = f'<pIndex Offset="{size}">{index}</pIndex>' if index else ""
+    return (f'<{tag} Name="{name}"><Address>0x{address:x}</Address>{indexed}<Length>{size}</Length>'
             f"<AccessMode>{access}</AccessMode><pPort>{port}</pPort><Cachable>NoCache</Cachable>"
             f"{sign}{endian}</{tag}>")  # fmt: skip
 
@@ -106,8 +141,9 @@ def _node(f: Feature) -> str:
         entries = "".join(
             f'<EnumEntry Name="{n}"><Value>{v}</Value></EnumEntry>' for n, v in f.entries.items()
         )
+        selects = "".join(f"<pSelected>{s.name}</pSelected>" for s in FEATURES if s.selector == f.name)
         body = f'<Enumeration Name="{f.name}" NameSpace="Standard">{about}{entries}<pValue>{reg}</pValue>'
-        body += "</Enumeration>"
+        body += f"{selects}</Enumeration>"
     elif f.kind == "command":
         body = _command(f.name, reg)
     elif f.kind == "bool":
@@ -121,16 +157,20 @@ def _node(f: Feature) -> str:
         body = (
             f'<{tag} Name="{f.name}" NameSpace="Standard">{about}<pValue>{reg}</pValue>{bounds}{unit}</{tag}>'
         )
-    return body + _register(reg, f.kind, f.address, f.access, f.size)
+    index = f"{f.selector}Reg" if f.selector else ""
+    return body + _register(reg, f.kind, f.address, f.access, f.size // f.selected, index=index)
 
 
-def _chunk(name: str, chunk_id: int, kind: str, size: int) -> str:
-    """A chunk feature: read from the frame's chunk ``chunk_id`` (its own port), not from a register."""
-    port = f'<Port Name="{name}Port"><ChunkID>{chunk_id:x}</ChunkID></Port>'
-    if kind == "string":
-        return _register(name, kind, 0, "RO", size, f"{name}Port") + port
-    feature = f'<Float Name="{name}" NameSpace="Standard"><pValue>{name}Reg</pValue></Float>'
-    return feature + _register(f"{name}Reg", kind, 0, "RO", size, f"{name}Port") + port
+def _chunk(c: Chunk) -> str:
+    """A chunk feature (Chunk + its name): read from the frame's chunk of its id (its own port), not
+    from a register."""
+    name = f"Chunk{c.name}"
+    port = f'<Port Name="{name}Port"><ChunkID>{c.chunk_id:x}</ChunkID></Port>'
+    if c.kind == "string":
+        return _register(name, c.kind, 0, "RO", c.size, f"{name}Port") + port
+    tag = "Float" if c.kind == "float" else "Integer"
+    feature = f'<{tag} Name="{name}" NameSpace="Standard"><pValue>{name}Reg</pValue></{tag}>'
+    return feature + _register(f"{name}Reg", c.kind, 0, "RO", c.size, f"{name}Port") + port
 
 
 def _command(name: str, register: str) -> str:
@@ -150,6 +190,13 @@ def _masked(name: str, access: str, bits: str, kind: str, extra: str = "") -> st
     return f'<Integer Name="{name}" NameSpace="Standard"><pValue>{name}Reg</pValue>{extra}</Integer>' + reg
 
 
+def _name(text: str) -> str:
+    """``text`` as the schema's names for a model and a vendor must be: [A-Za-z][0-9A-Za-z_]* (a camera's
+    XML that breaks it fails GenApi's schema, which Aravis's arv-test and strict GenApi clients check)."""
+    name = re.sub(r"[^0-9A-Za-z_]", "_", text)
+    return name if name[:1].isalpha() else f"X{name}"
+
+
 def genicam_xml(model: str, vendor: str, max_packet_bytes: int) -> str:
     """The device's GenICam description (GenApi schema 1.1): categories, features, their registers."""
     in_category = {c: [f.name for f in FEATURES if f.category == c] for c in CATEGORIES}
@@ -158,13 +205,13 @@ def genicam_xml(model: str, vendor: str, max_packet_bytes: int) -> str:
         "GevSCPSFireTestPacket",
         "GevSCPSDoNotFragment",
     ]
-    in_category["ChunkDataControl"] += [name for name, *_ in CHUNKS]
+    in_category["ChunkDataControl"] += [f"Chunk{c.name}" for c in CHUNKS]
     categories = "".join(
         f'<Category Name="{c}" NameSpace="Standard">{"".join(f"<pFeature>{n}</pFeature>" for n in names)}</Category>'
         for c, names in in_category.items()
     )  # fmt: skip
     root = "".join(f"<pFeature>{c}</pFeature>" for c in CATEGORIES)
-    chunks = "".join(_chunk(name, chunk_id, kind, size) for name, chunk_id, kind, size in CHUNKS)
+    chunks = "".join(_chunk(c) for c in CHUNKS)
     transport = (
         _masked("GevSCPSPacketSize", "RW", "<LSB>31</LSB><MSB>16</MSB>", "int",
                 f"<Min>576</Min><Max>{max_packet_bytes}</Max><Inc>4</Inc>")
@@ -173,7 +220,7 @@ def genicam_xml(model: str, vendor: str, max_packet_bytes: int) -> str:
     )  # fmt: skip
     return (
         '<?xml version="1.0" encoding="utf-8"?>\n'
-        f'<RegisterDescription ModelName="{escape(model)}" VendorName="{escape(vendor)}" StandardNameSpace="GEV" '
+        f'<RegisterDescription ModelName="{_name(model)}" VendorName="{_name(vendor)}" StandardNameSpace="GEV" '
         'SchemaMajorVersion="1" SchemaMinorVersion="1" SchemaSubMinorVersion="0" MajorVersion="1" MinorVersion="0" '
         'SubMinorVersion="0" ToolTip="hlr-lab simulated camera" ProductGuid="8c2b3a7e-3e0b-4a51-9d67-0a7b6c1d2e01" '
         'VersionGuid="8c2b3a7e-3e0b-4a51-9d67-0a7b6c1d2e02" xmlns="http://www.genicam.org/GenApi/Version_1_1" '
