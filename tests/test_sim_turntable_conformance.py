@@ -1,6 +1,7 @@
 """The simulated stage and lamp relay answer as the Modbus Application Protocol (v1.1b3) says a device
-does, seen by clients that are not pymodbus: raw frames on a socket, and pyModbusTCP. And no frame,
-however broken, stops the server or prints a traceback."""
+does, seen by clients that are not pymodbus: raw frames on a socket, pyModbusTCP, and over RTU
+minimalmodbus (its own framing and CRC). And no frame, however broken, stops the server or prints a
+traceback."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import socket
 import struct
 import time
 
+import minimalmodbus
 import pytest
 from pyModbusTCP.client import ModbusClient
 
@@ -185,3 +187,40 @@ def test_ten_thousand_broken_frames_leave_the_server_answering(server, caplog, c
     assert answered == 2_500
     assert "Traceback" not in caplog.text
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_an_rtu_client_of_its_own_moves_the_stage_switches_the_lamp_and_hears_the_exceptions():
+    """minimalmodbus over the simulated serial line (115 200 Bd on a pty), as lab scripts drive Oriental
+    Motor drives: its own RTU framing, CRC and timing. A direct data operation in one write, the status and
+    position as 32-bit big-endian reads, the lamp's coil; an address beyond the map is an illegal data
+    address (exception 2), and a unit that is not on the line stays silent (RTU has no gateway to answer
+    for it)."""
+    with TurntableServer.simulated(speed_factor=50.0) as srv:
+        path = srv.serve_rtu()
+
+        def on_line(unit: int) -> minimalmodbus.Instrument:
+            instrument = minimalmodbus.Instrument(path, unit, close_port_after_each_call=True)
+            port = instrument.serial
+            assert port is not None  # open until each call closes it
+            port.baudrate, port.timeout = 115_200, 2.0  # s: a loaded machine, not the line, is slow
+            return instrument
+
+        stage, relay = on_line(rm.STAGE_UNIT), on_line(rm.RELAY_UNIT)
+        assert stage.read_long(rm.STATUS, signed=True) & rm.READY
+        operation = [w for v in (0, rm.ABSOLUTE, -2500, 4000, 1_000_000, 1_000_000, 1000, rm.TRIGGER_ALL)
+                     for w in struct.unpack(">HH", struct.pack(">i", v))]  # fmt: skip
+        stage.write_registers(rm.DATA_NO, operation)
+        deadline = time.monotonic() + 10
+        while stage.read_long(rm.STATUS, signed=True) & rm.MOVE:
+            assert time.monotonic() < deadline
+        assert stage.read_long(rm.POSITION, signed=True) == -2500
+        assert srv.stage.moves == [-2500]
+        relay.write_bit(rm.LAMP_COIL, 1, functioncode=5)
+        assert srv.stage.lamp
+        assert relay.read_bit(rm.LAMP_COIL, functioncode=1) == 1
+        relay.write_bit(rm.LAMP_COIL, 0, functioncode=5)
+        assert not srv.stage.lamp
+        with pytest.raises(minimalmodbus.IllegalRequestError):
+            stage.read_registers(200, 2)
+        with pytest.raises(minimalmodbus.NoResponseError):
+            on_line(9).read_register(rm.STATUS)

@@ -11,9 +11,10 @@ As the Modbus Application Protocol says a device answers (beyond what pymodbus d
   registers, no input registers or coils; the relay: FC 1, 5 and 15 on its coils);
 * a 32-bit field written one half at a time (FC 6) is checked whole, with its other half as it stands:
   a speed of 0 is exception 3 however it is written;
-* a unit that is not there is exception 0x0B (gateway target failed to respond): the TCP endpoint plays
-  the gateway in front of an RS-485 line, as a real AZ driver (Modbus RTU only) is reached over TCP;
-  on RTU too (where a real line would stay silent; a client's timeout says the same thing slower).
+* a unit that is not there is exception 0x0B (gateway target failed to respond) on TCP, whose endpoint
+  plays the gateway in front of an RS-485 line, as a real AZ driver (Modbus RTU only) is reached over
+  TCP; on RTU it is silence, as on a real line, where only the addressed device answers (an independent
+  RTU client, minimalmodbus, hears nothing and times out).
 """
 
 from __future__ import annotations
@@ -187,6 +188,13 @@ class TurntableServer:
             return b""
         return packet
 
+    def _trace_rtu(self, sending: bool, packet: bytes) -> bytes:
+        """As :meth:`_trace`; and a reply on behalf of a unit not on the line (an RTU frame begins with
+        its unit's address) is not sent: a serial line has no gateway to answer for it."""
+        if sending and packet[:1] not in (bytes([rm.STAGE_UNIT]), bytes([rm.RELAY_UNIT])):
+            return b""
+        return self._trace(sending, packet)
+
     # -- transports -----------------------------------------------------------------------------
     def serve_tcp(self, host: str = "127.0.0.1") -> tuple[str, int]:
         server = self._run(
@@ -208,7 +216,7 @@ class TurntableServer:
                 self._devices(),
                 port=os.ttyname(server_slave),
                 baudrate=baudrate,
-                trace_packet=self._trace,
+                trace_packet=self._trace_rtu,
                 trace_pdu=conformance.received,
                 custom_pdu=conformance.requests(tcp=False),
             )
