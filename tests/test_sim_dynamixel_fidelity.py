@@ -1,7 +1,8 @@
 """The simulated servos behave as the ROBOTIS e-manual says a real X-series servo does, seen through the
 real dynamixel_sdk on the simulator's pseudo-terminal, the way ROBOTIS's own example programs use it
 (ping, group reads of any size, Clear Multi-Turn, the one-turn reset, indirect addresses, velocity
-mode, baud rate / protocol type / secondary ID), and the bus survives whatever bytes it is sent."""
+mode, baud rate / protocol type / secondary ID), and through a Protocol 2.0 client written apart from
+it (dynamixel-python); and the bus survives whatever bytes it is sent."""
 
 from __future__ import annotations
 
@@ -329,3 +330,51 @@ def test_ten_thousand_random_truncated_and_bit_flipped_packets_leave_the_bus_ans
             assert first[7] == 0x55
             assert crc16(first[:-2]) == int.from_bytes(first[-2:], "little")
     assert "Traceback" not in caplog.text
+
+
+def test_a_protocol_2_client_written_apart_from_the_sdk_drives_the_servos():
+    """dynamixel-python (``dxl2``: its own packets, CRC, byte stuffing and status parsing, nothing of
+    dynamixel-sdk) at 1 Mbaud: ping and broadcast ping (an XM430-W350, model 1020), read and write, a goal
+    beyond the limit (Data Limit Error, 6) and a write to the model number (Access Error, 7), sync write
+    and read, fast sync read, bulk write and read, fast bulk read."""
+    from dxl2 import v2
+
+    bus = SimBus.with_servos([1, 2], speed_factor=20.0)
+    # its timeout is per byte of a header (no servo 3 takes 4 of them) and ends a broadcast ping: the
+    # simulated rig's reply timeout, the servos being threads of a busy process
+    servos = v2.MotorBus(bus.serve_pty(), baudrate=1_000_000, timeout=CLIENT_REPLY_TIMEOUT_MS / 1000)
+    servos.connect()
+    try:
+        xm430 = {"model_number": 1020, "firmware_version": bus.servos[0].table[6]}
+        assert servos.ping(1).data == xm430
+        assert servos.ping(3).timeout  # no servo 3 on the bus
+        assert servos.broadcast_ping().data == {1: xm430, 2: xm430}
+        goal, present, torque, led = 116, 132, 64, 65
+        assert servos.write(1, torque, 1, 1).ok
+        assert servos.write(1, goal, 4, 2300).ok
+        assert servos.read(1, goal, 4).data == 2300
+        assert servos.write(1, goal, 4, 99_999).error == Error.DATA_LIMIT  # past Max Position Limit
+        assert servos.write(1, 0, 2, 5).error == Error.ACCESS  # Model Number is read-only
+        wait_until(lambda: servos.read(1, present, 4, signed=True).data == 2300)
+        goals = v2.SyncParams(goal, 4)
+        goals.add_value(1, 2100)
+        goals.add_value(2, 1900)
+        assert servos.write(2, torque, 1, 1).ok
+        servos.sync_write(goals)
+        positions = v2.SyncParams(present, 4, signed=True)
+        positions.add_motor(1)
+        positions.add_motor(2)
+        wait_until(lambda: servos.sync_read(positions).data == [2100, 1900])
+        assert servos.fast_sync_read(positions, signed=True).data == [2100, 1900]
+        writes = v2.BulkParams()
+        writes.add_value(1, led, 1, 1)
+        writes.add_value(2, goal, 4, 2000)
+        servos.bulk_write(writes)
+        reads = v2.BulkParams()
+        reads.add_address(1, led, 1)
+        reads.add_address(2, goal, 4)
+        assert servos.bulk_read(reads).data == [1, 2000]
+        assert servos.fast_bulk_read(reads).data == [1, 2000]
+    finally:
+        servos.disconnect()
+        bus.close()
