@@ -150,6 +150,27 @@ def test_arv_camera_test_streams_with_no_missing_packets(device):
     assert stats["n_missing_packets"] == stats["n_failures"] == stats["n_missing_frames"] == 0, out
 
 
+def test_arv_camera_test_sets_the_frame_rate_chunks_and_packet_delay_within_the_xmls_ranges(device):
+    """arv-camera-test at 20 Hz, with the ExposureTime and Timestamp chunks and a 100 µs packet delay,
+    Aravis checking every value against the XML's range and access (an Integer bound written "1e+09" was
+    read as 1, and GevSCPD refused): every frame whole, each carrying both chunks, 50 ms apart by their
+    timestamps (the median, within arv-test's 10 %)."""
+    started = time.monotonic()
+    out = aravis_tool("arv-camera-test-0.8", "-n", device.address, "--duration=3", "--frame-retention=3000",
+                      "-f", "20", "-u", "ExposureTime,Timestamp", "-y", "100000", "--range-check=enable",
+                      "--access-check=enable", timeout=120)  # fmt: skip
+    elapsed_s = time.monotonic() - started
+    stats = {k: int(v) for k, v in re.findall(r"^(n_\w+)\s+= (\d+)", out, re.MULTILINE)}
+    assert 10 <= stats["n_completed_buffers"] <= elapsed_s * 20 + 1, out
+    assert stats["n_missing_packets"] == stats["n_failures"] == stats["n_missing_frames"] == 0, out
+    assert "gv packet delay        = 100000 ns" in out
+    stamps = np.array([int(t) for t in re.findall(r"^ChunkTimestamp = (\d+)", out, re.MULTILINE)])
+    exposures = re.findall(r"^ChunkExposureTime = (\S+)", out, re.MULTILINE)
+    assert len(stamps) == len(exposures) == stats["n_completed_buffers"], out
+    assert set(exposures) == {"10000"}
+    assert np.median(np.diff(stamps)) == pytest.approx(50e6, rel=0.1)
+
+
 def test_aravis_arv_test_passes_against_the_simulated_camera(tmp_path):
     """Aravis's own conformance suite, ``arv-test-0.8``, finds the camera by broadcast discovery and passes
     every test: the features it reads, continuous frames at the 10 and 5 Hz it asks (timestamps within

@@ -150,8 +150,11 @@ def _node(f: Feature) -> str:
         body = f'<Boolean Name="{f.name}" NameSpace="Standard"><pValue>{reg}</pValue></Boolean>'
     else:
         tag = "Float" if f.kind == "float" else "Integer"
+        # an Integer's bounds are integers (GenApi reads "1e+09" as 1); a Float's, as short as exact
         bounds = "".join(
-            f"<{k}>{v:g}</{k}>" for k, v in (("Min", f.minimum), ("Max", f.maximum)) if v is not None
+            f"<{k}>{v if tag == 'Float' else int(v)}</{k}>"
+            for k, v in (("Min", f.minimum), ("Max", f.maximum))
+            if v is not None
         )
         unit = f"<Unit>{f.unit}</Unit>" if f.unit else ""
         body = (
