@@ -174,12 +174,14 @@ def test_arv_camera_test_sets_the_frame_rate_chunks_and_packet_delay_within_the_
 def test_aravis_arv_test_passes_against_the_simulated_camera(tmp_path):
     """Aravis's own conformance suite, ``arv-test-0.8``, finds the camera by broadcast discovery and passes
     every test: the features it reads, continuous frames at the 10 and 5 Hz it asks (timestamps within
-    10 %), a single frame, five software triggers, chunks switched on by ChunkSelector/ChunkEnable, and the
-    GigE Vision checks. Small frames, as the other tools' tests: arv-test gives a frame 100 ms, and a Python
-    camera on a loaded machine can be paused longer mid-frame (at 320 × 240, beside three busy processes on
-    two cores, 6 of 10 frames came whole; at 160 × 120 every one, in thirteen runs). Its configuration, as a
-    vendor's entry in arv-test.cfg: Schema=Ignore, because arv-test 0.8.26 checks "1.1" against GenApi's 1.0 schema
-    (arvtest.c, arv_test_init; the XML validates against 1.1's: docs/camera.md)."""
+    10 %), a single frame, five software triggers, chunks switched on by ChunkSelector/ChunkEnable, the
+    GigE Vision checks, and (``-a``) every register Aravis caches reads back as the device holds it.
+
+    Small frames, as the other tools' tests: arv-test gives a frame 100 ms, and a Python camera on a
+    loaded machine can be paused longer mid-frame (at 320 × 240, beside three busy processes on two cores,
+    6 of 10 frames came whole; at 160 × 120 every one, in thirteen runs). Its configuration, as a vendor's
+    entry in arv-test.cfg: Schema=Ignore, because arv-test 0.8.26 checks "1.1" against GenApi's 1.0
+    schema (arvtest.c, arv_test_init; the XML validates against 1.1's: docs/camera.md)."""
     serial = f"ARVTEST{os.getpid()}"  # other simulated cameras on this machine answer discovery too
     camera = GigECamera(flat_frame, width=W, height=H, sensor_bits=12,
                         identity=Identity(serial=serial))  # fmt: skip
@@ -188,14 +190,15 @@ def test_aravis_arv_test_passes_against_the_simulated_camera(tmp_path):
     config.write_text("[hlr-lab:Simulated reflectance camera]\nSchema=Ignore\n"
                       f"SensorSize={W};{H}\nChunkList=Width Height Timestamp\n")  # fmt: skip
     try:
-        out = aravis_tool("arv-test-0.8", "-c", str(config), "-n", f"*{serial}", timeout=300)
+        out = aravis_tool("arv-test-0.8", "-c", str(config), "-n", f"*{serial}", "-a", timeout=300)
     finally:
         camera.close()
     results = dict(re.findall(r"^(\w+:\w+)\s+(SUCCESS|FAILURE|IGNORED)", out, re.MULTILINE))
     assert "FAILURE" not in results.values(), out
     for passed in ("Genicam:Load", "Genicam:Schema", "Properties:SensorSizeCheck", "MultipleAcquisitionA:FrameRate",
                    "MultipleAcquisitionB:FrameRate", "SingleAcquisition:BufferCheck",
-                   "SoftwareTrigger:BufferCheck", "Chunks:BufferCheck", "GigEVision:StreamChannel"):  # fmt: skip
+                   "SoftwareTrigger:BufferCheck", "Chunks:BufferCheck", "GigEVision:StreamChannel",
+                   "Genicam:RegisterCache"):  # fmt: skip
         assert results.get(passed) == "SUCCESS", out
 
 
