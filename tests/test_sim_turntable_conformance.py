@@ -1,14 +1,17 @@
 """The simulated stage and lamp relay answer as the Modbus Application Protocol (v1.1b3) says a device
-does, seen by clients that are not pymodbus: raw frames on a socket, pyModbusTCP, and over RTU
-minimalmodbus (its own framing and CRC). And no frame, however broken, stops the server or prints a
-traceback."""
+does, seen by clients that are not pymodbus: raw frames on a socket, pyModbusTCP, libmodbus's mbpoll
+(TCP and RTU), and over RTU minimalmodbus (its own framing and CRC). And no frame, however broken, stops
+the server or prints a traceback."""
 
 from __future__ import annotations
 
 import logging
 import random
+import re
+import shutil
 import socket
 import struct
+import subprocess
 import time
 
 import minimalmodbus
@@ -224,3 +227,54 @@ def test_an_rtu_client_of_its_own_moves_the_stage_switches_the_lamp_and_hears_th
             stage.read_registers(200, 2)
         with pytest.raises(minimalmodbus.NoResponseError):
             on_line(9).read_register(rm.STATUS)
+
+
+def test_libmodbus_mbpoll_moves_the_stage_and_switches_the_lamp_over_tcp_and_rtu():
+    """mbpoll, the command-line master of libmodbus (the C library much SCADA software uses): a direct
+    data operation written as 32-bit big-endian values, the position and status read back as such, the
+    lamp's coil; over TCP a unit that is not there is "Target device failed to respond" (0x0B, from the
+    gateway), over RTU a timeout (the line stays silent), and an address beyond the map "Illegal data
+    address" on both."""
+    if not shutil.which("mbpoll"):
+        pytest.fail("mbpoll is missing: scripts/setup installs it (Debian: apt-get install mbpoll)")
+    with TurntableServer.simulated(speed_factor=50.0) as srv:
+        host, port = srv.serve_tcp()
+        line = srv.serve_rtu()
+        tcp = ["-m", "tcp", "-p", str(port)]
+        rtu = ["-m", "rtu", "-b", "115200", "-P", "none"]
+
+        def mbpoll(link: list[str], unit: int, address: int, kind: str, *values: int, count: int = 1):
+            """One mbpoll call (0-based ``address``): its output and exit status; reads without values."""
+            args = ["mbpoll", *link, "-a", str(unit), "-0", "-r", str(address), "-t", kind, "-B", "-o", "2"]
+            args += [host if link is tcp else line]
+            args += [str(v) for v in values] if values else ["-c", str(count), "-1"]
+            done = subprocess.run(args, capture_output=True, text=True, timeout=60, check=False)
+            return done.stdout + done.stderr, done.returncode
+
+        def read(link: list[str], unit: int, address: int, kind: str = "4:int") -> int:
+            out, status = mbpoll(link, unit, address, kind)
+            assert status == 0, out
+            found = re.search(rf"^\[{address}\]:\s+(-?\d+)", out, re.MULTILINE)
+            assert found is not None, out
+            return int(found.group(1))
+
+        operation = (0, rm.ABSOLUTE, 2500, 4000, 1_000_000, 1_000_000, 1000, rm.TRIGGER_ALL)
+        out, status = mbpoll(tcp, rm.STAGE_UNIT, rm.DATA_NO, "4:int", *operation)
+        assert status == 0, out
+        deadline = time.monotonic() + 10
+        while read(tcp, rm.STAGE_UNIT, rm.STATUS) & rm.MOVE:
+            assert time.monotonic() < deadline
+        assert srv.stage.moves == [2500]
+        for link in (tcp, rtu):
+            assert read(link, rm.STAGE_UNIT, rm.POSITION) == 2500
+            assert read(link, rm.STAGE_UNIT, rm.STATUS) & rm.READY
+        assert mbpoll(tcp, rm.RELAY_UNIT, rm.LAMP_COIL, "0", 1)[1] == 0
+        assert srv.stage.lamp
+        assert read(rtu, rm.RELAY_UNIT, rm.LAMP_COIL, "0") == 1
+        for link, said in ((tcp, "Target device failed to respond"), (rtu, "Connection timed out")):
+            out, status = mbpoll(link, 9, rm.STATUS, "4")
+            assert status != 0, out
+            assert said in out, out
+            out, status = mbpoll(link, rm.STAGE_UNIT, 200, "4", count=2)
+            assert status != 0, out
+            assert "Illegal data address" in out, out

@@ -14,7 +14,8 @@ As the Modbus Application Protocol says a device answers (beyond what pymodbus d
 * a unit that is not there is exception 0x0B (gateway target failed to respond) on TCP, whose endpoint
   plays the gateway in front of an RS-485 line, as a real AZ driver (Modbus RTU only) is reached over
   TCP; on RTU it is silence, as on a real line, where only the addressed device answers (an independent
-  RTU client, minimalmodbus, hears nothing and times out).
+  RTU client, minimalmodbus, hears nothing and times out);
+* the relay's coil reads the lamp as it is, whichever transport last switched it.
 """
 
 from __future__ import annotations
@@ -180,6 +181,9 @@ class TurntableServer:
                 return ExcCodes.ILLEGAL_FUNCTION
             if values is not None and address == rm.LAMP_COIL:
                 self.stage.lamp = bool(values[0])
+            elif values is None:  # a read shows the lamp as it is (each transport has its own store)
+                word, bit = divmod(rm.LAMP_COIL, 16)  # coils 16 to a register, coil 0 its lowest bit
+                registers[word] = registers[word] & ~(1 << bit) | (int(self.stage.lamp) << bit)
         return None
 
     def _trace(self, sending: bool, packet: bytes) -> bytes:
