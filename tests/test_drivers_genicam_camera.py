@@ -202,6 +202,22 @@ def test_aravis_arv_test_passes_against_the_simulated_camera(tmp_path):
         assert results.get(passed) == "SUCCESS", out
 
 
+def test_two_simulated_cameras_are_two_devices_on_aravis_list():
+    """Each simulated camera has a serial number (and MAC address) of its own, from its address, as every
+    camera has: Aravis's device list, which keeps one device per vendor, model and serial, shows both."""
+    cameras = [GigECamera(flat_frame, width=W, height=H, sensor_bits=12) for _ in range(2)]
+    try:
+        for camera in cameras:
+            camera.serve_on_loopback()
+        listed = dict(re.findall(r"^(\S.*) \((127\.0\.0\.\d+)\)$", aravis_tool("arv-tool-0.8"), re.MULTILINE))
+        for camera in cameras:
+            serial = f"SIM{int(camera.address.rsplit('.', 1)[1]):04d}"
+            assert listed.get(f"hlr-lab-Simulated reflectance camera-{serial}") == camera.address, listed
+    finally:
+        for camera in cameras:
+            camera.close()
+
+
 def test_the_xml_names_its_model_and_vendor_as_genapis_schema_asks():
     """GenApi's schema (1.1, and 1.0) takes identifiers for RegisterDescription's ModelName and VendorName,
     [A-Za-z][0-9A-Za-z_]*: what arv-test cannot check (docs/camera.md), checked here."""

@@ -65,10 +65,14 @@ class Faults:
 
 @dataclass(frozen=True)
 class Identity:
+    """What the camera says it is. An empty ``serial`` is one of its own, from the address it serves on
+    (SIM0042 on 127.0.0.42), and so is the MAC address's last byte: every camera has its own, and Aravis's
+    device list keeps one device per vendor, model and serial."""
+
     vendor: str = "hlr-lab"
     model: str = "Simulated reflectance camera"
     version: str = "1.0"
-    serial: str = "SIM0001"
+    serial: str = ""
     firmware: str = "hlr-lab sim 1"
     mac: bytes = b"\x02\x00\x00\x00\x00\x01"  # locally administered
 
@@ -125,7 +129,7 @@ class GigECamera:
         for at, text, size in ((gvcp.MANUFACTURER_NAME, i.vendor, 32), (gvcp.MODEL_NAME, i.model, 32),
                                (gvcp.DEVICE_VERSION, i.version, 32), (gvcp.SERIAL_NUMBER, i.serial, 16),
                                (ft.BY_NAME["DeviceFirmwareVersion"].address, i.firmware, 32)):  # fmt: skip
-            self._memory[at : at + size] = text.encode()[: size - 1].ljust(size, b"\0")
+            self._put_text(at, text, size)
         url = f"Local:hlr-sim-camera.xml;{ft.XML_AT:x};{xml_bytes:x}".encode()
         self._memory[gvcp.FIRST_URL : gvcp.FIRST_URL + len(url)] = url
         self._put(gvcp.N_INTERFACES, 1)
@@ -146,6 +150,9 @@ class GigECamera:
         for i in range(len(ft.CHUNKS)):  # every chunk on: chunk mode alone turns them on or off
             self._put(enable + 4 * i, 1)
         self._update_payload_size()
+
+    def _put_text(self, address: int, text: str, size: int) -> None:
+        self._memory[address : address + size] = text.encode()[: size - 1].ljust(size, b"\0")
 
     def _put(self, address: int, value: int) -> None:
         self._memory[address : address + 4] = struct.pack(">I", value & 0xFFFFFFFF)
@@ -199,6 +206,10 @@ class GigECamera:
         self._stream.bind((address, 0))
         self._stream.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
         self._put(gvcp.CURRENT_IP, int.from_bytes(socket.inet_aton(address), "big"))
+        if not self.identity.serial:  # its own, from its address (Identity)
+            last = socket.inet_aton(address)[-1]
+            self._put_text(gvcp.SERIAL_NUMBER, f"SIM{last:04d}", 16)
+            self._put(gvcp.MAC_LOW, int.from_bytes(self.identity.mac[2:-1] + bytes([last]), "big"))
         self._discovery = _broadcast_listener()
         loops = [(self._answer_loop, "gvcp"), (self._frame_loop, "gvsp")]
         if self._discovery is not None:
