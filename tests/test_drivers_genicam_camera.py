@@ -4,7 +4,6 @@ simulated GigE Vision camera, and the project's driver against Aravis's own fake
 pixel value is known; faults are injected in the device, as the soak and the stop tests do."""
 
 import contextlib
-import os
 import re
 import shutil
 import subprocess
@@ -16,7 +15,7 @@ import pytest
 from drivers.errors import ChecksumError, DeviceError, DeviceFault, DeviceTimeout, LimitError
 from drivers.genicam_camera import GenICamCamera, GenICamConfig
 from drivers.protocols import Camera
-from sim.gige.device import MAX_PACKET_BYTES, GigECamera, Identity
+from sim.gige.device import MAX_PACKET_BYTES, GigECamera
 from sim.gige.features import genicam_xml
 
 pytestmark = pytest.mark.genicam
@@ -60,6 +59,11 @@ def ramp(fmt_bits: int, channels: int) -> np.ndarray:
     """The device's GreyDiagonalRamp test pattern, as its XML documents it (docs/camera.md)."""
     y, x, c = np.ogrid[:H, :W, :channels]
     return (17 * x + 29 * y + 997 * c) % (1 << fmt_bits)
+
+
+def camera_serial(camera: GigECamera) -> str:
+    """The serial number a simulated camera takes from its address (SIM0042 on 127.0.0.42)."""
+    return f"SIM{int(camera.address.rsplit('.', 1)[1]):04d}"
 
 
 def aravis_tool(*args: str, timeout: float = 60) -> str:
@@ -182,10 +186,9 @@ def test_aravis_arv_test_passes_against_the_simulated_camera(tmp_path):
     6 of 10 frames came whole; at 160 × 120 every one, in thirteen runs). Its configuration, as a vendor's
     entry in arv-test.cfg: Schema=Ignore, because arv-test 0.8.26 checks "1.1" against GenApi's 1.0
     schema (arvtest.c, arv_test_init; the XML validates against 1.1's: docs/camera.md)."""
-    serial = f"ARVTEST{os.getpid()}"  # other simulated cameras on this machine answer discovery too
-    camera = GigECamera(flat_frame, width=W, height=H, sensor_bits=12,
-                        identity=Identity(serial=serial))  # fmt: skip
+    camera = GigECamera(flat_frame, width=W, height=H, sensor_bits=12)
     camera.serve_on_loopback()
+    serial = camera_serial(camera)  # its own: other simulated cameras on this machine answer discovery too
     config = tmp_path / "arv-test.cfg"
     config.write_text("[hlr-lab:Simulated reflectance camera]\nSchema=Ignore\n"
                       f"SensorSize={W};{H}\nChunkList=Width Height Timestamp\n")  # fmt: skip
@@ -211,8 +214,10 @@ def test_two_simulated_cameras_are_two_devices_on_aravis_list():
             camera.serve_on_loopback()
         listed = dict(re.findall(r"^(\S.*) \((127\.0\.0\.\d+)\)$", aravis_tool("arv-tool-0.8"), re.MULTILINE))
         for camera in cameras:
-            serial = f"SIM{int(camera.address.rsplit('.', 1)[1]):04d}"
-            assert listed.get(f"hlr-lab-Simulated reflectance camera-{serial}") == camera.address, listed
+            assert (
+                listed.get(f"hlr-lab-Simulated reflectance camera-{camera_serial(camera)}") == camera.address
+            )
+
     finally:
         for camera in cameras:
             camera.close()

@@ -146,9 +146,8 @@ class GigECamera:
         self._put_float("ExposureTime", 10_000.0)
         self._put_float("AcquisitionFrameRate", 30.0)
         self._put(ft.BY_NAME["GevLinkSpeed"].address, round(self.link_bits_per_s / 1e6))
-        enable = ft.BY_NAME["ChunkEnable"].address
         for i in range(len(ft.CHUNKS)):  # every chunk on: chunk mode alone turns them on or off
-            self._put(enable + 4 * i, 1)
+            self._put(_chunk_enable_at(i), 1)
         self._update_payload_size()
 
     def _put_text(self, address: int, text: str, size: int) -> None:
@@ -181,8 +180,7 @@ class GigECamera:
         """The chunks a frame carries: those ChunkEnable sets, in chunk mode; none otherwise."""
         if not self.feature("ChunkModeActive"):
             return []
-        enable = ft.BY_NAME["ChunkEnable"].address
-        return [c for i, c in enumerate(ft.CHUNKS) if self._get(enable + 4 * i)]
+        return [c for i, c in enumerate(ft.CHUNKS) if self._get(_chunk_enable_at(i))]
 
     def _update_payload_size(self) -> None:
         size = self.pixel_format.payload_bytes(self.width, self.height)
@@ -544,6 +542,11 @@ class GigECamera:
 
 
 _PAYLOAD_LAYOUT = ("PixelFormat", "ChunkModeActive", "ChunkEnable")  # features that change the payload
+
+
+def _chunk_enable_at(i: int) -> int:
+    """The register of ChunkEnable for ChunkSelector's entry ``i`` (one register per entry, 4 bytes apart)."""
+    return ft.BY_NAME["ChunkEnable"].address + 4 * i
 
 
 def _broadcast_listener() -> socket.socket | None:
