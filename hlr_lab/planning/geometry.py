@@ -64,19 +64,23 @@ class LightSphere:
 
     def reachable(self, positions: np.ndarray, camera: Camera) -> np.ndarray:
         """(N,) bool for world positions (N, 3) on S: joint limits, camera keep-out cone, above the table."""
-        d = (positions - self.centre) / self.radius
         g = self.gantry
+        # the height first: it is one comparison and rules out ~40 % of a whole sphere, whose joint angles
+        # (two inverse trigonometric functions a point) are then found for the rest only
+        out = positions[:, 2] >= g.min_light_height
+        above = np.flatnonzero(out)
+        d = (positions[above] - self.centre) / self.radius
         az, el = g.kinematics.direction_angles(d)
         to_cam = camera.centre - self.centre
         to_cam /= np.linalg.norm(to_cam)
-        return (
+        out[above] = (
             (az >= g.azimuth_limits[0])
             & (az <= g.azimuth_limits[1])
             & (el >= g.elevation_limits[0])
             & (el <= g.elevation_limits[1])
             & (d @ to_cam <= np.cos(g.camera_keepout))
-            & (positions[:, 2] >= g.min_light_height)
         )
+        return out
 
 
 def light_sphere(gantry: Gantry, placed_vertices: np.ndarray, sphere_scale: float | None) -> LightSphere:

@@ -187,8 +187,11 @@ def _worth(estimates: np.ndarray, need: np.ndarray, floor: np.ndarray, capped: b
 
 def _best(estimates, exact, used, need, floor, capped, evaluate):
     """The (view, candidate) to accept among the open views, or None when no light is worth taking."""
+    # each open view's scores (Q,), made once: an evaluation changes one candidate's row, and its score is
+    # made again alone (a row's sum is the same alone as among all: numpy reduces each row in turn)
+    worth = {v: _worth(estimates[v], need, floor, capped) for v in used}
     for _ in range(MAX_EVALUATIONS):
-        best_exact, best_estimate = _top(estimates, exact, used, need, floor, capped)
+        best_exact, best_estimate = _top(worth, exact, used, need)
         if best_estimate is None or (
             best_exact is not None and best_exact[2] >= (1 - TOLERANCE) * best_estimate[2]
         ):
@@ -196,21 +199,22 @@ def _best(estimates, exact, used, need, floor, capped, evaluate):
         v, q, _ = best_estimate
         estimates[v][q] = evaluate(v, q, need)
         exact[v][q] = True
-    best_exact, _ = _top(estimates, exact, used, need, floor, capped)
+        worth[v][q] = _worth(estimates[v][q : q + 1], need, floor, capped)[0]
+    best_exact, _ = _top(worth, exact, used, need)
     return None if best_exact is None else best_exact[:2]
 
 
-def _top(estimates, exact, used, need, floor, capped):
-    """Best (view, candidate, score) among exactly scored and among estimated candidates (None below the
-    minimum gain)."""
-    worth = _min_gain(need)
+def _top(worth, exact, used, need):
+    """Best (view, candidate, score) among exactly scored and among estimated candidates, from each open
+    view's scores ``worth[v]`` (Q,) (None below the minimum gain)."""
+    least = _min_gain(need)
     best: dict[bool, tuple[int, int, float] | None] = {True: None, False: None}
     for v in used:
-        s = _worth(estimates[v], need, floor, capped)
+        s = worth[v]
         for is_exact in (True, False):
             masked = np.where(exact[v] == is_exact, s, -np.inf)
             q = int(np.argmax(masked)) if len(masked) else -1
             held = best[is_exact]
-            if q >= 0 and masked[q] >= worth and (held is None or masked[q] > held[2]):
+            if q >= 0 and masked[q] >= least and (held is None or masked[q] > held[2]):
                 best[is_exact] = (v, q, float(masked[q]))
     return best[True], best[False]
