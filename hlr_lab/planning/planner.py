@@ -286,6 +286,9 @@ class _Candidates:
         # coarse spacings away on the lattices planned with (measured)
         self._gather = 2.0 * np.radians(coarse_deg)
         self._cells: np.ndarray | None = None  # every dense point's cell, if a cell ever reached far
+        # each cell found, by coarse index: the greedy's runs (capped, plain, the integer programme's cover)
+        # and the exact checks ask for the same few dozen cells again (~0.2 ms each)
+        self._found: dict[int, np.ndarray] = {}
 
     def cell(self, coarse_index: int) -> np.ndarray:
         """Indices (ascending) of the dense candidates whose nearest coarse candidate is ``coarse_index``.
@@ -295,6 +298,12 @@ class _Candidates:
         is thinner than a few coarse spacings) is taken from every dense point's nearest coarse point."""
         if not self._refines:
             return np.array([coarse_index])
+        if coarse_index not in self._found:
+            self._found[coarse_index] = self._cell(coarse_index)
+        return self._found[coarse_index]
+
+    def _cell(self, coarse_index: int) -> np.ndarray:
+        """:meth:`cell`, found."""
         if self._cells is not None:
             return np.flatnonzero(self._cells == coarse_index)
         centre, r = self.coarse[coarse_index], self._gather
@@ -311,6 +320,7 @@ class _Candidates:
         members = near[nearest == coarse_index]
         if np.any(self.fine[members] @ centre < 1 - (0.75 * r) ** 2 / 2):
             self._cells = np.asarray(self.coarse_tree.query(self.fine, workers=-1)[1])
+            self._found.clear()  # from now on every cell is the whole grid's, as the first asked again
             return np.flatnonzero(self._cells == coarse_index)
         return members
 
