@@ -217,7 +217,6 @@ def test_two_simulated_cameras_are_two_devices_on_aravis_list():
             assert (
                 listed.get(f"hlr-lab-Simulated reflectance camera-{camera_serial(camera)}") == camera.address
             )
-
     finally:
         for camera in cameras:
             camera.close()
